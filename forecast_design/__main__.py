@@ -1,0 +1,5 @@
+"""``python -m forecast_design``: the command line."""
+
+from .cli import main
+
+raise SystemExit(main())

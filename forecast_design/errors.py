@@ -1,0 +1,80 @@
+"""Exception hierarchy of forecast_design; the CLI catches ForecastError only."""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = [
+    "ForecastError",
+    "ExperimentFormatError",
+    "ParameterError",
+    "IdentifiabilityError",
+    "SolverError",
+    "ExportError",
+]
+
+
+class ForecastError(Exception):
+    """Base class of every error the toolbox raises on purpose."""
+
+
+class ExperimentFormatError(ForecastError, ValueError):
+    """A malformed experiment file (TOML or CSV).
+
+    Parameters
+    ----------
+    message : str
+        One line: where, what, expected, got.
+    path : str, optional
+        The file at fault.
+    key : str, optional
+        The TOML key, CSV column or CSV line at fault.
+    """
+
+    def __init__(self, message: str, *, path: str | None = None, key: str | None = None):
+        super().__init__(message)
+        self.path = path
+        self.key = key
+
+
+class ParameterError(ForecastError, ValueError):
+    """A parameter outside its physical range or an unknown option.
+
+    Parameters
+    ----------
+    message : str
+        One line naming the parameter, the expected range and the value.
+    name : str, optional
+        Name of the parameter.
+    value : object, optional
+        The offending value.
+    """
+
+    def __init__(self, message: str, *, name: str | None = None, value: Any = None):
+        super().__init__(message)
+        self.name = name
+        self.value = value
+
+
+class IdentifiabilityError(ForecastError, ValueError):
+    """A log that cannot identify the requested parameters (no motion, one direction)."""
+
+
+class SolverError(ForecastError, RuntimeError):
+    """A numerical solver (casadi/ipopt, cvxpy) did not converge.
+
+    Parameters
+    ----------
+    message : str
+        What failed.
+    stats : dict, optional
+        The solver's own statistics / return status.
+    """
+
+    def __init__(self, message: str, *, stats: dict | None = None):
+        super().__init__(message)
+        self.stats = stats or {}
+
+
+class ExportError(ForecastError, RuntimeError):
+    """Code generation or compilation of an exported controller failed."""

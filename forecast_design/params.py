@@ -1,0 +1,338 @@
+"""Immutable parameter values: testbed, environment, controller, compensator, design.
+
+Field names are the symbols of the experiment format (``J_m``, ``k_e``,
+``w_q_hz``...), so a TOML section maps 1:1 onto a dataclass.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Mapping
+
+from .errors import ExperimentFormatError, ParameterError
+
+__all__ = [
+    "Testbed",
+    "Environment",
+    "PDController",
+    "Compensator",
+    "Design",
+    "ENVIRONMENT_PRESETS",
+    "COMPENSATOR_KINDS",
+    "Q_FAMILIES",
+    "environment_preset",
+]
+
+#: Compensator kinds: the experiment format's list plus the motor-side FOB.
+COMPENSATOR_KINDS = ("none", "sfm", "ea-fob", "lo-dob", "ld-dob", "motor-fob")
+#: Kinds built on a Q-filtered nominal-plant inverse.
+OBSERVER_KINDS = ("ea-fob", "lo-dob", "ld-dob", "motor-fob")
+#: Q-filter families (see :func:`forecast_design.symbolic.q_filter`).
+Q_FAMILIES = ("butterworth", "binomial")
+
+
+def _number(owner: str, name: str, value: Any, *, positive: bool = False) -> float:
+    """Validate one physical number; raise ParameterError naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(
+            f"{owner} {name} must be a number, got {value!r}", name=name, value=value
+        )
+    value = float(value)
+    if not math.isfinite(value):
+        raise ParameterError(f"{owner} {name} must be finite, got {value!r}", name=name, value=value)
+    if positive and value <= 0.0:
+        raise ParameterError(f"{owner} {name} must be > 0, got {value!r}", name=name, value=value)
+    if not positive and value < 0.0:
+        raise ParameterError(f"{owner} {name} must be >= 0, got {value!r}", name=name, value=value)
+    return value
+
+
+def _from_mapping(cls, mapping: Mapping[str, Any], *, section: str, source: str | None,
+                  required: tuple[str, ...], ignore: tuple[str, ...] = ()):
+    """Build ``cls`` from a TOML-like mapping, rejecting unknown and missing keys.
+
+    Errors are ExperimentFormatError naming ``source`` (a file) and the key.
+    """
+    where = f"{source}: " if source else ""
+    if not isinstance(mapping, Mapping):
+        raise ExperimentFormatError(
+            f"{where}[{section}] must be a table, got {type(mapping).__name__}",
+            path=source, key=section,
+        )
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key in mapping:
+        if key not in names and key not in ignore:
+            raise ExperimentFormatError(
+                f"{where}[{section}] unknown key '{key}'; allowed: {', '.join(sorted(names | set(ignore)))}",
+                path=source, key=f"{section}.{key}",
+            )
+    for key in required:
+        if key not in mapping:
+            raise ExperimentFormatError(
+                f"{where}[{section}] missing required key '{key}'", path=source, key=f"{section}.{key}"
+            )
+    kwargs = {k: v for k, v in mapping.items() if k in names}
+    try:
+        return cls(**kwargs)
+    except ParameterError as exc:
+        raise ExperimentFormatError(
+            f"{where}[{section}] {exc}", path=source, key=f"{section}.{exc.name}"
+        ) from None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Testbed:
+    """Nominal series elastic actuator (experiment format section ``[testbed]``).
+
+    Defaults are the Forecast testbed of the paper's Table 1.
+    """
+
+    J_m: float = 0.133  # motor reflected inertia        [kg m^2]
+    d_m: float = 0.3    # motor viscous friction         [N m s/rad]
+    k: float = 58.0     # series spring stiffness        [N m/rad]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "J_m", _number("[testbed]", "J_m", self.J_m, positive=True))
+        object.__setattr__(self, "d_m", _number("[testbed]", "d_m", self.d_m))
+        object.__setattr__(self, "k", _number("[testbed]", "k", self.k, positive=True))
+
+    @classmethod
+    def nominal(cls) -> "Testbed":
+        """The paper's Table 1 testbed (J_m 0.133 kg m^2, d_m 0.3 N m s/rad, k 58 N m/rad)."""
+        return cls()
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "Testbed":
+        """Build from a ``[testbed]`` table; unknown or missing keys are errors."""
+        return _from_mapping(cls, mapping, section="testbed", source=source, required=("J_m", "d_m", "k"))
+
+    def to_mapping(self) -> dict[str, float]:
+        """The ``[testbed]`` table."""
+        return {"J_m": self.J_m, "d_m": self.d_m, "k": self.k}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Environment:
+    """Environment E(s) = J s^2 + d s + k_e with J = J_e + J_l, d = d_e + d_l.
+
+    With ``locked=True`` the output is held (q == 0, k_e -> infinity) and the
+    numeric values are ignored by the models.
+    """
+
+    J_e: float            # environment inertia            [kg m^2]
+    d_e: float            # environment damping            [N m s/rad]
+    k_e: float            # environment stiffness          [N m/rad]
+    J_l: float = 0.0018   # link inertia                   [kg m^2]
+    d_l: float = 0.35     # link damping                   [N m s/rad]
+    locked: bool = False  # output locked, q == 0
+
+    def __post_init__(self) -> None:
+        for name in ("J_e", "d_e", "k_e", "J_l", "d_l"):
+            object.__setattr__(self, name, _number("[environment]", name, getattr(self, name)))
+        if not isinstance(self.locked, bool):
+            raise ParameterError(
+                f"[environment] locked must be true or false, got {self.locked!r}",
+                name="locked", value=self.locked,
+            )
+        if not self.locked and self.J == 0.0 and self.d == 0.0 and self.k_e == 0.0:
+            raise ParameterError(
+                "[environment] J_e + J_l, d_e + d_l and k_e are all 0: E(s) = 0 transmits no force; "
+                "set locked = true for a held output",
+                name="J_e", value=0.0,
+            )
+
+    @property
+    def J(self) -> float:
+        """Total output inertia J = J_e + J_l [kg m^2]."""
+        return self.J_e + self.J_l
+
+    @property
+    def d(self) -> float:
+        """Total output damping d = d_e + d_l [N m s/rad]."""
+        return self.d_e + self.d_l
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "Environment":
+        """Build from an ``[environment]`` table; unknown or missing keys are errors."""
+        return _from_mapping(cls, mapping, section="environment", source=source,
+                             required=("J_e", "d_e", "k_e", "J_l", "d_l"))
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The ``[environment]`` table."""
+        return {"J_e": self.J_e, "d_e": self.d_e, "k_e": self.k_e,
+                "J_l": self.J_l, "d_l": self.d_l, "locked": self.locked}
+
+
+def _critically_damped(k_e: float, J_e: float) -> float:
+    # Section 5: "d_e is set to reach a critically damped environment".
+    return 2.0 * math.sqrt(k_e * J_e)
+
+
+#: Named environments. ``soft``/``stiff``: Section 5 (critically damped d_e);
+#: ``fig7``: Section 6 tuning environment (d_e critically damped too, a choice:
+#: the paper gives none); ``exp-soft``: Section 7 (d_e as in the format's example);
+#: ``locked``: q == 0; ``link-only``: the bare link, E = J_l s^2 + d_l s.
+ENVIRONMENT_PRESETS: Mapping[str, Environment] = {
+    "soft": Environment(J_e=1e-3, d_e=_critically_damped(0.1, 1e-3), k_e=0.1),
+    "stiff": Environment(J_e=0.1, d_e=_critically_damped(100.0, 0.1), k_e=100.0),
+    "fig7": Environment(J_e=1.0, d_e=_critically_damped(100.0, 1.0), k_e=100.0),
+    "exp-soft": Environment(J_e=1e-3, d_e=0.063, k_e=5.0),
+    "locked": Environment(J_e=0.0, d_e=0.0, k_e=0.0, J_l=0.0, d_l=0.0, locked=True),
+    "link-only": Environment(J_e=0.0, d_e=0.0, k_e=0.0),
+}
+
+
+def environment_preset(name: str) -> Environment:
+    """Return the named environment preset.
+
+    Parameters
+    ----------
+    name : str
+        One of ``soft``, ``stiff``, ``fig7``, ``exp-soft``, ``locked``, ``link-only``.
+
+    Returns
+    -------
+    Environment
+        The preset.
+
+    Raises
+    ------
+    ParameterError
+        If the name is unknown (the message lists the known names).
+    """
+    try:
+        return ENVIRONMENT_PRESETS[name]
+    except KeyError:
+        raise ParameterError(
+            f"unknown environment '{name}'; known: {', '.join(ENVIRONMENT_PRESETS)}",
+            name="environment", value=name,
+        ) from None
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class PDController:
+    """PD force controller C_F(s) = P + D s acting on e = tau_r - tau_s."""
+
+    kind: ClassVar[str] = "pd"
+    P: float = 5.0  # proportional gain  [N m / N m]
+    D: float = 0.1  # derivative gain    [N m s / N m]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "P", _number("[controller]", "P", self.P))
+        object.__setattr__(self, "D", _number("[controller]", "D", self.D))
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "PDController":
+        """Build from a ``[controller]`` table (``kind = "pd"``)."""
+        where = f"{source}: " if source else ""
+        kind = mapping.get("kind", "pd") if isinstance(mapping, Mapping) else None
+        if kind != "pd":
+            raise ExperimentFormatError(
+                f"{where}[controller] kind must be 'pd', got {kind!r}", path=source, key="controller.kind"
+            )
+        return _from_mapping(cls, mapping, section="controller", source=source,
+                             required=("P", "D"), ignore=("kind",))
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The ``[controller]`` table."""
+        return {"kind": self.kind, "P": self.P, "D": self.D}
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Compensator:
+    """Friction compensator / disturbance observer specification.
+
+    ``q_family`` and ``q_order`` choose the Q filter (our choice where the
+    paper is silent; default 2nd-order Butterworth). They are not part of the
+    experiment format's ``[compensator]`` table and are not written to it.
+    """
+
+    kind: str = "none"             # none | sfm | ea-fob | lo-dob | ld-dob | motor-fob
+    w_q_hz: float = 10.0           # Q(s) cutoff                   [Hz]
+    q_family: str = "butterworth"  # butterworth | binomial
+    q_order: int = 2               # Q(s) order                    [-]
+
+    def __post_init__(self) -> None:
+        if self.kind not in COMPENSATOR_KINDS:
+            raise ParameterError(
+                f"[compensator] kind must be one of {', '.join(COMPENSATOR_KINDS)}, got {self.kind!r}",
+                name="kind", value=self.kind,
+            )
+        object.__setattr__(self, "w_q_hz", _number("[compensator]", "w_q_hz", self.w_q_hz, positive=True))
+        if self.q_family not in Q_FAMILIES:
+            raise ParameterError(
+                f"[compensator] q_family must be one of {', '.join(Q_FAMILIES)}, got {self.q_family!r}",
+                name="q_family", value=self.q_family,
+            )
+        if isinstance(self.q_order, bool) or not isinstance(self.q_order, int) or self.q_order < 1:
+            raise ParameterError(
+                f"[compensator] q_order must be an integer >= 1, got {self.q_order!r}",
+                name="q_order", value=self.q_order,
+            )
+
+    @property
+    def is_observer(self) -> bool:
+        """True for the Q-filtered observers (EA-FOB, LO-DOB, LD-DOB, motor FOB)."""
+        return self.kind in OBSERVER_KINDS
+
+    @classmethod
+    def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "Compensator":
+        """Build from a ``[compensator]`` table (keys ``kind``, ``w_q_hz``)."""
+        where = f"{source}: " if source else ""
+        if isinstance(mapping, Mapping):
+            for key in mapping:
+                if key not in ("kind", "w_q_hz"):
+                    raise ExperimentFormatError(
+                        f"{where}[compensator] unknown key '{key}'; allowed: kind, w_q_hz",
+                        path=source, key=f"compensator.{key}",
+                    )
+        return _from_mapping(cls, mapping, section="compensator", source=source, required=())
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The ``[compensator]`` table of the experiment format."""
+        out: dict[str, Any] = {"kind": self.kind}
+        if self.is_observer:
+            out["w_q_hz"] = self.w_q_hz
+        return out
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Design:
+    """Everything the nominal model says about one set-up."""
+
+    testbed: Testbed = field(default_factory=Testbed)
+    environment: Environment = field(default_factory=lambda: ENVIRONMENT_PRESETS["soft"])
+    controller: PDController | None = None
+    compensator: Compensator | None = None
+
+    @classmethod
+    def nominal(cls, environment: str | Environment = "soft", **kwargs: Any) -> "Design":
+        """Table 1 testbed with a named (or given) environment.
+
+        Parameters
+        ----------
+        environment : str or Environment
+            Preset name or an Environment value.
+        **kwargs
+            ``controller``, ``compensator`` or ``testbed``.
+
+        Returns
+        -------
+        Design
+            The design.
+        """
+        env = environment_preset(environment) if isinstance(environment, str) else environment
+        return cls(environment=env, **kwargs)
+
+    def with_environment(self, environment: str | Environment) -> "Design":
+        """A copy with another environment (preset name or value)."""
+        env = environment_preset(environment) if isinstance(environment, str) else environment
+        return dataclasses.replace(self, environment=env)
+
+    def parameters(self) -> dict[str, float]:
+        """Flat numeric parameters for the symbolic models: J_m, d_m, k, J, d, k_e, J_l, d_l."""
+        tb, env = self.testbed, self.environment
+        return {"J_m": tb.J_m, "d_m": tb.d_m, "k": tb.k, "J": env.J, "d": env.d,
+                "k_e": env.k_e, "J_l": env.J_l, "d_l": env.d_l}
