@@ -77,8 +77,11 @@ def _from_mapping(cls, mapping: Mapping[str, Any], *, section: str, source: str 
     try:
         return cls(**kwargs)
     except ParameterError as exc:
+        message = str(exc)
+        if not message.startswith(f"[{section}] "):
+            message = f"[{section}] {message}"
         raise ExperimentFormatError(
-            f"{where}[{section}] {exc}", path=source, key=f"{section}.{exc.name}"
+            f"{where}{message}", path=source, key=f"{section}.{exc.name}"
         ) from None
 
 
@@ -88,6 +91,8 @@ class Testbed:
 
     Defaults are the Forecast testbed of the paper's Table 1.
     """
+
+    __test__ = False  # the name starts with "Test": keep pytest from collecting it
 
     J_m: float = 0.133  # motor reflected inertia        [kg m^2]
     d_m: float = 0.3    # motor viscous friction         [N m s/rad]
