@@ -1,0 +1,113 @@
+"""The command line: every verb reachable, JSON for machines, exit 2 on bad input."""
+
+import json
+import subprocess
+import sys
+
+import control
+import numpy as np
+import pytest
+
+from forecast_design.cli import build_parser, main
+from forecast_design.params import environment_preset, Testbed
+
+
+def _run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _hand_built_plant(env, tb=Testbed()):
+    """P = tau_s/tau_m from the spec equations, interconnected by python-control."""
+    s = control.tf("s")
+    motor = 1 / (tb.J_m * s**2 + tb.d_m * s)                 # theta = motor (tau_m - tau_s)
+    E = env.J * s**2 + env.d * s + env.k_e                     # tau_s = E q
+    # tau_s = k (theta - q), q = tau_s / E  ->  tau_s = k theta / (1 + k/E)
+    spring = tb.k * E / (E + tb.k)
+    return control.minreal(control.feedback(motor * spring, 1), verbose=False)
+
+
+@pytest.mark.parametrize("env_name", ["stiff", "soft", "exp-soft", "link-only"])
+def test_tf_json_matches_hand_built_python_control_model(capsys, env_name):
+    code, out, _ = _run(capsys, "tf", "--env", env_name, "--json")
+    assert code == 0
+    result = json.loads(out)
+    assert set(result) == {"P", "EA", "LO", "LD"}
+    hand = _hand_built_plant(environment_preset(env_name))
+    num = np.trim_zeros(hand.num[0][0], "f")
+    den = np.trim_zeros(hand.den[0][0], "f")
+    num, den = num / den[0], den / den[0]
+    np.testing.assert_allclose(result["P"]["num"], num, rtol=1e-9)
+    np.testing.assert_allclose(result["P"]["den"], den, rtol=1e-9)
+    assert result["P"]["den"][0] == 1.0
+    assert result["P"]["dc_gain"] == pytest.approx(float(control.dcgain(hand)), rel=1e-9)
+    key = lambda p: (round(p.real, 6), round(p.imag, 6))  # noqa: E731
+    poles = sorted((complex(re, im) for re, im in result["P"]["poles"]), key=key)
+    np.testing.assert_allclose(sorted(hand.poles(), key=key), poles, rtol=1e-7)
+
+
+def test_tf_locked_plant_is_second_order_lag(capsys):
+    code, out, _ = _run(capsys, "tf", "--env", "locked", "--json")
+    result = json.loads(out)
+    tb = Testbed()
+    np.testing.assert_allclose(result["P"]["den"], [1.0, tb.d_m / tb.J_m, tb.k / tb.J_m], rtol=1e-12)
+    assert result["P"]["dc_gain"] == pytest.approx(1.0)
+    assert result["EA"]["den"] == result["LO"]["den"]
+
+
+def test_tf_plot_overlays_environments(capsys, tmp_path):
+    out_png = tmp_path / "bode.png"
+    code, _, _ = _run(capsys, "tf", "--env", "soft", "--env", "stiff", "--plot", str(out_png))
+    assert code == 0 and out_png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_tf_from_experiment_uses_its_nominal_model(capsys, tmp_path):
+    from forecast_design.experiment import experiment_from_arrays, save_experiment
+    from forecast_design.params import Design
+
+    design = Design.nominal("stiff")
+    t = np.arange(10) / 2000.0
+    exp = experiment_from_arrays(design, 2000.0, t, np.zeros(10), np.zeros(10), np.zeros(10))
+    path = save_experiment(exp, tmp_path / "run.toml")
+    _, from_file, _ = _run(capsys, "tf", "--experiment", str(path), "--json")
+    _, from_env, _ = _run(capsys, "tf", "--env", "stiff", "--json")
+    assert json.loads(from_file) == json.loads(from_env)
+
+
+def _exit_code(argv):
+    """main() returns 2 for library errors; argparse usage errors raise SystemExit(2)."""
+    try:
+        return main(argv)
+    except SystemExit as exc:
+        return exc.code
+
+
+@pytest.mark.parametrize("argv,fragment", [
+    (["tf", "--env", "squishy"], "unknown environment 'squishy'"),
+    (["tf", "--experiment", "does-not-exist.toml"], "does-not-exist.toml"),
+    (["tf", "--bogus-option"], "unrecognized arguments: --bogus-option"),
+    (["no-such-verb"], "invalid choice"),
+])
+def test_bad_input_gives_one_line_error_and_exit_2(capsys, argv, fragment):
+    code = _exit_code(argv)
+    _, err = capsys.readouterr()
+    assert code == 2
+    lines = err.strip().splitlines()
+    assert fragment in lines[-1]
+    assert "Traceback" not in err
+
+
+def test_help_lists_every_verb_with_one_line(capsys):
+    parser = build_parser()
+    verbs = parser._subparsers._group_actions[0].choices  # noqa: SLF001 - argparse has no public API
+    help_text = parser.format_help()
+    for verb in verbs:
+        assert verb in help_text
+
+
+def test_installed_entry_point_runs():
+    exe = sys.executable.replace("python", "forecast-design")
+    proc = subprocess.run([exe, "tf", "--env", "locked", "--json"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["P"]["dc_gain"] == pytest.approx(1.0)
