@@ -184,7 +184,9 @@ ENVIRONMENT_PRESETS: Mapping[str, Environment] = {
     "stiff": Environment(J_e=0.1, d_e=_critically_damped(100.0, 0.1), k_e=100.0),
     "fig7": Environment(J_e=1.0, d_e=_critically_damped(100.0, 1.0), k_e=100.0),
     "exp-soft": Environment(J_e=1e-3, d_e=0.063, k_e=5.0),
-    "locked": Environment(J_e=0.0, d_e=0.0, k_e=0.0, J_l=0.0, d_l=0.0, locked=True),
+    # The link values stay in the locked preset: the plant ignores them (q == 0) but the
+    # LD-DOB's nominal plant is the link's, whatever the output is attached to.
+    "locked": Environment(J_e=0.0, d_e=0.0, k_e=0.0, locked=True),
     "link-only": Environment(J_e=0.0, d_e=0.0, k_e=0.0),
 }
 
@@ -258,6 +260,7 @@ class Compensator:
     w_q_hz: float = 10.0           # Q(s) cutoff                   [Hz]
     q_family: str = "butterworth"  # butterworth | binomial
     q_order: int = 2               # Q(s) order                    [-]
+    q_damping: float | None = None  # 2nd-order Q damping ratio; None = the family's own [-]
 
     def __post_init__(self) -> None:
         if self.kind not in COMPENSATOR_KINDS:
@@ -276,6 +279,15 @@ class Compensator:
                 f"[compensator] q_order must be an integer >= 1, got {self.q_order!r}",
                 name="q_order", value=self.q_order,
             )
+
+        if self.q_damping is not None:
+            object.__setattr__(self, "q_damping",
+                               _number("[compensator]", "q_damping", self.q_damping, positive=True))
+            if self.q_order != 2:
+                raise ParameterError(
+                    f"[compensator] q_damping applies to a 2nd-order Q only, got q_order = {self.q_order}",
+                    name="q_damping", value=self.q_damping,
+                )
 
     @property
     def is_observer(self) -> bool:

@@ -41,8 +41,7 @@ def test_other_presets_match_paper_sections():
     link = ENVIRONMENT_PRESETS["link-only"]
     assert (link.k_e, link.J_e, link.d_e, link.J_l, link.d_l) == (0.0, 0.0, 0.0, 0.0018, 0.35)
     for name, env in ENVIRONMENT_PRESETS.items():
-        if name != "locked":
-            assert (env.J_l, env.d_l) == (0.0018, 0.35), name
+        assert (env.J_l, env.d_l) == (0.0018, 0.35), name
 
 
 def test_unknown_preset_lists_known_names():

@@ -1,0 +1,1 @@
+"""Plots (matplotlib, Agg backend, imported lazily inside the plotting functions)."""

@@ -1,0 +1,605 @@
+"""Q-filter tuning by optimisation (casadi): the largest robust cutoff, or the best Q shape.
+
+Both problems use the same frequency-domain facts. With the observer written
+as tau_frc_hat = G_m tau_m + G_s tau_s + G_theta theta (one home:
+:func:`forecast_design.symbolic.observer_filters`), G_m = Q, G_s = -Q A and
+G_theta = -Q B, where A(jw) and B(jw) do not depend on the cutoff. With the
+true plant P = tau_s/tau_m and P_theta = theta/tau_m, let
+M = A P + B P_theta - 1. Then F_DOB = P / (1 + Q M) (eq. 4 for the DOBs) and,
+with Q = 1/D_q(s/w_q),
+
+    S = (D_q + M) / (D_q + M + C_F P D_q)          loop broken at the controller
+    S = (D_q - 1) / (D_q + M + C_F P D_q)          loop broken at the motor torque input
+
+so at any frequency the sensitivity is an explicit function of w_q whose
+only non-constant part is the Q polynomial. P, P_theta, A, B and C_F are
+evaluated once per environment and frequency; casadi sees real arithmetic on
+their real and imaginary parts.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from .analysis import disk_margin
+from .errors import ParameterError, SolverError
+from .params import Compensator, Design, Environment, PDController, environment_preset
+
+__all__ = ["TuningResult", "environment_set", "tune_q", "tune_q_shape", "worst_case_ratio"]
+
+_GRID_RAD_S = np.logspace(-2, 4.5, 700)   # constraint/verification grid [rad/s]
+_ACTIVE_PER_PLANT = 4                     # frequencies per plant in the first NLP
+_MAX_CUTS = 12                            # cutting-plane rounds
+
+
+@dataclass(frozen=True, slots=True)
+class _Plant:
+    """One true plant of the set, with the observer's belief and precomputed responses."""
+
+    label: str
+    true_design: Design
+    believed: Design
+    alpha_plant: float             # disk margin of the plant alone [-]
+    w: np.ndarray                  # frequency grid [rad/s]
+    CP: np.ndarray                 # C_F(jw) P(jw)
+    M: np.ndarray                  # A P + B P_theta - 1
+
+
+@dataclass(frozen=True, slots=True)
+class TuningResult:
+    """Outcome of a Q-filter tuning.
+
+    Attributes
+    ----------
+    observer : str
+        Compensator kind.
+    w_q_hz : float
+        Chosen cutoff [Hz] (nan if infeasible).
+    worst_ratio : float
+        min over the set of alpha_observer / alpha_plant at the answer [-] (exact margins).
+    worst_environment : str
+        Label of the plant attaining it.
+    feasible : bool
+        Whether the answer meets the ratio requirement in every plant.
+    evaluations : int
+        Exact disk-margin evaluations plus NLP solves.
+    scan_w_q_hz : float
+        Best cutoff of the independent dense scan [Hz].
+    agrees_with_scan : bool
+        Answer feasible and within 2 % of the scan's best.
+    q_damping : float or None
+        Damping ratio of the 2nd-order Q (shape mode only) [-].
+    solver : dict
+        casadi/ipopt return status and iteration counts.
+    """
+
+    observer: str
+    w_q_hz: float
+    worst_ratio: float
+    worst_environment: str
+    feasible: bool
+    evaluations: int
+    scan_w_q_hz: float
+    agrees_with_scan: bool
+    min_ratio: float
+    band_hz: tuple[float, float]
+    plants: int
+    q_damping: float | None = None
+    solver: dict = field(default_factory=dict)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """JSON-ready mapping (the ``tune-q`` output)."""
+        out = {
+            "observer": self.observer,
+            "w_q_hz": None if math.isnan(self.w_q_hz) else self.w_q_hz,
+            "worst_ratio": self.worst_ratio,
+            "worst_environment": self.worst_environment,
+            "feasible": self.feasible,
+            "evaluations": self.evaluations,
+            "scan_w_q_hz": None if math.isnan(self.scan_w_q_hz) else self.scan_w_q_hz,
+            "agrees_with_scan": self.agrees_with_scan,
+            "min_ratio": self.min_ratio,
+            "band_hz": list(self.band_hz),
+            "plants": self.plants,
+            "solver": self.solver,
+        }
+        if self.q_damping is not None:
+            out["q_damping"] = self.q_damping
+        return out
+
+
+def environment_set(names: Sequence[str] | str, *, uncertainty: float = 0.0,
+                    seed: int = 0) -> list[tuple[str, Environment, Environment]]:
+    """True/believed environment pairs for a named set, with parametric uncertainty.
+
+    Parameters
+    ----------
+    names : str or sequence of str
+        Preset names (comma-separated in a string), or ``random:N`` for N
+        environments drawn log-uniformly (k_e in [0.1, 1000] N m/rad,
+        J_e in [1e-3, 1] kg m^2, critically damped d_e) with ``seed``.
+    uncertainty : float
+        Relative range u [-] of the true J, d and k_e: the 8 vertices of
+        [1 - u, 1 + u]^3 and the nominal point; the observer keeps the nominal.
+    seed : int
+        Seed of ``random:N``.
+
+    Returns
+    -------
+    list of (label, true Environment, believed Environment)
+    """
+    if isinstance(names, str):
+        names = [n.strip() for n in names.split(",") if n.strip()]
+    if not names:
+        raise ParameterError("the environment set is empty", name="envs", value=names)
+    if not (0.0 <= uncertainty < 1.0):
+        raise ParameterError(f"uncertainty must be in [0, 1), got {uncertainty!r}", name="uncertainty",
+                             value=uncertainty)
+    nominal: list[tuple[str, Environment]] = []
+    for name in names:
+        if name.startswith("random:"):
+            try:
+                count = int(name.split(":", 1)[1])
+            except ValueError:
+                raise ParameterError(f"'{name}': expected random:N with an integer N", name="envs",
+                                     value=name) from None
+            rng = np.random.default_rng(seed)
+            for i in range(count):
+                k_e = float(10 ** rng.uniform(-1, 3))
+                J_e = float(10 ** rng.uniform(-3, 0))
+                nominal.append((f"random{i}", Environment(J_e=J_e, d_e=2 * math.sqrt(k_e * J_e), k_e=k_e)))
+        else:
+            nominal.append((name, environment_preset(name)))
+    out = []
+    for label, env in nominal:
+        out.append((label, env, env))
+        if uncertainty > 0.0 and not env.locked:
+            for fj, fd, fk in itertools.product((1 - uncertainty, 1 + uncertainty), repeat=3):
+                true = dataclasses.replace(env, J_e=env.J_e * fj, J_l=env.J_l * fj, d_e=env.d_e * fd,
+                                           d_l=env.d_l * fd, k_e=env.k_e * fk)
+                out.append((f"{label}[J*{fj:g},d*{fd:g},k_e*{fk:g}]", true, env))
+    return out
+
+
+def _plant_alone_margin(design: Design, controller: PDController, break_at: str) -> float:
+    from .symbolic import force_loop
+
+    loop = force_loop(design, None, controller=controller, break_at=break_at)
+    return disk_margin(loop.L, closed_loop_stable=loop.stable).alpha
+
+
+def _precompute(label: str, true_design: Design, believed: Design, compensator: Compensator,
+                controller: PDController, break_at: str, w: np.ndarray) -> _Plant:
+    from .symbolic import derive_motor_angle_plant, force_plant_tf, observer_filters
+
+    s = 1j * w
+    P = force_plant_tf(true_design)(s)
+    P_theta = derive_motor_angle_plant(true_design.environment.locked).at(true_design)(s)
+    filters = observer_filters(compensator, believed)
+    g_m = np.polyval(filters.from_tau_m.num, s)
+    A = -np.polyval(filters.from_tau_s.num, s) / g_m
+    B = -np.polyval(filters.from_theta.num, s) / g_m
+    M = A * P + B * P_theta - 1.0
+    CP = (controller.P + controller.D * s) * P
+    return _Plant(label, true_design, believed, _plant_alone_margin(true_design, controller, break_at), w, CP, M)
+
+
+def _q_polynomial(compensator: Compensator) -> np.ndarray:
+    """Coefficients (ascending powers of s/w_q) of D_q, Q = 1/D_q(s/w_q)."""
+    from .symbolic import compensator_q_tf
+
+    q = compensator_q_tf(dataclasses.replace(compensator, w_q_hz=1.0 / (2.0 * math.pi)))
+    return np.asarray(q.den[::-1]) / q.num[-1]
+
+
+def _sensitivity_offset(plant: _Plant, dq: np.ndarray, break_at: str, sigma: float) -> np.ndarray:
+    num = dq + plant.M if break_at == "controller" else dq - 1.0
+    return num / (dq + plant.M + plant.CP * dq) + 0.5 * (sigma - 1.0)
+
+
+def _grid_ratios(plants: Sequence[_Plant], coeffs: np.ndarray, w_q: float, break_at: str,
+                 sigma: float) -> np.ndarray:
+    """Grid estimate of alpha_observer/alpha_plant for every plant (no stability check)."""
+    out = np.empty(len(plants))
+    for i, plant in enumerate(plants):
+        dq = np.polyval(coeffs[::-1], 1j * plant.w / w_q)
+        peak = np.max(np.abs(_sensitivity_offset(plant, dq, break_at, sigma)))
+        out[i] = (1.0 / peak) / plant.alpha_plant
+    return out
+
+
+def _exact_ratios(plants: Sequence[_Plant], compensator: Compensator, controller: PDController,
+                  break_at: str, sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact alpha_observer/alpha_plant (stability checked) and critical frequencies [rad/s]."""
+    from .symbolic import force_loop
+
+    ratios, freqs = np.empty(len(plants)), np.empty(len(plants))
+    for i, plant in enumerate(plants):
+        loop = force_loop(plant.true_design, compensator, controller=controller, believed=plant.believed,
+                          break_at=break_at)
+        dm = disk_margin(loop.L, sigma, closed_loop_stable=loop.stable)
+        ratios[i] = dm.alpha / plant.alpha_plant
+        freqs[i] = dm.frequency_rad_s
+    return ratios, freqs
+
+
+def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("soft", "stiff"), *,
+                     uncertainty: float = 0.0, controller: PDController = PDController(),
+                     break_at: str = "controller", sigma: float = 0.0) -> tuple[float, str]:
+    """Exact worst ratio alpha_observer / alpha_plant over an environment set.
+
+    Parameters
+    ----------
+    compensator : Compensator
+        Observer with its cutoff ``w_q_hz`` [Hz].
+    envs : str or sequence of str
+        See :func:`environment_set`.
+    uncertainty : float
+        Relative uncertainty of the true J, d, k_e [-].
+    controller : PDController
+        C_F = P + D s.
+    break_at : str
+        Loop-break point (``'controller'`` or ``'plant-input'``).
+    sigma : float
+        Disk skew [-].
+
+    Returns
+    -------
+    (float, str)
+        The worst ratio [-] and the label of the plant attaining it.
+    """
+    plants = _plants(compensator, envs, uncertainty, controller, break_at)
+    ratios, _ = _exact_ratios(plants, compensator, controller, break_at, sigma)
+    i = int(np.argmin(ratios))
+    return float(ratios[i]), plants[i].label
+
+
+def _plants(compensator, envs, uncertainty, controller, break_at, seed=0) -> list[_Plant]:
+    if not compensator.is_observer:
+        raise ParameterError(f"tuning needs an observer kind (ea-fob, lo-dob, ld-dob, motor-fob), "
+                             f"got {compensator.kind!r}", name="observer", value=compensator.kind)
+    base = Design()
+    return [
+        _precompute(label, dataclasses.replace(base, environment=true), dataclasses.replace(base, environment=bel),
+                    compensator, controller, break_at, _GRID_RAD_S)
+        for label, true, bel in environment_set(envs, uncertainty=uncertainty, seed=seed)
+    ]
+
+
+def _complex_ops():
+    import casadi as ca
+
+    def mul(a, b):
+        return (a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0])
+
+    def add(a, b):
+        return (a[0] + b[0], a[1] + b[1])
+
+    def abs2(a):
+        return a[0] ** 2 + a[1] ** 2
+
+    return ca, mul, add, abs2
+
+
+def _casadi_abs2_G(ca, mul, add, abs2, plant: _Plant, idx: np.ndarray, dq_re, dq_im, break_at: str,
+                   sigma: float):
+    """|S + (sigma-1)/2|^2 at the frequencies ``idx`` as casadi expressions of D_q."""
+    exprs = []
+    c = 0.5 * (sigma - 1.0)
+    for j, (re, im) in enumerate(zip(dq_re, dq_im)):
+        i = idx[j]
+        dq = (re, im)
+        M = (float(plant.M[i].real), float(plant.M[i].imag))
+        CP = (float(plant.CP[i].real), float(plant.CP[i].imag))
+        den = add(add(dq, M), mul(CP, dq))
+        num = add(dq, M) if break_at == "controller" else (dq[0] - 1.0, dq[1])
+        # G = num/den + c  ->  |num + c den|^2 / |den|^2
+        top = add(num, (c * den[0], c * den[1]))
+        exprs.append((abs2(top), abs2(den)))
+    return exprs
+
+
+def _dq_casadi(ca, coeffs: np.ndarray, u):
+    """Real and imaginary parts of D_q(j u) for casadi u."""
+    re, im = 0, 0
+    for n, c in enumerate(coeffs):
+        term = c * u**n
+        if n % 4 == 0:
+            re = re + term
+        elif n % 4 == 1:
+            im = im + term
+        elif n % 4 == 2:
+            re = re - term
+        else:
+            im = im - term
+    return re, im
+
+
+def _ipopt(ca, nlp, x0, lbx, ubx, lbg, ubg) -> tuple[np.ndarray, dict]:
+    opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 300,
+            "ipopt.tol": 1e-10}
+    solver = ca.nlpsol("tune", "ipopt", nlp, opts)
+    sol = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    stats = solver.stats()
+    info = {"return_status": stats.get("return_status"), "iterations": int(stats.get("iter_count", 0)),
+            "success": bool(stats.get("success"))}
+    if not stats.get("success") and stats.get("return_status") not in ("Solved_To_Acceptable_Level",):
+        raise SolverError(f"ipopt did not converge: {stats.get('return_status')}", stats=info)
+    return np.asarray(sol["x"]).ravel(), info
+
+
+def _solve_max_cutoff(plants, coeffs, bound, log_lo, log_hi, x0, active, break_at, sigma):
+    """max log(w_q) s.t. |G_e(w_i)|^2 <= bound_e^2 on the active frequencies."""
+    ca, mul, add, abs2 = _complex_ops()
+    x = ca.SX.sym("log_w_q")
+    g = []
+    for p, plant in enumerate(plants):
+        idx = np.asarray(sorted(active[p]), dtype=int)
+        u = plant.w[idx] / ca.exp(x)
+        dq = [_dq_casadi(ca, coeffs, u[k]) for k in range(len(idx))]
+        for top, den in _casadi_abs2_G(ca, mul, add, abs2, plant, idx, [d[0] for d in dq],
+                                       [d[1] for d in dq], break_at, sigma):
+            g.append(top - bound[p] ** 2 * den)   # |G|^2 <= bound^2, cleared of the denominator
+    nlp = {"x": x, "f": -x, "g": ca.vertcat(*g)}
+    sol, info = _ipopt(ca, nlp, [x0], [log_lo], [log_hi], [-ca.inf] * len(g), [0.0] * len(g))
+    return float(sol[0]), info
+
+
+def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff"), *,
+           uncertainty: float = 0.0, min_ratio: float = 0.9, band_hz: tuple[float, float] = (0.5, 30.0),
+           q_family: str = "butterworth", q_order: int = 2, controller: PDController = PDController(),
+           break_at: str = "controller", sigma: float = 0.0, scan_points: int = 80, seed: int = 0,
+           progress: Callable[[int, int], None] | None = None) -> TuningResult:
+    """Largest Q cutoff keeping the disk margin near the plant's own in every environment.
+
+    Parameters
+    ----------
+    observer : str
+        ``ea-fob``, ``lo-dob``, ``ld-dob`` or ``motor-fob``.
+    envs : str or sequence of str
+        Environment set (see :func:`environment_set`).
+    uncertainty : float
+        Relative range of the true J, d, k_e [-]; the observer keeps the nominal values.
+    min_ratio : float
+        Required alpha_observer / alpha_plant in every plant of the set [-].
+    band_hz : (float, float)
+        Search band of the cutoff [Hz].
+    q_family, q_order : str, int
+        Q-filter family and order.
+    controller : PDController
+        C_F = P + D s.
+    break_at : str
+        ``'controller'`` (paper) or ``'plant-input'``.
+    sigma : float
+        Disk skew [-].
+    scan_points : int
+        Points of the independent verification scan (log-spaced over the band).
+    seed : int
+        Seed for ``random:N`` environment sets.
+    progress : callable, optional
+        ``progress(done, total)`` during the scan.
+
+    Returns
+    -------
+    TuningResult
+        The cutoff, its exact worst-case ratio and the scan's best for comparison.
+
+    Notes
+    -----
+    Formulation (casadi NLP, solved by ipopt): with x = log w_q,
+
+        maximise x  subject to  |S_e(j w_i; x) + (sigma - 1)/2|^2 <= (min_ratio alpha_e)^-2
+
+    for every plant e of the set and every frequency w_i of an active set,
+    written as |num|^2 - bound^2 |den|^2 <= 0 so nothing divides by zero.
+    The active set starts with the largest sensitivities of each plant and
+    grows by cutting planes: after each solve the 700-point grid
+    (1e-2 ... 3e4 rad/s) is checked and each violating plant's worst
+    frequency is added. The answer is then verified with exact disk margins
+    (closed-loop stability included, peak found exactly); where the exact
+    peak lies between grid points it is added as a cut. The independent
+    scan evaluates exact margins at ``scan_points`` cutoffs and the answer
+    must be feasible and within 2 % of the scan's best feasible cutoff.
+    """
+    if not (0.0 < band_hz[0] < band_hz[1]):
+        raise ParameterError(f"band must satisfy 0 < lo < hi [Hz], got {band_hz}", name="band", value=band_hz)
+    if not (0.0 < min_ratio <= 1.0):
+        raise ParameterError(f"min_ratio must be in (0, 1], got {min_ratio}", name="min_ratio", value=min_ratio)
+    base = Compensator(kind=observer, w_q_hz=band_hz[0], q_family=q_family, q_order=q_order)
+    plants = _plants(base, envs, uncertainty, controller, break_at, seed)
+    coeffs = _q_polynomial(base)
+    evaluations = 0
+
+    def exact(w_q_hz: float):
+        nonlocal evaluations
+        evaluations += len(plants)
+        return _exact_ratios(plants, dataclasses.replace(base, w_q_hz=w_q_hz), controller, break_at, sigma)
+
+    # Independent dense scan with exact margins.
+    scan = np.geomspace(band_hz[0], band_hz[1], scan_points)
+    feasible_scan = []
+    for n, f in enumerate(scan):
+        ratios, _ = exact(float(f))
+        feasible_scan.append(ratios.min() >= min_ratio)
+        if progress:
+            progress(n + 1, len(scan))
+    feasible_scan = np.asarray(feasible_scan)
+    scan_best = float(scan[np.flatnonzero(feasible_scan)[-1]]) if feasible_scan.any() else math.nan
+
+    # NLP with cutting planes, started at the scan's best (or the band's low end).
+    start_hz = scan_best if feasible_scan.any() else band_hz[0]
+    bound = 1.0 / (min_ratio * np.array([p.alpha_plant for p in plants]))
+    active = []
+    for plant in plants:
+        dq = np.polyval(coeffs[::-1], 1j * plant.w / (2 * math.pi * start_hz))
+        mags = np.abs(_sensitivity_offset(plant, dq, break_at, sigma))
+        active.append(set(np.argsort(mags)[-_ACTIVE_PER_PLANT:].tolist()))
+    log_lo, log_hi = math.log(2 * math.pi * band_hz[0]), math.log(2 * math.pi * band_hz[1])
+    x = math.log(2 * math.pi * start_hz)
+    info: dict = {}
+    answer = math.nan
+    for _ in range(_MAX_CUTS):
+        x, info = _solve_max_cutoff(plants, coeffs, bound, log_lo, log_hi, x, active, break_at, sigma)
+        evaluations += 1
+        w_q = math.exp(x)
+        added = False
+        for p, plant in enumerate(plants):
+            dq = np.polyval(coeffs[::-1], 1j * plant.w / w_q)
+            mags = np.abs(_sensitivity_offset(plant, dq, break_at, sigma))
+            worst = int(np.argmax(mags))
+            if mags[worst] > bound[p] * (1 + 1e-9) and worst not in active[p]:
+                active[p].add(worst)
+                added = True
+        if added:
+            continue
+        w_q_hz = min(max(w_q / (2 * math.pi), band_hz[0]), band_hz[1])  # ipopt's bound tolerance
+        ratios, freqs = exact(w_q_hz)
+        if ratios.min() >= min_ratio * (1 - 1e-6):
+            answer = w_q_hz
+            break
+        # Exact peak between grid points, or instability: cut at the exact critical frequency,
+        # else fall back to the best verified point.
+        bad = np.flatnonzero(ratios < min_ratio * (1 - 1e-6))
+        new_cut = False
+        for p in bad:
+            if math.isfinite(freqs[p]):
+                plant = plants[p]
+                w_new = np.append(plant.w, freqs[p])
+                plants[p] = dataclasses.replace(plant, w=w_new, CP=_precompute_at(plant, base, controller, w_new)[0],
+                                                M=_precompute_at(plant, base, controller, w_new)[1])
+                active[p].add(len(w_new) - 1)
+                new_cut = True
+        if not new_cut:
+            log_hi = x - 1e-3   # unstable at this cutoff: search below it
+            x = min(x, log_hi)
+    if math.isnan(answer) and feasible_scan.any():
+        answer = scan_best   # the NLP could not improve on the verified scan point
+    ratios, _ = exact(answer) if not math.isnan(answer) else (np.array([0.0]), None)
+    worst = int(np.argmin(ratios))
+    feasible = bool(ratios.min() >= min_ratio * (1 - 1e-6)) and not math.isnan(answer)
+    agrees = feasible and (math.isnan(scan_best) or answer >= scan_best * 0.98)
+    return TuningResult(
+        observer=observer, w_q_hz=answer, worst_ratio=float(ratios.min()),
+        worst_environment=plants[worst].label if not math.isnan(answer) else "",
+        feasible=feasible, evaluations=evaluations, scan_w_q_hz=scan_best, agrees_with_scan=agrees,
+        min_ratio=min_ratio, band_hz=(float(band_hz[0]), float(band_hz[1])), plants=len(plants), solver=info,
+    )
+
+
+def _precompute_at(plant: _Plant, compensator: Compensator, controller: PDController,
+                   w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    fresh = _precompute(plant.label, plant.true_design, plant.believed, compensator, controller, "controller", w)
+    return fresh.CP, fresh.M
+
+
+def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff"), *,
+                 w_q_hz: float = 10.0, uncertainty: float = 0.0, damping_range: tuple[float, float] = (0.3, 2.0),
+                 controller: PDController = PDController(), break_at: str = "controller",
+                 sigma: float = 0.0, seed: int = 0) -> TuningResult:
+    """Maximise the worst-case margin ratio at a fixed Q bandwidth over the Q damping.
+
+    Parameters
+    ----------
+    observer : str
+        Observer kind.
+    envs : str or sequence of str
+        Environment set (see :func:`environment_set`).
+    w_q_hz : float
+        Fixed cutoff [Hz].
+    uncertainty : float
+        Relative range of the true J, d, k_e [-].
+    damping_range : (float, float)
+        Bounds of the damping ratio zeta of Q = w_q^2 / (s^2 + 2 zeta w_q s + w_q^2) [-]
+        (Butterworth: zeta = 1/sqrt(2); binomial: zeta = 1).
+    controller : PDController
+        C_F = P + D s.
+    break_at : str
+        Loop-break point.
+    sigma : float
+        Disk skew [-].
+    seed : int
+        Seed for ``random:N`` sets.
+
+    Returns
+    -------
+    TuningResult
+        ``q_damping`` holds the optimum; ``worst_ratio`` its exact worst-case ratio.
+
+    Notes
+    -----
+    Epigraph NLP: maximise t subject to t^2 alpha_e^2 |num|^2 - |den|^2 <= 0 at the
+    active frequencies of every plant (cutting planes as in :func:`tune_q`), over
+    (zeta, t). Verified against a dense exact scan over zeta.
+    """
+    base = Compensator(kind=observer, w_q_hz=w_q_hz, q_family="butterworth", q_order=2)
+    plants = _plants(base, envs, uncertainty, controller, break_at, seed)
+    w_q = 2 * math.pi * w_q_hz
+    ca, mul, add, abs2 = _complex_ops()
+    alpha = np.array([p.alpha_plant for p in plants])
+
+    def exact_at(zeta: float) -> np.ndarray:
+        comp = dataclasses.replace(base, q_damping=float(zeta))
+        return np.array([_shape_exact_ratio(plant, comp, controller, break_at, sigma) for plant in plants])
+
+    zetas = np.linspace(*damping_range, 60)
+    scan = np.array([exact_at(z).min() for z in zetas])
+    z0 = float(zetas[int(np.argmax(scan))])
+    active = []
+    for plant in plants:
+        u = 1j * plant.w / w_q
+        mags = np.abs(_sensitivity_offset(plant, u**2 + 2 * z0 * u + 1, break_at, sigma))
+        active.append(set(np.argsort(mags)[-_ACTIVE_PER_PLANT:].tolist()))
+    zeta, info = z0, {}
+    for _ in range(_MAX_CUTS):
+        z = ca.SX.sym("zeta")
+        t = ca.SX.sym("t")
+        g = []
+        for p, plant in enumerate(plants):
+            idx = np.asarray(sorted(active[p]), dtype=int)
+            for i, (top, den) in zip(idx, _casadi_abs2_G(
+                    ca, mul, add, abs2, plant, idx,
+                    [1 - (plant.w[i] / w_q) ** 2 for i in idx], [2 * z * plant.w[i] / w_q for i in idx],
+                    break_at, sigma)):
+                g.append(t**2 * alpha[p] ** 2 * top - den)
+        nlp = {"x": ca.vertcat(z, t), "f": -t, "g": ca.vertcat(*g)}
+        sol, info = _ipopt(ca, nlp, [zeta, max(scan.max(), 0.1)], [damping_range[0], 0.0],
+                           [damping_range[1], 10.0], [-ca.inf] * len(g), [0.0] * len(g))
+        zeta = float(sol[0])
+        added = False
+        for p, plant in enumerate(plants):
+            u = 1j * plant.w / w_q
+            mags = np.abs(_sensitivity_offset(plant, u**2 + 2 * zeta * u + 1, break_at, sigma))
+            worst = int(np.argmax(mags))
+            if worst not in active[p] and 1.0 / (mags[worst] * alpha[p]) < sol[1] * (1 - 1e-9):
+                active[p].add(worst)
+                added = True
+        if not added:
+            break
+    ratios = exact_at(zeta)
+    best_scan = float(scan.max())
+    if ratios.min() < best_scan:      # keep the verified better point
+        zeta = float(zetas[int(np.argmax(scan))])
+        ratios = exact_at(zeta)
+    worst = int(np.argmin(ratios))
+    return TuningResult(
+        observer=observer, w_q_hz=w_q_hz, worst_ratio=float(ratios.min()), worst_environment=plants[worst].label,
+        feasible=bool(ratios.min() > 0.0), evaluations=len(plants) * (len(zetas) + 2),
+        scan_w_q_hz=w_q_hz, agrees_with_scan=bool(ratios.min() >= best_scan * 0.98), min_ratio=0.0,
+        band_hz=(w_q_hz, w_q_hz), plants=len(plants), q_damping=zeta, solver=info,
+    )
+
+
+def _shape_exact_ratio(plant: _Plant, compensator: Compensator, controller: PDController, break_at: str,
+                       sigma: float) -> float:
+    """Exact alpha_observer/alpha_plant for one plant and compensator."""
+    from .symbolic import force_loop
+
+    loop = force_loop(plant.true_design, compensator, controller=controller, believed=plant.believed,
+                      break_at=break_at)
+    return disk_margin(loop.L, sigma, closed_loop_stable=loop.stable).alpha / plant.alpha_plant
