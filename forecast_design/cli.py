@@ -130,3 +130,120 @@ def _cmd_tf(args: argparse.Namespace) -> int:
     if args.plot:
         print(f"plot: {args.plot}")
     return 0
+
+
+# --- reproduce ----------------------------------------------------------------
+
+
+def _configure_reproduce(p: argparse.ArgumentParser) -> None:
+    p.add_argument("figure", choices=["fig6", "fig7", "table3"], help="which result of the paper")
+    p.add_argument("--json", metavar="OUT", nargs="?", const="-",
+                   help="write the result as JSON to OUT (stdout with no OUT or '-')")
+    p.add_argument("--plot", metavar="OUT.png", help="draw the figure")
+
+
+def _write_json(target: str, obj: Any) -> None:
+    if target == "-":
+        _print_json(obj)
+        return
+    from pathlib import Path
+
+    Path(target).parent.mkdir(parents=True, exist_ok=True)
+    Path(target).write_text(json.dumps(obj, indent=2) + "\n")
+
+
+def _reproduce_fig6(args: argparse.Namespace) -> int:
+    from .analysis import fig6_table
+
+    rows = fig6_table()
+    mapping = [row.to_mapping() for row in rows]
+    if args.plot:
+        from .plotting.margins import plot_fig6
+
+        plot_fig6(rows, args.plot)
+    if args.json:
+        _write_json(args.json, mapping)
+    if args.json != "-":
+        print(f"{'environment':<10} {'observer':<8} {'w_q_hz':>6} {'alpha':>7} {'GM_hi_dB':>9} "
+              f"{'PM_deg':>7} {'w_c_rad_s':>9} stable")
+        for r in mapping:
+            wq = "-" if r["w_q_hz"] is None else f"{r['w_q_hz']:g}"
+            gm = r["gain_margin_db"][1]
+            print(f"{r['environment']:<10} {r['observer']:<8} {wq:>6} {r['disk_margin']:>7.4f} "
+                  f"{(gm if gm is not None else float('inf')):>9.3f} {r['phase_margin_deg']:>7.2f} "
+                  f"{(r['frequency_rad_s'] or float('nan')):>9.3f} {r['stable']}")
+    return 0
+
+
+_REPRODUCERS: dict[str, Callable[[argparse.Namespace], int]] = {"fig6": _reproduce_fig6}
+
+
+@_command("reproduce", "reproduce a result of the paper: fig6 (disk margins), fig7, table3", _configure_reproduce)
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    handler = _REPRODUCERS.get(args.figure)
+    if handler is None:
+        from .errors import ParameterError
+
+        raise ParameterError(f"reproduce {args.figure}: not available in this version", name="figure",
+                             value=args.figure)
+    return handler(args)
+
+
+# --- tune-q ---------------------------------------------------------------------
+
+
+def _float_range(text: str) -> float:
+    value = float(text)
+    if value != value:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}")
+    return value
+
+
+def _configure_tune_q(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--observer", required=True, choices=["ea-fob", "lo-dob", "ld-dob", "motor-fob"])
+    p.add_argument("--envs", default="soft,stiff",
+                   help="comma-separated presets, or random:N (default soft,stiff)")
+    p.add_argument("--uncertainty", type=_float_range, default=0.0, metavar="FRACTION",
+                   help="relative range of the true J, d, k_e (vertices of the box)")
+    p.add_argument("--min-ratio", type=_float_range, default=0.9,
+                   help="required disk-margin ratio observer/plant (default 0.9)")
+    p.add_argument("--band", type=_float_range, nargs=2, default=(0.5, 30.0), metavar=("LO", "HI"),
+                   help="search band of the cutoff [Hz] (default 0.5 30)")
+    p.add_argument("--q-family", default="butterworth", choices=["butterworth", "binomial"])
+    p.add_argument("--q-order", type=int, default=2)
+    p.add_argument("--break-at", default="controller", choices=["controller", "plant-input"])
+    p.add_argument("--max-margin", metavar="W_Q_HZ", type=_float_range,
+                   help="instead: at this fixed cutoff, choose the 2nd-order Q damping that "
+                        "maximises the worst-case margin ratio")
+    p.add_argument("--seed", type=int, default=0, help="seed of random:N environment sets")
+    p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write JSON to OUT (or stdout)")
+
+
+@_command("tune-q", "choose the Q-filter cutoff by optimisation (casadi) over a set of environments",
+          _configure_tune_q)
+def _cmd_tune_q(args: argparse.Namespace) -> int:
+    from .tuning import tune_q, tune_q_shape
+
+    if args.max_margin is not None:
+        result = tune_q_shape(args.observer, args.envs, w_q_hz=args.max_margin, uncertainty=args.uncertainty,
+                              break_at=args.break_at, seed=args.seed)
+    else:
+        from tqdm import tqdm
+
+        with tqdm(total=0, desc="exact scan", unit="cutoff", disable=None, leave=False, file=sys.stderr) as bar:
+            def progress(done: int, total: int) -> None:
+                bar.total = total
+                bar.update(done - bar.n)
+
+            result = tune_q(args.observer, args.envs, uncertainty=args.uncertainty, min_ratio=args.min_ratio,
+                            band_hz=tuple(args.band), q_family=args.q_family, q_order=args.q_order,
+                            break_at=args.break_at, seed=args.seed, progress=progress)
+    mapping = result.to_mapping()
+    if args.json:
+        _write_json(args.json, mapping)
+    if args.json != "-":
+        extra = f", Q damping {result.q_damping:.4g}" if result.q_damping is not None else ""
+        print(f"{result.observer}: w_q = {result.w_q_hz:.4g} Hz{extra}, worst ratio {result.worst_ratio:.4f} "
+              f"({result.worst_environment}), feasible {result.feasible}; scan best {result.scan_w_q_hz:.4g} Hz, "
+              f"agrees {result.agrees_with_scan}; {result.plants} plants, {result.evaluations} evaluations")
+    return 0

@@ -570,7 +570,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
         nlp = {"x": ca.vertcat(z, t), "f": -t, "g": ca.vertcat(*g)}
         sol, info = _ipopt(ca, nlp, [zeta, max(scan.max(), 0.1)], [damping_range[0], 0.0],
                            [damping_range[1], 10.0], [-ca.inf] * len(g), [0.0] * len(g))
-        zeta = float(sol[0])
+        zeta = float(np.clip(sol[0], *damping_range))   # ipopt's bound tolerance
         added = False
         for p, plant in enumerate(plants):
             u = 1j * plant.w / w_q
