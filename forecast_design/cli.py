@@ -247,3 +247,23 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
               f"({result.worst_environment}), feasible {result.feasible}; scan best {result.scan_w_q_hz:.4g} Hz, "
               f"agrees {result.agrees_with_scan}; {result.plants} plants, {result.evaluations} evaluations")
     return 0
+
+
+# --- pipeline ----------------------------------------------------------------------
+
+
+def _configure_pipeline(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="report", metavar="DIR", help="report folder (default report/)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+@_command("pipeline", "run the whole design pipeline on bundled defaults into a report folder", _configure_pipeline)
+def _cmd_pipeline(args: argparse.Namespace) -> int:
+    from .pipeline import run_pipeline
+
+    result = run_pipeline(args.out, progress=None if args.json else lambda step: print(f"[{step}]", flush=True))
+    if args.json:
+        _print_json(result.to_mapping())
+    else:
+        print(f"report: {result.out_dir / 'index.md'}")
+    return 0

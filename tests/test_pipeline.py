@@ -1,0 +1,25 @@
+"""The main job writes a complete report from bundled defaults."""
+
+import json
+
+from forecast_design.cli import main
+
+
+def test_pipeline_writes_report_with_plots_and_consistent_numbers(tmp_path, capsys):
+    assert main(["pipeline", "--out", str(tmp_path / "report"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    report = tmp_path / "report"
+    index = (report / "index.md").read_text()
+    for step, info in summary["steps"].items():
+        assert f"## {step}" in index
+        for name in info["files"]:
+            path = report / name
+            assert path.stat().st_size > 0, name
+            if name.endswith(".png"):
+                assert path.read_bytes()[:4] == b"\x89PNG"
+            if name.endswith(".json"):
+                json.loads(path.read_text())
+    # The locked plant has unit DC gain whatever else the pipeline does.
+    assert abs(summary["steps"]["derive"]["summary"]["locked"]["dc_gain"] - 1.0) < 1e-12
+    tuned = summary["steps"]["tune"]["summary"]
+    assert tuned["ea-fob"] > tuned["lo-dob"] and tuned["ea-fob"] > tuned["ld-dob"]
