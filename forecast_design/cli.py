@@ -267,3 +267,25 @@ def _cmd_pipeline(args: argparse.Namespace) -> int:
     else:
         print(f"report: {result.out_dir / 'index.md'}")
     return 0
+
+
+# --- check -------------------------------------------------------------------------
+
+
+def _configure_check(p: argparse.ArgumentParser) -> None:
+    p.add_argument("experiment", metavar="EXPERIMENT.toml", help="experiment in the forecast-experiment/1 format")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+@_command("check", "validate an experiment (TOML + CSV) and summarise it", _configure_check)
+def _cmd_check(args: argparse.Namespace) -> int:
+    from .experiment import load_experiment
+
+    summary = load_experiment(args.experiment).summary()
+    if args.json:
+        _print_json(summary)
+    else:
+        print(f"{args.experiment}: ok, {summary['n_samples']} samples at {summary['rate_hz']:g} Hz "
+              f"({summary['duration']:.4g} s), columns {', '.join(summary['columns'])}, "
+              f"{'locked' if summary['locked'] else 'environment k_e = %g' % summary['design']['environment']['k_e']}")
+    return 0

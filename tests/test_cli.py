@@ -111,3 +111,55 @@ def test_installed_entry_point_runs():
     proc = subprocess.run([exe, "tf", "--env", "locked", "--json"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["P"]["dc_gain"] == pytest.approx(1.0)
+
+
+def _write_pair(tmp_path, toml_text, csv_text):
+    (tmp_path / "run.toml").write_text(toml_text)
+    (tmp_path / "run.csv").write_text(csv_text)
+    return str(tmp_path / "run.toml")
+
+
+_GOOD_TOML = """format = "forecast-experiment/1"
+data = "run.csv"
+[sampling]
+rate_hz = 2000.0
+[testbed]
+J_m = 0.133
+d_m = 0.3
+k = 58.0
+[environment]
+J_e = 0.001
+d_e = 0.063
+k_e = 5.0
+J_l = 0.0018
+d_l = 0.35
+"""
+_GOOD_CSV = "t,tau_m,theta,q\n0,0,0,0\n0.0005,0.1,0,0\n0.001,0.1,1e-6,0\n"
+
+
+def test_check_reads_a_good_experiment(tmp_path, capsys):
+    path = _write_pair(tmp_path, _GOOD_TOML, _GOOD_CSV)
+    code, out, _ = _run(capsys, "check", path, "--json")
+    assert code == 0
+    summary = json.loads(out)
+    assert summary["n_samples"] == 3 and summary["rate_hz"] == 2000.0 and summary["tau_s_derived"]
+
+
+@pytest.mark.parametrize("toml_edit,csv_text,fragment", [
+    (("k = 58.0", "k = -58.0"), _GOOD_CSV, "k must be > 0"),
+    (("k = 58.0", "k = 58.0\nkk = 1.0"), _GOOD_CSV, "unknown key 'kk'"),
+    (("J_e = 0.001\n", ""), _GOOD_CSV, "missing required key 'J_e'"),
+    (('format = "forecast-experiment/1"', 'format = "forecast-experiment/2"'), _GOOD_CSV, "format"),
+    (("", ""), "t,tau_m,theta\n0,0,0\n", "'q'"),
+    (("", ""), "t,tau_m,theta,q\n0,0,0,0\n0.0005,nan,0,0\n", "line 3"),
+    (("", ""), "t,tau_m,theta,q\n0,0,0,0\n0.0005,0,0,0\n0.0005,0,0,0\n", "line 4"),
+    (("", ""), "t,tau_m,theta,q\n0,0,0,0\n0.001,0,0,0\n0.002,0,0,0\n", "rate"),
+    (("rate_hz = 2000.0", "rate_hz = 2000.0 ]"), _GOOD_CSV, "run.toml"),
+])
+def test_check_bad_experiment_exit_2_one_line_naming_file(tmp_path, capsys, toml_edit, csv_text, fragment):
+    path = _write_pair(tmp_path, _GOOD_TOML.replace(*toml_edit), csv_text)
+    code = _exit_code(["check", path])
+    _, err = capsys.readouterr()
+    assert code == 2
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert fragment in err and "run." in err
