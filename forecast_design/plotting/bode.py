@@ -85,10 +85,14 @@ def plot_bode(tfs: Mapping[str, RationalTF] | Sequence[tuple[str, RationalTF]], 
     w = _default_grid(items) if w_rad_s is None else np.asarray(w_rad_s, dtype=float)
     fig, (ax_mag, ax_phase) = plt.subplots(2, 1, sharex=True, figsize=(7.0, 6.0))
     try:
-        for label, tf in items:
+        colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+        styles = ("-", "--", ":", "-.")
+        for n, (label, tf) in enumerate(items):
             f_hz, mag_db, phase_deg = bode_data(tf, w)
-            ax_mag.semilogx(f_hz, mag_db, label=str(label))
-            ax_phase.semilogx(f_hz, phase_deg, label=str(label))
+            # Past the colour cycle, change the line style so every curve stays distinguishable.
+            fmt = {"color": colors[n % len(colors)], "linestyle": styles[(n // len(colors)) % len(styles)]}
+            ax_mag.semilogx(f_hz, mag_db, label=str(label), **fmt)
+            ax_phase.semilogx(f_hz, phase_deg, label=str(label), **fmt)
         ax_mag.set_ylabel("magnitude [dB]")
         ax_phase.set_ylabel("phase [deg]")
         ax_phase.set_xlabel("frequency [Hz]")
