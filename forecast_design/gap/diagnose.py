@@ -1,0 +1,276 @@
+"""Sim-to-real gap diagnosis: which unmodelled effect explains a log, and how far the gap shrinks.
+
+Decision rule (stated in every diagnosis's ``metric``):
+
+1. The gap is the RMS of the stacked equation errors (motor, environment and,
+   with a measured ``tau_s``, coupling) [N m] on the *held-out* blocks: the log is
+   cut into ``n_blocks`` interleaved time blocks, models are fitted on the even
+   blocks and scored on the odd ones, so both halves see every operating region.
+2. The reference is the calibrated nominal model (``J_m`` and the spring
+   torque scale within ``calibration_tolerance``, ``d_m >= 0``).
+3. A candidate counts when its held-out reduction ``1 - gap_after / gap_before``
+   is at least ``min_reduction`` *and* a one-sided paired t-test over the held-out
+   blocks of the log ratio of per-block squared errors has p < ``alpha / n_candidates``
+   (Bonferroni).
+4. Among the candidates that count, the winner minimises a held-out BIC,
+   ``n log(SSE / n) + p log(n)`` (p = number of effect parameters).
+5. Parsimony between nested friction laws: ``stiction`` or ``position_friction``
+   wins over ``coulomb`` only if it is significantly better than ``coulomb`` (same
+   test) and removes at least ``min_reduction / 2`` of ``coulomb``'s held-out gap.
+6. No candidate counts: the verdict is ``none``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+from scipy import stats
+
+from ..effects import Effect
+from ..experiment import Experiment
+from .candidates import CANDIDATE_EFFECTS, CandidateFit, JointAttribution, fit_all, fit_baseline, fit_joint
+from .locate import Location, locate_gap
+from .residuals import GapData, GapOptions, prepare_gap_data
+
+__all__ = ["Diagnosis", "RankedCandidate", "diagnose", "held_out_test"]
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class RankedCandidate:
+    """One candidate's held-out score.
+
+    Parameters
+    ----------
+    effect : Effect
+        The effect word.
+    gap_after : float
+        Held-out gap with this effect added [N m].
+    reduction : float
+        ``1 - gap_after / gap_before`` clipped to [0, 1] [-].
+    params : Mapping[str, Any]
+        Fitted effect parameters (physical units).
+    p_value : float
+        One-sided paired t-test p-value of the held-out improvement [-].
+    bic : float
+        Held-out BIC used for ranking [-].
+    significant : bool
+        True when the candidate passes the reduction threshold and the test.
+    """
+
+    effect: Effect
+    gap_after: float
+    reduction: float
+    params: Mapping[str, Any]
+    p_value: float
+    bic: float
+    significant: bool
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The ranking entry of the diagnosis JSON."""
+        return {"effect": str(self.effect), "gap_after": float(self.gap_after),
+                "reduction": float(self.reduction), "params": _jsonable(self.params)}
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        return float(value)
+    if isinstance(value, (np.integer, int)) and not isinstance(value, bool):
+        return int(value)
+    return value
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class Diagnosis:
+    """Result of :func:`diagnose`.
+
+    Parameters
+    ----------
+    effect : Effect
+        The verdict: the effect blamed, or ``Effect.NONE``.
+    gap_before : float
+        Held-out gap of the calibrated nominal model [N m].
+    gap_after : float
+        Held-out gap with the verdict's effect added [N m].
+    reduction : float
+        ``1 - gap_after / gap_before`` in [0, 1] [-].
+    params : Mapping[str, Any]
+        The verdict effect's fitted parameters.
+    metric : str
+        How the gap is measured and split, and the decision rule.
+    location : Location
+        Where the gap lies.
+    ranking : tuple of RankedCandidate
+        Every candidate tried, best first.
+    joint : JointAttribution or None
+        Group-lasso joint attribution (not part of the JSON contract).
+    caveats : tuple of str
+        Why the verdict may be ambiguous on this log.
+    baseline : CandidateFit
+        Fit of the calibrated nominal model.
+    fits : Mapping[str, CandidateFit]
+        Every candidate's fit, keyed by effect word.
+    data : GapData
+        The prepared equation errors.
+    """
+
+    effect: Effect
+    gap_before: float
+    gap_after: float
+    reduction: float
+    params: Mapping[str, Any]
+    metric: str
+    location: Location
+    ranking: tuple[RankedCandidate, ...]
+    joint: JointAttribution | None = None
+    caveats: tuple[str, ...] = ()
+    baseline: CandidateFit = field(repr=False, default=None)  # type: ignore[assignment]
+    fits: Mapping[str, CandidateFit] = field(repr=False, default_factory=dict)
+    data: GapData = field(repr=False, default=None)  # type: ignore[assignment]
+
+    def to_mapping(self) -> dict[str, Any]:
+        """Exactly the JSON object of the output contract (issue 6).
+
+        Returns
+        -------
+        dict
+            ``{"verdict": {...}, "metric": str, "location": {...}, "ranking": [...]}``.
+        """
+        loc = self.location.to_mapping()
+        if self.caveats:
+            loc["summary"] = " ".join(self.caveats) + " " + loc["summary"]
+        return {
+            "verdict": {"effect": str(self.effect), "gap_before": float(self.gap_before),
+                        "gap_after": float(self.gap_after), "reduction": float(self.reduction),
+                        "params": _jsonable(self.params)},
+            "metric": self.metric,
+            "location": loc,
+            "ranking": [r.to_mapping() for r in self.ranking],
+        }
+
+
+def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks: np.ndarray) -> float:
+    """One-sided paired t-test that ``candidate`` lowers the squared error of the held-out blocks.
+
+    The test statistic is the per-block log ratio ``log(SSE_reference / SSE_candidate)``:
+    blocks differ widely in excitation, and the log ratio makes a consistent relative
+    improvement count equally in quiet and busy blocks.
+
+    Parameters
+    ----------
+    reference, candidate : CandidateFit
+        Two fits on the same data.
+    held_blocks : ndarray of int
+        Indices of the held-out blocks.
+
+    Returns
+    -------
+    float
+        p-value of H0 "mean log ratio <= 0" against H1 "mean log ratio > 0" [-].
+    """
+    a = np.maximum(reference.block_sse[held_blocks], 1e-300)
+    b = np.maximum(candidate.block_sse[held_blocks], 1e-300)
+    d = np.log(a / b)
+    n = d.size
+    sd = float(np.std(d, ddof=1)) if n > 1 else 0.0
+    mean = float(np.mean(d))
+    if sd <= 1e-12 * max(1.0, abs(mean)):
+        return 0.0 if mean > 1e-12 else 1.0
+    return float(stats.t.sf(mean / (sd / math.sqrt(n)), n - 1))
+
+
+def _metric_text(data: GapData) -> str:
+    o = data.options
+    eqs = ", ".join(data.equations)
+    return (f"RMS [N m] of the stacked equation errors ({eqs}) after zero-phase filtering of the encoder "
+            f"positions ({data.settings.position_cutoff_hz:g} Hz Butterworth) and parallel decimation to "
+            f"{data.settings.decimated_rate_hz:g} Hz, on held-out data: {o.n_blocks} interleaved time blocks, "
+            f"parameters fitted on the even blocks and the gap measured on the odd ones. gap_before is the "
+            f"nominal model with J_m and the spring torque scale re-calibrated within "
+            f"+-{100 * o.calibration_tolerance:g} % and d_m >= 0. An effect counts when it removes >= "
+            f"{100 * o.min_reduction:g} % of the held-out gap and a one-sided t-test on the per-block log ratio of held-out "
+            f"squared errors gives p < {o.alpha:g}/n_candidates (Bonferroni); the winner minimises the held-out BIC; "
+            f"stiction/position_friction must beat coulomb by the same test (and remove {100 * o.min_reduction / 2:g} % of its gap).")
+
+
+def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint: bool = True) -> Diagnosis:
+    """Diagnose the sim-to-real gap of one log.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        The log; its ``[testbed]``/``[environment]`` are the nominal model and its
+        recorded ``tau_m`` is the input replayed through it.
+    options : GapOptions, optional
+        Filter, split and test settings.
+    joint : bool
+        Also run the group-lasso joint attribution (cvxpy).
+
+    Returns
+    -------
+    Diagnosis
+        Verdict, location, ranking of every candidate tried.
+
+    Raises
+    ------
+    ParameterError
+        If the log is too short for the filter and the block split.
+    """
+    data = prepare_gap_data(experiment, options)
+    opts = data.options
+    base = fit_baseline(data)
+    fits = fit_all(data, CANDIDATE_EFFECTS)
+    held_blocks = np.arange(1, opts.n_blocks, 2)
+    n_held = int(np.count_nonzero(data.stacked(data.held_out)))
+    alpha = opts.alpha / max(1, len(fits))
+    gap0 = base.gap_held_out
+    ranked = []
+    for fit in fits:
+        red = 1.0 - fit.gap_held_out / gap0 if gap0 > 0 else 0.0
+        p = held_out_test(base, fit, held_blocks)
+        sse = fit.gap_held_out ** 2 * n_held
+        bic = n_held * math.log(max(sse / n_held, 1e-300)) + fit.n_params * math.log(n_held)
+        ranked.append(RankedCandidate(effect=fit.effect, gap_after=fit.gap_held_out,
+                                      reduction=float(min(max(red, 0.0), 1.0)), params=fit.params,
+                                      p_value=p, bic=bic, significant=bool(red >= opts.min_reduction and p < alpha)))
+    ranked.sort(key=lambda r: (not r.significant, r.bic))
+    by_effect = {str(f.effect): f for f in fits}
+    winner = ranked[0] if ranked and ranked[0].significant else None
+    if winner is not None and winner.effect in (Effect.STICTION, Effect.POSITION_FRICTION):
+        coul = next((r for r in ranked if r.effect is Effect.COULOMB), None)
+        if coul is not None and coul.significant:
+            f_w, f_c = by_effect[str(winner.effect)], by_effect[str(Effect.COULOMB)]
+            p = held_out_test(f_c, f_w, held_blocks)
+            extra = 1.0 - f_w.gap_held_out / f_c.gap_held_out if f_c.gap_held_out > 0 else 0.0
+            if not (p < alpha and extra >= 0.5 * opts.min_reduction):
+                winner = coul
+                ranked.remove(coul)
+                ranked.insert(0, coul)
+    location = locate_gap(data, base.residual)
+    caveats = []
+    if winner is not None:
+        if winner.effect in (Effect.COGGING, Effect.POSITION_FRICTION) and not location.full_revolution:
+            caveats.append(f"Caution: '{winner.effect}' is angle-dependent but the motor covered only "
+                           f"{location.angle_span_rad:.2f} rad; the fitted harmonics are a local fit and "
+                           "another smooth effect could explain the same residual.")
+        if winner.effect in (Effect.COULOMB, Effect.STICTION) and not location.full_revolution:
+            caveats.append(f"Caution: the motor covered only {location.angle_span_rad:.2f} rad, so a friction level "
+                           "that varies with the motor angle (position_friction) cannot be excluded.")
+        if winner.effect in (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION) and location.n_reversals < 2:
+            caveats.append(f"Caution: '{winner.effect}' was chosen but the motor hardly reverses direction; "
+                           "a torque offset or gain error would look the same.")
+    jt = fit_joint(data, fits) if joint and fits else None
+    if winner is None:
+        eff, gap_after, params = Effect.NONE, gap0, {}
+    else:
+        eff, gap_after, params = winner.effect, winner.gap_after, winner.params
+    reduction = float(min(max(1.0 - gap_after / gap0, 0.0), 1.0)) if gap0 > 0 else 0.0
+    return Diagnosis(effect=eff, gap_before=gap0, gap_after=gap_after, reduction=reduction, params=params,
+                     metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
+                     caveats=tuple(caveats), baseline=base, fits=by_effect, data=data)

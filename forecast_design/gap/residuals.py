@@ -1,0 +1,305 @@
+"""Equation-error residuals of the nominal model, filtered and decimated, with a block split.
+
+The recorded motor torque is the authoritative input. Each equation of the
+experiment format's nominal model is turned into an *equation error* (a
+torque [N m]) that is zero when the log obeys the nominal model::
+
+    motor        r_m = u - J_m theta'' - d_m theta' - tau_s
+    environment  r_e = tau_s - (J q'' + d q' + k_e q)          (not when locked)
+    coupling     r_c = tau_s - k (theta - q)                   (only with a measured tau_s)
+
+``u`` is the motor torque command re-timed for its zero-order hold: a command
+held over ``[t_k, t_k+1)`` acts, in the band below the sample rate, like a
+smooth signal sampled half a period later, so ``u[k] = (tau_m[k-1] + tau_m[k]) / 2``.
+
+Derivatives come from :mod:`forecast_design.friction.derivatives` (zero-phase
+Butterworth on the encoder positions, central differences) and every column,
+targets and regressors alike, goes through the same parallel decimation, which
+keeps models that are linear in their parameters unbiased.
+
+Unmodelled effects enter these residuals additively (see
+:mod:`forecast_design.gap.candidates`): friction, cogging, delay and torque gain
+in ``r_m``; environment mismatch in ``r_e``; backlash in ``r_m`` and ``r_e`` when
+``tau_s`` is derived from the encoders, in ``r_c`` when it is measured.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..experiment import Experiment
+from ..friction.derivatives import FilterSettings, decimate_columns, default_filter_settings, differentiate
+
+__all__ = ["GapOptions", "GapData", "prepare_gap_data", "zoh_input", "delayed_input"]
+
+#: Equation names, in stacking order.
+EQUATIONS = ("motor", "environment", "coupling")
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class GapOptions:
+    """Settings of the gap diagnosis.
+
+    Parameters
+    ----------
+    position_cutoff_hz : float, optional
+        Zero-phase Butterworth cut-off on encoder positions [Hz]; default ``rate_hz / 10``.
+    decimated_rate_hz : float
+        Target rate after parallel decimation [Hz]; the factor is ``round(rate_hz / this)``.
+    n_blocks : int
+        Number of interleaved time blocks; even blocks fit, odd blocks are held out [-].
+    calibration_tolerance : float
+        Relative range within which ``J_m`` and the spring torque scale (``k``) may be
+        re-calibrated before anything is blamed on an unmodelled effect [-].
+    n_harmonics : int
+        Harmonics of the motor angle used by the ``cogging`` and ``position_friction``
+        candidates [-].
+    alpha : float
+        Family-wise significance level of the held-out test (Bonferroni over candidates) [-].
+    min_reduction : float
+        Smallest held-out gap reduction ``1 - gap_after / gap_before`` that counts [-].
+    stick_velocity : float
+        Motor speed below which the motor counts as stuck [rad/s].
+    max_delay_s : float
+        Largest delay the ``delay`` candidate searches [s].
+    """
+
+    position_cutoff_hz: float | None = None
+    decimated_rate_hz: float = 200.0
+    n_blocks: int = 20
+    calibration_tolerance: float = 0.1
+    n_harmonics: int = 4
+    alpha: float = 0.01
+    min_reduction: float = 0.4
+    stick_velocity: float = 2e-3
+    max_delay_s: float = 0.02
+
+    def __post_init__(self) -> None:
+        for name in ("decimated_rate_hz", "calibration_tolerance", "alpha", "stick_velocity", "max_delay_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ParameterError(f"GapOptions {name} must be > 0, got {value!r}", name=name, value=value)
+        if not (0.0 <= self.min_reduction < 1.0):
+            raise ParameterError(f"GapOptions min_reduction must lie in [0, 1), got {self.min_reduction!r}",
+                                 name="min_reduction", value=self.min_reduction)
+        for name, lo in (("n_blocks", 4), ("n_harmonics", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+                raise ParameterError(f"GapOptions {name} must be an integer >= {lo}, got {value!r}",
+                                     name=name, value=value)
+
+
+def zoh_input(tau_m: np.ndarray) -> np.ndarray:
+    """Motor command re-timed for its zero-order hold.
+
+    Parameters
+    ----------
+    tau_m : ndarray, shape (n,)
+        Command held over each sample period [N m].
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``u[k] = (tau_m[k-1] + tau_m[k]) / 2`` (``u[0] = tau_m[0]``) [N m]: the held
+        signal's value, in the band below the sample rate, at the sample instants.
+    """
+    return delayed_input(tau_m, 0.0, 1.0)
+
+
+def delayed_input(tau_m: np.ndarray, delay_s: float, rate_hz: float) -> np.ndarray:
+    """Zero-order-held command delayed by ``delay_s``, sampled at the sample instants.
+
+    Parameters
+    ----------
+    tau_m : ndarray, shape (n,)
+        Command held over each sample period [N m].
+    delay_s : float
+        Extra delay [s] (>= 0).
+    rate_hz : float
+        Sample rate [Hz].
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The held command delayed by half a period plus ``delay_s``, linearly
+        interpolated between samples; the first value is repeated before the start [N m].
+    """
+    tau_m = np.asarray(tau_m, dtype=float)
+    idx = np.arange(tau_m.size) - 0.5 - delay_s * rate_hz
+    return np.interp(idx, np.arange(tau_m.size), tau_m)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True, eq=False)
+class GapData:
+    """Decimated equation errors of one log and what the candidates need to build features.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        The log.
+    options : GapOptions
+        Settings used.
+    settings : FilterSettings
+        Filter and decimation settings.
+    t : ndarray, shape (m,)
+        Decimated sample times [s].
+    targets : Mapping[str, ndarray]
+        Nominal equation errors per equation (``motor``, ``environment``, ``coupling``) [N m].
+    columns : Mapping[str, ndarray]
+        Decimated signals: ``u``, ``tau_s``, ``a``, ``v``, ``theta``, ``x`` (= theta - q),
+        ``qa``, ``qv``, ``q`` [N m, rad/s^2, rad/s, rad].
+    raw : Mapping[str, ndarray]
+        Filtered raw-rate signals for nonlinear features: ``theta``, ``v``, ``x``, ``tau_m``.
+    block : ndarray of int, shape (m,)
+        Block index of each decimated sample [-].
+    held_out : ndarray of bool, shape (m,)
+        True for samples of held-out (odd) blocks.
+    stuck : ndarray of bool, shape (m,)
+        True where the motor speed is below ``options.stick_velocity``.
+    """
+
+    experiment: Experiment
+    options: GapOptions
+    settings: FilterSettings
+    t: np.ndarray
+    targets: Mapping[str, np.ndarray]
+    columns: Mapping[str, np.ndarray]
+    raw: Mapping[str, np.ndarray]
+    block: np.ndarray
+    held_out: np.ndarray
+    stuck: np.ndarray
+    equations: tuple[str, ...] = field(default=())
+
+    @property
+    def locked(self) -> bool:
+        """True when the output is locked (no environment equation)."""
+        return "environment" not in self.equations
+
+    @property
+    def tau_s_measured(self) -> bool:
+        """True when the log holds a measured ``tau_s`` column (coupling equation present)."""
+        return "coupling" in self.equations
+
+    def decimate(self, raw_column: np.ndarray) -> np.ndarray:
+        """Drop the filter edges and parallel-decimate one raw-rate column.
+
+        Parameters
+        ----------
+        raw_column : ndarray, shape (n,)
+            A signal at the log's rate (any unit).
+
+        Returns
+        -------
+        ndarray, shape (m,)
+            The signal at the decimated rate, same unit.
+        """
+        return decimate_columns(np.asarray(raw_column, dtype=float)[:, None], self.settings)[:, 0]
+
+    def stack(self, per_equation: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Stack per-equation columns in equation order, zeros where an equation is absent.
+
+        Parameters
+        ----------
+        per_equation : Mapping[str, ndarray]
+            Column values for some of the equations, each shape (m,).
+
+        Returns
+        -------
+        ndarray, shape (m * len(equations),)
+            The stacked column.
+        """
+        m = self.t.size
+        return np.concatenate([per_equation.get(eq, np.zeros(m)) for eq in self.equations])
+
+    def stacked_target(self) -> np.ndarray:
+        """All nominal equation errors stacked, shape (m * len(equations),) [N m]."""
+        return np.concatenate([self.targets[eq] for eq in self.equations])
+
+    def stacked(self, mask: np.ndarray) -> np.ndarray:
+        """Repeat a per-sample mask or index array for each equation."""
+        return np.concatenate([mask] * len(self.equations))
+
+
+def _tau_s_measured(derived: bool, tau_s: np.ndarray, spring: np.ndarray) -> bool:
+    """True when the tau_s column carries information beyond k (theta - q) with the nominal k."""
+    if derived:
+        return False
+    # a logger that writes k (theta - q) itself (as our virtual testbed does) adds nothing
+    scale = float(np.sqrt(np.mean(tau_s ** 2))) or 1.0
+    return bool(np.max(np.abs(tau_s - spring)) > 1e-9 * scale)
+
+
+def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) -> GapData:
+    """Filter, differentiate and decimate a log into nominal equation errors.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        The measured or simulated log; its design is the nominal model.
+    options : GapOptions, optional
+        Settings; defaults to ``GapOptions()``.
+
+    Returns
+    -------
+    GapData
+        Decimated equation errors, signals and the fit/held-out split.
+
+    Raises
+    ------
+    ParameterError
+        If the log is too short for the filter, the decimation or the block split.
+    """
+    options = GapOptions() if options is None else options
+    rate = experiment.rate_hz
+    sig = experiment.signals
+    R = max(1, int(round(rate / options.decimated_rate_hz)))
+    settings = default_filter_settings(rate, position_cutoff_hz=options.position_cutoff_hz, decimation_factor=R)
+    tb, env = experiment.design.testbed, experiment.design.environment
+    locked = env.locked
+    theta = np.asarray(sig.theta, dtype=float)
+    q = np.zeros_like(theta) if locked else np.asarray(sig.q, dtype=float)
+    km = differentiate(theta, settings)
+    kq = differentiate(q, settings)
+    u = zoh_input(sig.tau_m)
+    tau_s = np.asarray(sig.tau_s, dtype=float)
+    x = km.position - kq.position
+    raw_cols = {"u": u, "tau_s": tau_s, "a": km.acceleration, "v": km.velocity, "theta": km.position,
+                "x": x, "qa": kq.acceleration, "qv": kq.velocity, "q": kq.position,
+                "spring": tb.k * (theta - q)}
+    names = list(raw_cols)
+    dec = decimate_columns(np.column_stack([raw_cols[n] for n in names]), settings)
+    cols = {n: dec[:, i] for i, n in enumerate(names)}
+    e = settings.edge_samples
+    n_raw = theta.size
+    t = np.asarray(sig.t, dtype=float)[e:n_raw - e][::R]
+    # Positions and speeds for masks and operating-region statistics are taken at the
+    # decimated instants without the extra anti-alias pass (which would smear sign changes).
+    sub = slice(e, n_raw - e)
+    cols["v_sub"] = km.velocity[sub][::R]
+    cols["theta_sub"] = km.position[sub][::R]
+    m = t.size
+    if m < 4 * options.n_blocks:
+        raise ParameterError(
+            f"log too short for the gap diagnosis: {m} decimated samples for {options.n_blocks} blocks "
+            f"(need >= {4 * options.n_blocks}); record a longer run",
+            name="n_blocks", value=options.n_blocks)
+
+    targets = {"motor": cols["u"] - cols["tau_s"] - tb.J_m * cols["a"] - tb.d_m * cols["v"]}
+    equations = ["motor"]
+    if not locked:
+        targets["environment"] = cols["tau_s"] - (env.J * cols["qa"] + env.d * cols["qv"] + env.k_e * cols["q"])
+        equations.append("environment")
+    if _tau_s_measured(sig.tau_s_derived, tau_s, raw_cols["spring"]):
+        targets["coupling"] = cols["tau_s"] - cols["spring"]
+        equations.append("coupling")
+    block = np.minimum((np.arange(m) * options.n_blocks) // m, options.n_blocks - 1)
+    held_out = (block % 2) == 1
+    stuck = np.abs(cols["v_sub"]) < options.stick_velocity
+    raw = {"theta": km.position, "v": km.velocity, "x": x, "tau_m": np.asarray(sig.tau_m, dtype=float)}
+    return GapData(experiment=experiment, options=options, settings=settings, t=t, targets=targets,
+                   columns=cols, raw=raw, block=block, held_out=held_out, stuck=stuck,
+                   equations=tuple(equations))
