@@ -1,0 +1,748 @@
+"""Friction identification from logs: data preparation, linear and nonlinear fits, validation."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Mapping
+
+import numpy as np
+from scipy import stats as sps
+
+from ..errors import IdentifiabilityError, ParameterError
+from . import _lsq
+from .derivatives import FilterSettings, decimate_columns, default_filter_settings, differentiate
+from .terms import FrictionModel, Offset, friction_model
+
+__all__ = [
+    "FrictionFit",
+    "FrictionValidation",
+    "IllConditionedWarning",
+    "IdentificationData",
+    "fit_friction",
+    "fit_friction_experiment",
+    "prepare_identification_data",
+    "validate",
+    "validate_experiment",
+    "fit_data",
+    "predict_data",
+    "fit_percent",
+    "CONDITION_WARN",
+]
+
+#: Scaled condition number above which a fit warns (the estimate is fragile).
+CONDITION_WARN = 1e6
+#: Scaled condition number above which parameters are declared not identifiable.
+CONDITION_SINGULAR = 1e12
+
+
+class IllConditionedWarning(UserWarning):
+    """The scaled regressor of a friction fit is ill-conditioned (> 1e6)."""
+
+
+def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """Normalised fit, ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)``.
+
+    Parameters
+    ----------
+    y : ndarray
+        Measured force [N m].
+    y_hat : ndarray
+        Predicted force [N m].
+
+    Returns
+    -------
+    float
+        Fit [%]; 100 is perfect, 0 is as good as the mean, negative is worse.
+    """
+    y = np.asarray(y, dtype=float)
+    den = float(np.linalg.norm(y - y.mean()))
+    if den == 0.0:
+        return float("nan")
+    return 100.0 * (1.0 - float(np.linalg.norm(y - np.asarray(y_hat))) / den)
+
+
+def _relative_error(y: np.ndarray, y_hat: np.ndarray) -> float:
+    den = float(np.linalg.norm(y))
+    return float("nan") if den == 0.0 else 100.0 * float(np.linalg.norm(y - y_hat)) / den
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class IdentificationData:
+    """Filtered, decimated samples a fit works on.
+
+    Parameters
+    ----------
+    force : ndarray, shape (m,)
+        Force explained by the model [N m] (measured force minus a known
+        inertia times acceleration).
+    velocity, position, acceleration : ndarray, shape (m,)
+        Decimated kinematics [rad/s], [rad], [rad/s^2].
+    regressor : ndarray, shape (m, p_lin)
+        Decimated regressor of the model's linear terms.
+    dt : float
+        Sample period after decimation [s].
+    settings : FilterSettings
+        How the data were made.
+    n_raw : int
+        Raw samples in the log [-].
+    """
+
+    force: np.ndarray
+    velocity: np.ndarray
+    position: np.ndarray
+    acceleration: np.ndarray
+    regressor: np.ndarray
+    dt: float
+    settings: FilterSettings
+    n_raw: int
+
+    def head(self, n: int) -> "IdentificationData":
+        """The first `n` decimated samples."""
+        return dataclasses.replace(
+            self, force=self.force[:n], velocity=self.velocity[:n], position=self.position[:n],
+            acceleration=self.acceleration[:n], regressor=self.regressor[:n])
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FrictionValidation:
+    """Cross-test of a fit on a second log (same filtering).
+
+    Parameters
+    ----------
+    relative_error_percent : float
+        ``100 ||y - y_hat|| / ||y||`` [%] (the EMPS reference's measure).
+    fit_percent : float
+        ``100 (1 - ||y - y_hat|| / ||y - mean y||)`` [%].
+    n_samples : int
+        Decimated samples compared [-].
+    """
+
+    relative_error_percent: float
+    fit_percent: float
+    n_samples: int
+
+    def to_mapping(self) -> dict[str, Any]:
+        """JSON-ready mapping."""
+        return {"relative_error_percent": self.relative_error_percent, "fit_percent": self.fit_percent,
+                "n_samples": self.n_samples}
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    a = np.array(a, dtype=float)
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class FrictionFit:
+    """Identified friction model.
+
+    Parameters
+    ----------
+    model : FrictionModel
+        The model that was fitted.
+    params : mapping of str to float
+        Estimates in natural units (``viscous`` [N m s/rad], ``coulomb`` [N m],
+        ``inertia`` [kg m^2], ``stribeck_velocity`` [rad/s], ``sigma0`` [N m/rad] ...).
+    std : mapping of str to float
+        Standard deviations, same units (zero for a parameter held at a bound).
+    interval95 : mapping of str to (float, float)
+        95 % confidence intervals (Student t).
+    covariance : ndarray, shape (p, p)
+        Parameter covariance in the order of ``model.names``.
+    condition_number : float
+        Condition number of the column-scaled regressor (or Jacobian) [-].
+    condition_number_unscaled : float
+        Condition number of the raw regressor (the EMPS reference's figure) [-].
+    fit_percent_estimation : float
+        Fit of the returned parameters on the whole log [%].
+    fit_percent_holdout : float or None
+        Out-of-sample fit on the held-out tail [%] of a refit on the head; None
+        without holdout.
+    relative_error_percent : float
+        ``100 ||y - y_hat|| / ||y||`` on the whole log [%].
+    holdout : float
+        Fraction of the log held out for the holdout score [-].
+    n_samples : int
+        Decimated samples used [-].
+    n_raw_samples : int
+        Samples in the raw log [-].
+    filter : FilterSettings
+        Filtering and decimation.
+    inertia_nominal : float or None
+        Known inertia whose ``J theta''`` was subtracted from the force [kg m^2].
+    constrained : bool
+        True when physical constraints changed the estimate (or, for LuGre,
+        are active at the optimum).
+    active_constraints : tuple of str
+        The active constraints, e.g. ``("viscous >= 0",)``.
+    solver : mapping
+        Solver summary (``method``, and for NLPs ipopt's ``return_status``, ``iter_count``).
+    validation : FrictionValidation or None
+        Cross-test on a second log, when done.
+    """
+
+    model: FrictionModel
+    params: Mapping[str, float]
+    std: Mapping[str, float]
+    interval95: Mapping[str, tuple[float, float]]
+    covariance: np.ndarray
+    condition_number: float
+    condition_number_unscaled: float
+    fit_percent_estimation: float
+    fit_percent_holdout: float | None
+    relative_error_percent: float
+    holdout: float
+    n_samples: int
+    n_raw_samples: int
+    filter: FilterSettings
+    inertia_nominal: float | None = None
+    constrained: bool = False
+    active_constraints: tuple[str, ...] = ()
+    solver: Mapping[str, Any] = field(default_factory=dict)
+    validation: FrictionValidation | None = None
+
+    def predict(self, velocity: np.ndarray, position: np.ndarray | None = None,
+                acceleration: np.ndarray | None = None, *, dt: float | None = None) -> np.ndarray:
+        """Force predicted with the fitted parameters.
+
+        Parameters
+        ----------
+        velocity : ndarray, shape (n,)
+            Velocity [rad/s].
+        position : ndarray, shape (n,), optional
+            Position [rad] (harmonic terms).
+        acceleration : ndarray, shape (n,), optional
+            Acceleration [rad/s^2] (inertia term).
+        dt : float, optional
+            Sample period [s] (LuGre).
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Force [N m].
+        """
+        return self.model.predict(self.params, velocity, position, acceleration, dt=dt)
+
+    def with_validation(self, validation: FrictionValidation) -> "FrictionFit":
+        """A copy carrying `validation` (see :func:`validate`)."""
+        return dataclasses.replace(self, validation=validation)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """JSON-ready mapping.
+
+        Returns
+        -------
+        dict
+            ``{"model", "params", "std", "interval95", "fit_percent": {"estimation",
+            "holdout"}, "relative_error_percent", "condition_number",
+            "condition_number_unscaled", "n_samples", "n_raw_samples", "holdout",
+            "filter", "inertia_nominal", "constrained", "active_constraints",
+            "solver"}`` plus ``"validation": {"relative_error_percent", ...}`` when validated.
+        """
+        out: dict[str, Any] = {
+            "model": self.model.name,
+            "params": dict(self.params),
+            "std": dict(self.std),
+            "interval95": {k: [lo, hi] for k, (lo, hi) in self.interval95.items()},
+            "fit_percent": {"estimation": self.fit_percent_estimation, "holdout": self.fit_percent_holdout},
+            "relative_error_percent": self.relative_error_percent,
+            "condition_number": self.condition_number,
+            "condition_number_unscaled": self.condition_number_unscaled,
+            "n_samples": self.n_samples,
+            "n_raw_samples": self.n_raw_samples,
+            "holdout": self.holdout,
+            "filter": self.filter.to_mapping(),
+            "inertia_nominal": self.inertia_nominal,
+            "constrained": self.constrained,
+            "active_constraints": list(self.active_constraints),
+            "solver": dict(self.solver),
+        }
+        if self.validation is not None:
+            out["validation"] = self.validation.to_mapping()
+        return out
+
+
+# --- data preparation ----------------------------------------------------------------
+
+
+def _check_array(name: str, x: Any, n: int | None = None) -> np.ndarray:
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{name} must be a numeric array: {exc}", name=name) from None
+    if a.ndim != 1:
+        raise ParameterError(f"{name} must be 1-D, got shape {a.shape}", name=name, value=a.shape)
+    if n is not None and a.size != n:
+        raise ParameterError(f"{name} has {a.size} samples but t has {n}", name=name, value=a.size)
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        raise ParameterError(f"{name} contains NaN or inf at sample {bad[0]} ({bad.size} bad samples)",
+                             name=name, value=int(bad[0]))
+    return a
+
+
+def _rate_from_time(t: np.ndarray) -> float:
+    dts = np.diff(t)
+    if dts.size == 0:
+        raise ParameterError("t needs at least two samples", name="t", value=t.size)
+    bad = np.flatnonzero(dts <= 0)
+    if bad.size:
+        raise ParameterError(f"t must be strictly increasing; t[{bad[0] + 1}] = {t[bad[0] + 1]!r} "
+                             f"after t[{bad[0]}] = {t[bad[0]]!r}", name="t", value=int(bad[0] + 1))
+    dt = (t[-1] - t[0]) / (t.size - 1)
+    worst = int(np.argmax(np.abs(dts - dt)))
+    if abs(dts[worst] - dt) > 0.01 * dt:
+        raise ParameterError(f"t must be uniformly sampled (within 1 %); step {worst} is {dts[worst]!r} s, "
+                             f"mean step {dt!r} s", name="t", value=worst)
+    return 1.0 / dt
+
+
+def _resolve_model(model: FrictionModel | str) -> FrictionModel:
+    if isinstance(model, FrictionModel):
+        return model
+    if isinstance(model, str):
+        return friction_model(model)
+    if hasattr(model, "names") and hasattr(model, "columns"):
+        return FrictionModel(terms=(model,))
+    raise ParameterError(f"model must be a FrictionModel or a model name, got {model!r}",
+                         name="model", value=model)
+
+
+def prepare_identification_data(t: np.ndarray, position: np.ndarray, force: np.ndarray,
+                                model: FrictionModel, *, velocity: np.ndarray | None = None,
+                                inertia: float | None = None,
+                                settings: FilterSettings | None = None) -> IdentificationData:
+    """Filter, differentiate and decimate a log for a friction fit.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n,)
+        Sample times, uniform [s].
+    position : ndarray, shape (n,)
+        Encoder position [rad] (or [m]).
+    force : ndarray, shape (n,)
+        Force to explain [N m] (or [N]).
+    model : FrictionModel
+        Gives the regressor columns.
+    velocity : ndarray, shape (n,), optional
+        Measured velocity [rad/s]; default differentiate position.
+    inertia : float, optional
+        Known inertia [kg m^2]: ``inertia * acceleration`` is subtracted from `force`.
+    settings : FilterSettings, optional
+        Default :func:`default_filter_settings` at the log's rate; for nonlinear
+        models no decimation (``decimation="subsample"``, factor 1).
+
+    Returns
+    -------
+    IdentificationData
+        The decimated data.
+    """
+    t = _check_array("t", t)
+    n = t.size
+    position = _check_array("position", position, n)
+    force = _check_array("force", force, n)
+    if velocity is not None:
+        velocity = _check_array("velocity", velocity, n)
+    rate = _rate_from_time(t)
+    if settings is None:
+        if model.is_linear:
+            settings = default_filter_settings(rate)
+        else:
+            # No decimation: the Stribeck hump lives in the few samples around each
+            # velocity reversal, and LuGre's implicit step must resolve the bristle
+            # time constant g / (sigma0 |v|) (often ~1 ms).
+            settings = default_filter_settings(rate, decimation="subsample", decimation_factor=1)
+    elif not math.isclose(settings.rate_hz, rate, rel_tol=1e-3):
+        settings = dataclasses.replace(settings, rate_hz=rate)
+    kin = differentiate(position, settings, velocity=velocity)
+    y = force if inertia is None else force - float(inertia) * kin.acceleration
+    Phi = model.regressor(kin.velocity, kin.position, kin.acceleration)
+    rows = np.empty((4 + Phi.shape[1], n))
+    rows[0], rows[1], rows[2], rows[3] = y, kin.velocity, kin.position, kin.acceleration
+    rows[4:] = Phi.T
+    dec = decimate_columns(rows, settings, axis=1).T
+    return IdentificationData(force=dec[:, 0], velocity=dec[:, 1], position=dec[:, 2],
+                              acceleration=dec[:, 3], regressor=dec[:, 4:],
+                              dt=settings.decimation_factor / rate, settings=settings, n_raw=n)
+
+
+def _check_identifiable(model: FrictionModel, position: np.ndarray, data: IdentificationData) -> None:
+    names = model.names
+    steps = np.abs(np.diff(position))
+    quantum = float(steps[steps > 0].min()) if np.any(steps > 0) else 0.0
+    span = float(np.ptp(position))
+    if span == 0.0 or span <= 2.0 * quantum:
+        lost = [n for n in names if n != "offset"]
+        raise IdentifiabilityError(
+            f"no motion in the log (position range {span:.3g}): friction parameters "
+            f"{', '.join(lost)} are not identifiable; excite the axis in both directions")
+    v = data.velocity
+    vth = 0.05 * float(np.max(np.abs(v)))
+    pos = float(np.mean(v > vth))
+    neg = float(np.mean(v < -vth))
+    directional = [n for term in model.terms if term.uses_direction for n in term.names()]
+    if directional and min(pos, neg) < 0.01:
+        side = "positive" if pos > neg else "negative"
+        lost = directional + (["offset"] if model.has(Offset) else [])
+        raise IdentifiabilityError(
+            f"the log moves in the {side} direction only ({100 * max(pos, neg):.1f} % of samples "
+            f"above 5 % of peak speed one way, {100 * min(pos, neg):.1f} % the other): "
+            f"{', '.join(lost)} are not identifiable (a direction-dependent term cannot be told "
+            "from an offset without motion both ways)")
+
+
+def _check_conditioning(names: tuple[str, ...], sol: "_lsq.LsqSolution", stacklevel: int) -> float:
+    _, _, vec = _lsq.scaled_conditioning(sol.normal_scaled)
+    sv = sol.singular_values
+    cond = float(sv[0] / sv[-1]) if sv.size and sv[-1] > 0 else float("inf")
+    if not cond < CONDITION_SINGULAR:
+        weak = np.abs(vec[:, 0])
+        culprits = [names[j] for j in np.argsort(-weak) if weak[j] > 0.2]
+        raise IdentifiabilityError(
+            f"regressor is rank deficient (scaled condition number {cond:.3g}): "
+            f"{', '.join(culprits)} are not identifiable from this log (linearly dependent columns)")
+    if cond > CONDITION_WARN:
+        warnings.warn(f"friction fit is ill-conditioned: scaled condition number {cond:.3g} > 1e6; "
+                      "estimates may be unreliable", IllConditionedWarning, stacklevel=stacklevel)
+    return cond
+
+
+# --- fits ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class _Estimate:
+    params: np.ndarray
+    covariance: np.ndarray
+    condition_number: float
+    condition_number_unscaled: float
+    constrained: bool
+    active: tuple[str, ...]
+    solver: Mapping[str, Any]
+
+
+def _nonneg_mask(model: FrictionModel, names: tuple[str, ...]) -> np.ndarray:
+    nonneg = {n for term in model.terms for n in term.nonnegative}
+    return np.array([n in nonneg for n in names], dtype=bool)
+
+
+def _fit_linear(model: FrictionModel, data: IdentificationData, *, constrain: bool,
+                check: bool = True) -> _Estimate:
+    W, y = data.regressor, data.force
+    names = model.linear_names
+    sol = _lsq.solve_lstsq(W, y)
+    sv = sol.singular_values
+    if check:
+        cond = _check_conditioning(names, sol, 5)
+    else:
+        cond = float(sv[0] / sv[-1]) if sv[-1] > 0 else float("inf")
+    lam_raw = np.linalg.eigvalsh(W.T @ W)
+    cond_raw = float(np.sqrt(lam_raw[-1] / lam_raw[0])) if lam_raw[0] > 0 else float("inf")
+    p = sol.params
+    mask = _nonneg_mask(model, names)
+    violated = mask & (p < 0)
+    active: tuple[str, ...] = ()
+    free = None
+    method = "casadi.solve (column-scaled normal equations)"
+    if constrain and violated.any():
+        method += " + cvxpy nonnegative least squares"
+        p, act = _lsq.solve_nonneg_lstsq(W, y, mask)
+        active = tuple(f"{names[j]} >= 0" for j in np.flatnonzero(act))
+        free = ~act
+    cov = _lsq.ls_covariance(W, y - W @ p, free)
+    return _Estimate(params=p, covariance=cov, condition_number=cond, condition_number_unscaled=cond_raw,
+                     constrained=bool(violated.any() and constrain), active=active,
+                     solver=MappingProxyType({"method": method}))
+
+
+def _estimate(model: FrictionModel, data: IdentificationData, *, constrain: bool, check: bool = True,
+              **nl_options: Any) -> _Estimate:
+    if model.is_linear:
+        return _fit_linear(model, data, constrain=constrain, check=check)
+    from . import nonlinear
+
+    if check:
+        _check_conditioning(model.linear_names + ("coulomb", "viscous"),
+                            _lsq.solve_lstsq(*_linear_surrogate(data)), 4)
+    res = nonlinear.fit_nonlinear(model, data, constrain=constrain, **nl_options)
+    return _Estimate(params=res.params, covariance=res.covariance, condition_number=res.condition_number,
+                     condition_number_unscaled=res.condition_number_unscaled, constrained=res.constrained,
+                     active=res.active, solver=MappingProxyType(dict(res.solver)))
+
+
+def _linear_surrogate(data: IdentificationData) -> tuple[np.ndarray, np.ndarray]:
+    W = np.column_stack([data.regressor, np.sign(data.velocity), data.velocity])
+    return W, data.force
+
+
+def _predict_data(model: FrictionModel, params: Mapping[str, float], data: IdentificationData) -> np.ndarray:
+    out = np.zeros_like(data.force)
+    if model.linear_terms:
+        out = out + data.regressor @ np.array([params[n] for n in model.linear_names])
+    nl = model.nonlinear_term
+    if nl is not None:
+        out = out + nl.evaluate(params, data.velocity, data.dt)
+    return out
+
+
+def _intervals(names, p, std, dof) -> dict[str, tuple[float, float]]:
+    q = float(sps.t.ppf(0.975, max(dof, 1)))
+    return {n: (float(p[i] - q * std[i]), float(p[i] + q * std[i])) for i, n in enumerate(names)}
+
+
+def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: FrictionModel | str, *,
+                 velocity: np.ndarray | None = None, inertia: float | None = None,
+                 settings: FilterSettings | None = None, holdout: float = 0.0,
+                 constrain: bool = True, **nonlinear_options: Any) -> FrictionFit:
+    """Identify a friction model from one log.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n,)
+        Uniform sample times [s].
+    position : ndarray, shape (n,)
+        Encoder position [rad] (or [m] for a prismatic axis).
+    force : ndarray, shape (n,)
+        Force explained by the model [N m] (or [N]); with ``inertia`` given,
+        the measured motor force.
+    model : FrictionModel or str
+        The model (e.g. ``friction_model("extended-sfm")`` or
+        ``Viscous() + Coulomb() + Harmonics(n=4)``) or a model name.
+    velocity : ndarray, shape (n,), optional
+        Measured velocity [rad/s]; default: differentiate the filtered position.
+    inertia : float, optional
+        Known (nominal) inertia [kg m^2]; ``inertia * acceleration`` is subtracted
+        from the force. Leave None and include an ``Inertia`` term to estimate it.
+    settings : FilterSettings, optional
+        Filtering and decimation; default :func:`default_filter_settings` at the
+        log's rate (IDIM recipe: 4th-order Butterworth at rate/10 on position,
+        parallel decimation by 10 with cut-off 0.04 rate, 49 edge samples); for
+        Stribeck and LuGre the same position filter and no decimation.
+    holdout : float
+        Fraction in [0, 0.9] of the (decimated) log at its end used for the holdout
+        score [-]. The score comes from a refit on the head; the returned
+        parameters are fitted on the whole log.
+    constrain : bool
+        Enforce physical consistency (nonnegative viscous/Coulomb/inertia, static
+        >= Coulomb) when the unconstrained fit violates it.
+    **nonlinear_options
+        Passed to the nonlinear solver (``max_iter``, ``sigma0_init``); unknown
+        keys raise ParameterError.
+
+    Returns
+    -------
+    FrictionFit
+        Parameters, uncertainties and fit scores.
+
+    Raises
+    ------
+    ParameterError
+        NaN/inf in an input (the message names the array), non-uniform or
+        non-increasing time, bad option.
+    IdentifiabilityError
+        No motion, motion in one direction only for a direction-dependent model,
+        or a rank-deficient regressor (names the parameters).
+    SolverError
+        The nonlinear program (ipopt) or the constrained QP (cvxpy) failed.
+
+    Warns
+    -----
+    IllConditionedWarning
+        When the scaled condition number exceeds 1e6 (the number is in the message).
+
+    Notes
+    -----
+    Linear-in-parameter models are one least-squares problem ``y = Phi p``,
+    solved with casadi on the column-scaled normal equations. Stribeck and
+    LuGre are casadi/ipopt NLPs started from a linear fit; see
+    :mod:`forecast_design.friction.nonlinear`. Standard deviations are
+    ``sigma^2 (Phi^T Phi)^-1`` with ``sigma^2 = ||r||^2 / (m - p)`` (IDIM), the
+    Jacobian taking the place of ``Phi`` for nonlinear models.
+    """
+    model = _resolve_model(model)
+    if nonlinear_options and model.is_linear:
+        raise ParameterError(f"option(s) {', '.join(sorted(nonlinear_options))} apply to nonlinear models "
+                             f"only; model {model.name!r} is linear", name=sorted(nonlinear_options)[0])
+    if not (isinstance(holdout, (int, float)) and 0.0 <= holdout <= 0.9):
+        raise ParameterError(f"holdout must be a fraction in [0, 0.9], got {holdout!r}", name="holdout",
+                             value=holdout)
+    if inertia is not None and not (math.isfinite(inertia) and inertia >= 0):
+        raise ParameterError(f"inertia must be >= 0 [kg m^2], got {inertia!r}", name="inertia", value=inertia)
+    data = prepare_identification_data(t, position, force, model, velocity=velocity, inertia=inertia,
+                                       settings=settings)
+    _check_identifiable(model, np.asarray(position, dtype=float), data)
+    est = _estimate(model, data, constrain=constrain, **nonlinear_options)
+    names = model.names
+    params = {n: float(v) for n, v in zip(names, est.params)}
+    y_hat = _predict_data(model, params, data)
+    m = data.force.size
+    holdout_fit = None
+    if holdout > 0:
+        n_head = int(round((1.0 - holdout) * m))
+        if n_head < 2 * len(names) or m - n_head < 2:
+            raise ParameterError(f"holdout {holdout} leaves too few samples ({n_head} of {m})",
+                                 name="holdout", value=holdout)
+        head = _estimate(model, data.head(n_head), constrain=constrain, check=False, **nonlinear_options)
+        y_cv = _predict_data(model, dict(zip(names, head.params)), data)
+        holdout_fit = fit_percent(data.force[n_head:], y_cv[n_head:])
+    std = np.sqrt(np.clip(np.diag(est.covariance), 0.0, None))
+    return FrictionFit(
+        model=model,
+        params=MappingProxyType(params),
+        std=MappingProxyType({n: float(s) for n, s in zip(names, std)}),
+        interval95=MappingProxyType(_intervals(names, est.params, std, m - len(names))),
+        covariance=_ro(est.covariance),
+        condition_number=est.condition_number,
+        condition_number_unscaled=est.condition_number_unscaled,
+        fit_percent_estimation=fit_percent(data.force, y_hat),
+        fit_percent_holdout=holdout_fit,
+        relative_error_percent=_relative_error(data.force, y_hat),
+        holdout=float(holdout),
+        n_samples=m,
+        n_raw_samples=data.n_raw,
+        filter=data.settings,
+        inertia_nominal=None if inertia is None else float(inertia),
+        constrained=est.constrained,
+        active_constraints=est.active,
+        solver=est.solver,
+    )
+
+
+def fit_data(fit: FrictionFit, t: np.ndarray, position: np.ndarray, force: np.ndarray, *,
+             velocity: np.ndarray | None = None) -> IdentificationData:
+    """Prepare a log exactly as `fit` prepared its own (same filters, nominal inertia).
+
+    Parameters
+    ----------
+    fit : FrictionFit
+        Gives the filter settings and the nominal inertia.
+    t, position, force : ndarray, shape (n,)
+        The log: times [s], position [rad], force [N m].
+    velocity : ndarray, shape (n,), optional
+        Measured velocity [rad/s].
+
+    Returns
+    -------
+    IdentificationData
+        Decimated data, e.g. for :func:`forecast_design.plotting.friction.plot_friction_fit`.
+    """
+    rate = _rate_from_time(_check_array("t", t))
+    settings = dataclasses.replace(fit.filter, rate_hz=rate)
+    return prepare_identification_data(t, position, force, fit.model, velocity=velocity,
+                                       inertia=fit.inertia_nominal, settings=settings)
+
+
+def predict_data(fit: FrictionFit, data: IdentificationData) -> np.ndarray:
+    """Force predicted by `fit` on prepared data.
+
+    Parameters
+    ----------
+    fit : FrictionFit
+        The fit.
+    data : IdentificationData
+        From :func:`fit_data` or :func:`prepare_identification_data`.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Predicted force [N m] on the decimated grid.
+    """
+    return _predict_data(fit.model, fit.params, data)
+
+
+def validate(fit: FrictionFit, t: np.ndarray, position: np.ndarray, force: np.ndarray, *,
+             velocity: np.ndarray | None = None) -> FrictionValidation:
+    """Cross-test a fit on a second log with the same filtering.
+
+    Parameters
+    ----------
+    fit : FrictionFit
+        The fit to test.
+    t, position, force : ndarray, shape (n,)
+        The second log: times [s], position [rad], force [N m] (same meaning as
+        in :func:`fit_friction`; the fit's nominal inertia is subtracted again).
+    velocity : ndarray, shape (n,), optional
+        Measured velocity [rad/s].
+
+    Returns
+    -------
+    FrictionValidation
+        Relative error ``100 ||y - y_hat|| / ||y||`` [%] and fit [%].
+    """
+    data = fit_data(fit, t, position, force, velocity=velocity)
+    y_hat = _predict_data(fit.model, fit.params, data)
+    return FrictionValidation(relative_error_percent=_relative_error(data.force, y_hat),
+                              fit_percent=fit_percent(data.force, y_hat), n_samples=int(data.force.size))
+
+
+def _experiment_arrays(experiment: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    sig = experiment.signals
+    tau_s = sig.tau_s
+    if tau_s is None:
+        tau_s = experiment.design.testbed.k * (np.asarray(sig.theta) - np.asarray(sig.q))
+    force = np.asarray(sig.tau_m, dtype=float) - np.asarray(tau_s, dtype=float)
+    return np.asarray(sig.t, dtype=float), np.asarray(sig.theta, dtype=float), force, \
+        float(experiment.design.testbed.J_m)
+
+
+def fit_friction_experiment(experiment: Any, model: FrictionModel | str = "extended-sfm", *,
+                            harmonics: int | None = None, offset: bool = False,
+                            estimate_inertia: bool = False, **kwargs: Any) -> FrictionFit:
+    """Identify motor friction from an SEA experiment log.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        A loaded experiment (``signals.t``, ``tau_m``, ``theta``, ``tau_s``;
+        ``design.testbed.J_m``).
+    model : FrictionModel or str
+        Model or model name (see :func:`friction_model`).
+    harmonics : int, optional
+        Position harmonics N when `model` is a name.
+    offset : bool
+        Add an ``offset`` term when `model` is a name.
+    estimate_inertia : bool
+        Estimate the motor inertia (an ``inertia`` column on theta'') instead of
+        subtracting the nominal ``J_m theta''``.
+    **kwargs
+        Passed to :func:`fit_friction` (``settings``, ``holdout``, ``constrain``...).
+
+    Returns
+    -------
+    FrictionFit
+        The fit of tau_frc = tau_m - J_m theta'' - tau_s [N m] (or, with
+        `estimate_inertia`, of tau_m - tau_s with an inertia column).
+    """
+    if isinstance(model, str):
+        model = friction_model(model, harmonics=harmonics, offset=offset, estimate_inertia=estimate_inertia)
+    elif estimate_inertia and "inertia" not in model.names:
+        from .terms import Inertia
+
+        model = Inertia() + model
+    t, theta, force, J_m = _experiment_arrays(experiment)
+    inertia = None if "inertia" in model.names else J_m
+    return fit_friction(t, theta, force, model, inertia=inertia, **kwargs)
+
+
+def validate_experiment(fit: FrictionFit, experiment: Any) -> FrictionValidation:
+    """Cross-test a fit on a second SEA experiment (see :func:`validate`).
+
+    Parameters
+    ----------
+    fit : FrictionFit
+        Fit from :func:`fit_friction_experiment`.
+    experiment : Experiment
+        The second log.
+
+    Returns
+    -------
+    FrictionValidation
+        Relative error [%] and fit [%].
+    """
+    t, theta, force, _ = _experiment_arrays(experiment)
+    return validate(fit, t, theta, force)

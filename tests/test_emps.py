@@ -1,0 +1,68 @@
+"""Friction identification on real data: the EMPS benchmark (Janot, Gautier, Brunot 2019).
+
+Published IDIM-LS values from EMPS_Description.pdf, as recorded in
+../shared/data/emps/SOURCE.md. The fits run with the library defaults (the same
+as the CLI's), which follow the reference's recipe at 1 kHz.
+"""
+
+from pathlib import Path
+
+import pytest
+
+from forecast_design.friction import fit_friction, friction_model, load_axis_csv, validate
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "emps"
+pytestmark = pytest.mark.skipif(not (DATA / "emps_train.csv").exists(), reason="EMPS data not present")
+
+# name: (estimate, std) of the symmetric model tau = M q'' + Fv q' + Fc sign q' + offset
+PUBLISHED = {"inertia": (95.1089, 0.1085), "viscous": (203.5034, 1.1460), "coulomb": (20.3935, 0.1012),
+             "offset": (-3.1648, 0.0444)}
+PUBLISHED_ASYM = {"inertia": 95.1540, "viscous_pos": 166.7061, "coulomb_pos": 20.1440,
+                  "viscous_neg": 240.4236, "coulomb_neg": 20.6277}
+
+
+def _load(name):
+    return load_axis_csv(DATA / name, time="t_s", position="qm_m", force="force_N")
+
+
+@pytest.fixture(scope="module")
+def train():
+    return _load("emps_train.csv")
+
+
+@pytest.fixture(scope="module")
+def symmetric_fit(train):
+    # holdout=0.3 is the CLI default; the returned parameters still use the whole log.
+    return fit_friction(train.t, train.position, train.force,
+                        friction_model("sfm", offset=True, estimate_inertia=True), holdout=0.3)
+
+
+def test_emps_symmetric_idim_matches_published_within_1_percent(symmetric_fit):
+    for name, (value, _) in PUBLISHED.items():
+        assert symmetric_fit.params[name] == pytest.approx(value, rel=0.01), name
+
+
+def test_emps_standard_deviations_and_conditioning_match_published(symmetric_fit):
+    for name, (_, std) in PUBLISHED.items():
+        assert symmetric_fit.std[name] == pytest.approx(std, rel=0.05), name
+    assert symmetric_fit.condition_number_unscaled == pytest.approx(25.9883, rel=0.01)
+    assert symmetric_fit.relative_error_percent == pytest.approx(4.0834, abs=0.2)
+    assert symmetric_fit.fit_percent_holdout > 90.0
+    assert symmetric_fit.filter.to_mapping() == {
+        "rate_hz": pytest.approx(1000.0, rel=1e-6), "position_cutoff_hz": pytest.approx(100.0, rel=1e-6),
+        "filter_order": 4, "decimation": "parallel", "decimation_factor": 10,
+        "decimation_cutoff_hz": pytest.approx(40.0, rel=1e-6), "edge_samples": 49}
+
+
+def test_emps_asymmetric_matches_published_within_2_percent(train):
+    fit = fit_friction(train.t, train.position, train.force,
+                       friction_model("asymmetric", estimate_inertia=True))
+    for name, value in PUBLISHED_ASYM.items():
+        assert fit.params[name] == pytest.approx(value, rel=0.02), name
+    assert fit.relative_error_percent == pytest.approx(3.1117, abs=0.2)
+
+
+def test_emps_cross_test_on_pulses_matches_published(symmetric_fit):
+    test = _load("emps_pulses_test.csv")
+    val = validate(symmetric_fit, test.t, test.position, test.force)
+    assert val.relative_error_percent == pytest.approx(5.9824, abs=0.5)
