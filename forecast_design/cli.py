@@ -289,3 +289,73 @@ def _cmd_check(args: argparse.Namespace) -> int:
               f"({summary['duration']:.4g} s), columns {', '.join(summary['columns'])}, "
               f"{'locked' if summary['locked'] else 'environment k_e = %g' % summary['design']['environment']['k_e']}")
     return 0
+
+
+# --- identify ---------------------------------------------------------------------
+
+
+def _configure_identify(p: argparse.ArgumentParser) -> None:
+    from .friction import MODEL_NAMES
+
+    p.add_argument("log", nargs="?", metavar="LOG.toml", help="experiment in the shared format (motor side)")
+    p.add_argument("--csv", metavar="FILE", help="instead: a plain CSV of a rigid axis (with the column options)")
+    p.add_argument("--time", metavar="COL", help="--csv: time column [s]")
+    p.add_argument("--position", metavar="COL", help="--csv: position column [rad or m]")
+    p.add_argument("--force", metavar="COL", help="--csv: force/torque column [N m or N]")
+    p.add_argument("--rate-hz", type=_float_range, help="--csv: declared sample rate [Hz]")
+    p.add_argument("--scale-force", type=_float_range, default=1.0, help="--csv: factor on the force column")
+    p.add_argument("--model", default="extended-sfm", choices=MODEL_NAMES)
+    p.add_argument("--harmonics", type=int, help="angle harmonics N (default 4 where they apply)")
+    p.add_argument("--estimate-inertia", action="store_true", help="fit the inertia instead of the nominal J_m")
+    p.add_argument("--offset", action="store_true", help="add a constant offset term")
+    p.add_argument("--holdout", type=_float_range, default=0.3, help="fraction held out for fit %% (default 0.3)")
+    p.add_argument("--validate", metavar="FILE", help="second log (same kind and column mapping) to cross-test")
+    p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write the fit as JSON to OUT (or stdout)")
+    p.add_argument("--plot", metavar="OUT.png", help="measured vs estimated friction (like the paper's Fig. 9)")
+
+
+def _load_log(path: str, args: argparse.Namespace):
+    if args.csv is not None:
+        from .friction import load_axis_csv
+
+        missing = [opt for opt in ("time", "position", "force") if getattr(args, opt) is None]
+        if missing:
+            from .errors import ParameterError
+
+            raise ParameterError(f"--csv needs --{', --'.join(missing)} (the column names)", name=missing[0])
+        return load_axis_csv(path, time=args.time, position=args.position, force=args.force,
+                             rate_hz=args.rate_hz, scale_force=args.scale_force)
+    from .experiment import load_experiment
+
+    return load_experiment(path)
+
+
+@_command("identify", "identify friction from a log by least squares (casadi), SFM to LuGre", _configure_identify)
+def _cmd_identify(args: argparse.Namespace) -> int:
+    from .errors import ParameterError
+    from .friction import identify
+
+    if (args.log is None) == (args.csv is None):
+        raise ParameterError("give exactly one of LOG.toml or --csv FILE", name="log")
+    log = _load_log(args.csv or args.log, args)
+    validation = _load_log(args.validate, args) if args.validate else None
+    fit = identify(log, args.model, harmonics=args.harmonics, offset=args.offset,
+                   estimate_inertia=args.estimate_inertia, holdout=args.holdout, validation_log=validation)
+    if args.plot:
+        from .friction import fit_data, log_arrays
+        from .plotting.friction import plot_friction_fit
+
+        t, position, force, _ = log_arrays(log)
+        plot_friction_fit(fit, fit_data(fit, t, position, force), args.plot)
+    mapping = fit.to_mapping()
+    if args.json:
+        _write_json(args.json, mapping)
+    if args.json != "-":
+        print(f"model {mapping['model']}: fit {mapping['fit_percent']['estimation']:.2f} % (estimation), "
+              f"{mapping['fit_percent']['holdout']:.2f} % (hold-out), condition number "
+              f"{mapping['condition_number']:.4g}")
+        for name, value in mapping["params"].items():
+            print(f"  {name:<20} {value: .6g}  +- {mapping['std'].get(name, float('nan')):.3g}")
+        if "validation" in mapping:
+            print(f"validation: relative error {mapping['validation']['relative_error_percent']:.3f} %")
+    return 0

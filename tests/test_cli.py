@@ -163,3 +163,39 @@ def test_check_bad_experiment_exit_2_one_line_naming_file(tmp_path, capsys, toml
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert fragment in err and "run." in err
+
+
+EMPS = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "data" / "emps"
+
+
+@pytest.mark.skipif(not (EMPS / "emps_train.csv").exists(), reason="shared EMPS data not present")
+def test_identify_emps_from_the_command_line_matches_published_idim_ls(tmp_path, capsys):
+    out = tmp_path / "fit.json"
+    code = main(["identify", "--csv", str(EMPS / "emps_train.csv"), "--time", "t_s", "--position", "qm_m",
+                 "--force", "force_N", "--model", "sfm", "--offset", "--estimate-inertia",
+                 "--validate", str(EMPS / "emps_pulses_test.csv"), "--json", str(out),
+                 "--plot", str(tmp_path / "fit.png")])
+    assert code == 0
+    fit = json.loads(out.read_text())
+    published = {"inertia": 95.1089, "viscous": 203.5034, "coulomb": 20.3935, "offset": -3.1648}
+    for name, value in published.items():
+        assert fit["params"][name] == pytest.approx(value, rel=0.01), name
+    assert abs(fit["validation"]["relative_error_percent"] - 5.9824) <= 0.5
+    assert (tmp_path / "fit.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("extra,fragment", [
+    (["--time", "t_s", "--position", "nope", "--force", "force_N"], "nope"),
+    (["--time", "t_s"], "--csv needs --position, --force"),
+])
+def test_identify_csv_bad_columns_exit_2(tmp_path, capsys, extra, fragment):
+    csv_path = tmp_path / "axis.csv"
+    csv_path.write_text("t_s,qm_m,force_N\n0,0,1\n0.001,0.1,1\n0.002,0.2,1\n")
+    code = _exit_code(["identify", "--csv", str(csv_path), *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1
+
+
+def test_identify_requires_exactly_one_log(capsys):
+    assert _exit_code(["identify"]) == 2
+    assert "exactly one" in capsys.readouterr().err

@@ -746,3 +746,61 @@ def validate_experiment(fit: FrictionFit, experiment: Any) -> FrictionValidation
     """
     t, theta, force, _ = _experiment_arrays(experiment)
     return validate(fit, t, theta, force)
+
+
+def log_arrays(log: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | None]:
+    """Time [s], position [rad or m], explained force [N m or N] and nominal inertia of a log.
+
+    Parameters
+    ----------
+    log : Experiment or AxisLog
+        An SEA experiment (force = tau_m - tau_s, inertia J_m [kg m^2]) or a plain
+        axis log from :func:`~forecast_design.friction.load_axis_csv` (no nominal inertia).
+
+    Returns
+    -------
+    tuple
+        ``(t, position, force, inertia)``; ``inertia`` is None for an axis log.
+    """
+    if hasattr(log, "signals"):
+        return _experiment_arrays(log)
+    return np.asarray(log.t), np.asarray(log.position), np.asarray(log.force), None
+
+
+def identify(log: Any, model: str = "extended-sfm", *, harmonics: int | None = None, offset: bool = False,
+             estimate_inertia: bool = False, holdout: float = 0.3, validation_log: Any = None) -> FrictionFit:
+    """Identify friction from one log and optionally cross-test it on another (the ``identify`` verb).
+
+    Parameters
+    ----------
+    log : Experiment or AxisLog
+        The estimation log. On an SEA experiment the explained torque is
+        tau_frc = tau_m - J_m theta'' - tau_s [N m] with the nominal J_m unless
+        `estimate_inertia`; on an axis log, force = inertia x'' + friction.
+    model : str
+        One of :data:`~forecast_design.friction.MODEL_NAMES`.
+    harmonics : int, optional
+        Angle harmonics N for the models that have them.
+    offset : bool
+        Add a constant offset term [N m].
+    estimate_inertia : bool
+        Estimate the inertia (always on for an axis log, which has no nominal inertia).
+    holdout : float
+        Fraction of the log's end held out for the hold-out fit % [-].
+    validation_log : Experiment or AxisLog, optional
+        Second log for the relative error 100 ||y - y_hat|| / ||y|| [%].
+
+    Returns
+    -------
+    FrictionFit
+        The fit (parameters on the whole log), with ``validation`` when a second log is given.
+    """
+    t, position, force, inertia = log_arrays(log)
+    fm = friction_model(model, harmonics=harmonics, offset=offset,
+                        estimate_inertia=estimate_inertia or inertia is None)
+    fit = fit_friction(t, position, force, fm, inertia=None if "inertia" in fm.names else inertia,
+                       holdout=holdout)
+    if validation_log is not None:
+        vt, vpos, vforce, _ = log_arrays(validation_log)
+        fit = fit.with_validation(validate(fit, vt, vpos, vforce))
+    return fit
