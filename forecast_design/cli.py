@@ -359,3 +359,142 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         if "validation" in mapping:
             print(f"validation: relative error {mapping['validation']['relative_error_percent']:.3f} %")
     return 0
+
+
+# --- export / emulate / run -----------------------------------------------------------
+
+_COMPENSATOR_CHOICES = ["none", "sfm", "ea-fob", "lo-dob", "ld-dob", "motor-fob"]
+
+
+def _configure_export(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D", help="force controller (default pd:5:0.1)")
+    p.add_argument("--compensator", default="none", choices=_COMPENSATOR_CHOICES)
+    p.add_argument("--env", default="exp-soft", metavar="NAME", help="environment preset (default exp-soft)")
+    p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz] (default 10)")
+    p.add_argument("--method", default="tustin", help="discretisation: tustin (default), zoh, backward-euler")
+    p.add_argument("--rate-hz", type=_float_range, default=2000.0, help="control rate [Hz] (default 2000)")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for fd_controller.h / fd_controller.c")
+    p.add_argument("--json", action="store_true", help="print the export summary as JSON")
+
+
+@_command("export", "export the controller and compensator as C99 for the Nucleo F446RE (2 kHz)", _configure_export)
+def _cmd_export(args: argparse.Namespace) -> int:
+    from .export.c import export_controller
+
+    result = export_controller(out_dir=args.out, controller=args.controller, compensator=args.compensator,
+                               env=args.env, w_q_hz=args.w_q_hz, rate_hz=args.rate_hz, method=args.method)
+    if args.json:
+        _print_json(result.to_mapping())
+    else:
+        print(f"wrote {result.header} and {result.source} (sha256 {result.digest[:12]})")
+    return 0
+
+
+def _configure_emulate(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--fault", action="append", default=[], metavar="KIND:VALUE",
+                   help="inject faults: flip:P, drop:P (probabilities), disconnect:N (samples), seed:S")
+    p.add_argument("--realtime", action="store_true", help="pace the sample stream in real time")
+    p.add_argument("--env", default="exp-soft", metavar="NAME", help="virtual testbed environment")
+
+
+@_command("emulate", "emulate the board on a pseudo-terminal (prints its path, serves until terminated)",
+          _configure_emulate)
+def _cmd_emulate(args: argparse.Namespace) -> int:
+    from .params import Design
+    from .runtime import emulate, parse_fault
+
+    return emulate(faults=parse_fault(args.fault), design=Design.nominal(args.env), realtime=args.realtime)
+
+
+def _configure_run(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--port", required=True, help="serial port (device path, pty, or a pyserial URL)")
+    p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D")
+    p.add_argument("--compensator", default="none", choices=_COMPENSATOR_CHOICES)
+    p.add_argument("--w-q-hz", type=_float_range, default=10.0)
+    p.add_argument("--env", default="exp-soft", metavar="NAME")
+    p.add_argument("--reference", default="square:0.2:0.5", metavar="KIND:ARGS",
+                   help="force reference, e.g. square:AMP:PERIOD, step:AMP, sine:AMP:FREQ")
+    p.add_argument("--duration", type=_float_range, default=5.0, help="run length [s]")
+    p.add_argument("--timeout", type=_float_range, default=1.0, help="serial silence that counts as a disconnect [s]")
+    p.add_argument("--out", required=True, metavar="RUN.toml", help="recorded experiment")
+    p.add_argument("--json", metavar="SUMMARY", nargs="?", const="-", help="write the run summary as JSON")
+
+
+@_command("run", "upload the exported controller to a board, record a run as an experiment", _configure_run)
+def _cmd_run(args: argparse.Namespace) -> int:
+    from .runtime import LinkError, run_on_port
+
+    try:
+        result = run_on_port(args.port, out=args.out, reference=args.reference, duration=args.duration,
+                             controller=args.controller, compensator=args.compensator, w_q_hz=args.w_q_hz,
+                             env=args.env, timeout=args.timeout)
+        summary = result.to_mapping()
+    except LinkError as exc:
+        if args.json and getattr(exc, "summary", None):
+            _write_json(args.json, exc.summary)
+        raise
+    if args.json:
+        _write_json(args.json, summary)
+    if args.json != "-":
+        print(f"{args.out}: {summary['samples']} samples, {summary['lost']} lost, "
+              f"{summary['corrupt_frames']} corrupt frames, {summary['resyncs']} resyncs")
+    return 0
+
+
+# --- diagnose / bench-gap ----------------------------------------------------------------
+
+
+def _configure_diagnose(p: argparse.ArgumentParser) -> None:
+    p.add_argument("experiment", metavar="EXPERIMENT.toml", help="measured log; its TOML is the nominal model")
+    p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write the diagnosis JSON to OUT (or stdout)")
+    p.add_argument("--report", metavar="DIR", help="write a Markdown report with plots")
+
+
+@_command("diagnose", "diagnose the sim-to-real gap: where, which unmodelled effect, how much", _configure_diagnose)
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    from .experiment import load_experiment
+    from .gap import diagnose, write_report
+
+    experiment = load_experiment(args.experiment)
+    diagnosis = diagnose(experiment)
+    mapping = diagnosis.to_mapping()
+    if args.report:
+        write_report(diagnosis, experiment, args.report)
+    if args.json:
+        _write_json(args.json, mapping)
+    if args.json != "-":
+        v = mapping["verdict"]
+        print(f"verdict: {v['effect']} (gap {v['gap_before']:.4g} -> {v['gap_after']:.4g}, "
+              f"reduction {100 * v['reduction']:.1f} %)")
+        print(f"where: {mapping['location']['summary']}")
+        for row in mapping["ranking"]:
+            print(f"  {row['effect']:<22} reduction {100 * row['reduction']:6.1f} %")
+        if args.report:
+            print(f"report: {args.report}")
+    return 0
+
+
+def _configure_bench_gap(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--per-effect", type=int, default=5, metavar="N", help="logs per effect word (default 5)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--duration", type=_float_range, default=10.0, help="length of each generated log [s]")
+    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write the result JSON to OUT (or stdout)")
+
+
+@_command("bench-gap", "withheld-effect benchmark of the diagnosis (confusion matrix, accuracy)", _configure_bench_gap)
+def _cmd_bench_gap(args: argparse.Namespace) -> int:
+    from .errors import ParameterError
+    from .gap import benchmark
+
+    if args.per_effect < 1:
+        raise ParameterError(f"--per-effect must be >= 1, got {args.per_effect}", name="per_effect")
+    result = benchmark(per_effect=args.per_effect, seed=args.seed, workers=args.workers,
+                       duration_s=args.duration, progress=args.json != "-")
+    if args.json:
+        _write_json(args.json, result.to_mapping())
+    if args.json != "-":
+        print(result.format_confusion())
+        print(f"accuracy {100 * result.accuracy:.1f} %, false alarms {result.false_alarms}, "
+              f"lowest held-out reduction of a correct effect {result.min_true_reduction:.3f}")
+    return 0

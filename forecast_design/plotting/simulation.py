@@ -1,0 +1,108 @@
+"""Plots of simulated runs: torque tracking and friction estimate vs truth (the paper's Fig. 7 layout)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping, Sequence
+
+from ..errors import ParameterError
+
+__all__ = ["plot_simulation", "plot_step_responses"]
+
+
+def _items(results) -> list[tuple[str, object]]:
+    items = list(results.items()) if isinstance(results, Mapping) else [tuple(r) for r in results]
+    if not items:
+        raise ParameterError("plot needs at least one simulation result", name="results", value=results)
+    return items
+
+
+def plot_simulation(results: Mapping[str, object] | Sequence[tuple[str, object]], path: str | Path | None = None,
+                    *, t_range: tuple[float, float] | None = None):
+    """One column per run: tau_r and tau_s on top, true and estimated friction below (Fig. 7).
+
+    Parameters
+    ----------
+    results : Mapping[str, SimulationResult] or sequence of (label, SimulationResult)
+        The runs, e.g. ``{"SFM": r_sfm, "EA-FOB": r_eafob}``.
+    path : str or Path, optional
+        Write the figure there (PNG by suffix); otherwise just return it.
+    t_range : (float, float), optional
+        Time window [s].
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    items = _items(results)
+    fig, axes = plt.subplots(2, len(items), sharex=True, squeeze=False, figsize=(4.5 * len(items), 5.5))
+    for col, (label, r) in enumerate(items):
+        t = r.t
+        sel = slice(None) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
+        top, bottom = axes[0, col], axes[1, col]
+        if r.tau_r is not None:
+            top.plot(t[sel], r.tau_r[sel], color="0.6", lw=1.5, label=r"$\tau_r$")
+        top.plot(t[sel], r.tau_s[sel], color="k", lw=1.0, label=r"$\tau_s$")
+        top.set_title(str(label))
+        top.set_ylabel("torque [N m]")
+        top.legend(loc="upper right", fontsize=8)
+        bottom.plot(t[sel], r.truth.tau_frc[sel], color="tab:red", lw=1.0, label=r"$\tau_{frc}$ (true)")
+        bottom.plot(t[sel], r.tau_frc_hat[sel], color="tab:blue", lw=1.0, ls="--", label=r"$\hat\tau_{frc}$")
+        bottom.set_xlabel("t [s]")
+        bottom.set_ylabel("friction [N m]")
+        bottom.legend(loc="upper right", fontsize=8)
+        for ax in (top, bottom):
+            ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig
+
+
+def plot_step_responses(groups: Mapping[str, Sequence[object]], path: str | Path | None = None, *,
+                        expected: Mapping[str, object] | None = None):
+    """Overlaid spring-torque responses per group (the paper's Figs. 10-12 layout).
+
+    Parameters
+    ----------
+    groups : Mapping[str, sequence of SimulationResult]
+        One panel per key, each with its repetitions overlaid.
+    path : str or Path, optional
+        Write the figure there.
+    expected : Mapping[str, SimulationResult], optional
+        Frictionless response per key, drawn red dashed.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if not groups:
+        raise ParameterError("plot_step_responses needs at least one group", name="groups", value=groups)
+    fig, axes = plt.subplots(1, len(groups), squeeze=False, figsize=(4.5 * len(groups), 3.5))
+    for ax, (label, runs) in zip(axes[0], groups.items()):
+        for r in runs:
+            ax.plot(r.t, r.tau_s, lw=0.8, alpha=0.8)
+        if expected is not None and label in expected:
+            e = expected[label]
+            ax.plot(e.t, e.tau_s, "r--", lw=1.2, label="frictionless")
+            ax.legend(loc="lower right", fontsize=8)
+        ax.set_title(str(label))
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(r"$\tau_s$ [N m]")
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig

@@ -1,0 +1,43 @@
+"""The virtual testbed: true plant with unmodelled effects, 2 kHz controllers, references, runs, scenarios."""
+
+from .controllers import DiscretePD, ObserverCompensator, SfmCompensator, pd_transfer_function
+from .plant import PlantModel, build_plant, integrate_open_loop, stability_check
+from .references import (
+    REFERENCE_KINDS,
+    Chirp,
+    Constant,
+    Multisine,
+    PiecewiseLinear,
+    Ramp,
+    Sine,
+    Square,
+    Step,
+    reference_from_mapping,
+)
+from .run import ENCODER_COUNTS, SimulationResult, SimulationTruth, save_simulation, simulate
+
+__all__ = [
+    "simulate",
+    "save_simulation",
+    "SimulationResult",
+    "SimulationTruth",
+    "ENCODER_COUNTS",
+    "PlantModel",
+    "build_plant",
+    "integrate_open_loop",
+    "stability_check",
+    "DiscretePD",
+    "SfmCompensator",
+    "ObserverCompensator",
+    "pd_transfer_function",
+    "Constant",
+    "Step",
+    "Square",
+    "Sine",
+    "Multisine",
+    "Chirp",
+    "Ramp",
+    "PiecewiseLinear",
+    "REFERENCE_KINDS",
+    "reference_from_mapping",
+]

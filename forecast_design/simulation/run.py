@@ -1,0 +1,470 @@
+"""The virtual testbed: closed-loop (or open-loop) runs at the control rate, recorded as experiments.
+
+One control period at sample ``n`` (time ``t_n = n / rate_hz``), as on the
+embedded board and as the experiment format defines a row:
+
+1. sample the encoders: ``theta_m = Q(theta(t_n))``, ``q_m = Q(q(t_n))``
+   (round to the nearest of ``encoder_counts`` per revolution);
+   ``tau_s_m = k (theta_m - q_m)`` with the *nominal* k;
+2. compensator estimate ``tau_hat[n]`` (SFM from ``theta_m``; observers
+   from ``tau_m[n-1]``, ``tau_s_m``, ``theta_m``; see
+   :mod:`.controllers`);
+3. closed loop: ``u[n] = C_F(z) (tau_r[n] - tau_s_m)``,
+   ``tau_m[n] = sat(u[n] + tau_hat[n])``; open loop: ``tau_m[n] =
+   sat(profile(t_n))`` (the estimate is computed and logged, not applied);
+4. the true plant integrates over [t_n, t_n+1) with ``substeps`` RK4 steps,
+   the command held (zero-order hold), modified by the effects (delay,
+   torque gain) plus a process torque noise held per period.
+
+The whole loop runs in one numba-compiled function (pure Python without
+numba). The recorded experiment holds the nominal design only; the truth
+(effects, true environment, true states and friction) is kept apart in
+:class:`SimulationTruth` and written to sidecar files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..effects import effects_to_mappings
+from ..errors import ParameterError
+from ..export.discretize import _njit, sos_step
+from ..params import Compensator, Design, Environment, PDController
+from .controllers import (
+    DEFAULT_DERIVATIVE_CUTOFF_HZ,
+    DEFAULT_VELOCITY_CUTOFF_HZ,
+    DiscretePD,
+    ObserverCompensator,
+    SfmCompensator,
+    sfm_eval,
+)
+from .plant import I_GAIN, PlantModel, build_plant, rk4_substep, stability_check
+
+__all__ = [
+    "ENCODER_COUNTS",
+    "DEFAULT_PROCESS_NOISE_STD",
+    "SimulationTruth",
+    "SimulationResult",
+    "simulate",
+    "save_simulation",
+]
+
+#: Encoder resolution of the Forecast testbed (DHO-05) [counts/rev].
+ENCODER_COUNTS = 2_000_000
+#: Default process torque noise (std of a per-period held torque) [N m].
+DEFAULT_PROCESS_NOISE_STD = 1e-3
+
+# Columns of the kernel logs.
+_MEAS = ("theta", "q", "tau_s", "tau_m", "u", "tau_frc_hat")
+_TRUTH = ("theta", "omega", "q", "v", "z", "tau_frc", "tau_s", "tau_m_applied")
+
+
+@_njit
+def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, noise, k_nom,
+          pd_sos, pd_st, comp, sfm_coef, sfm_harm, vel_sos, vel_st,
+          gm_sos, gm_st, gs_sos, gs_st, gt_sos, gt_st, meas, truth):
+    out = np.zeros(2)
+    tau_prev = 0.0
+    for k in range(n):
+        th = x[0]
+        qq = x[2]
+        if enc_step > 0.0:
+            th = math.floor(th / enc_step + 0.5) * enc_step
+            qq = math.floor(qq / enc_step + 0.5) * enc_step
+        tau_s = k_nom * (th - qq)
+        tau_hat = 0.0
+        if comp == 1:
+            v = sos_step(vel_sos, vel_st, th)
+            tau_hat = sfm_eval(sfm_coef, sfm_harm, th, v)
+        elif comp == 2:
+            tau_hat = sos_step(gm_sos, gm_st, tau_prev) + sos_step(gs_sos, gs_st, tau_s) \
+                + sos_step(gt_sos, gt_st, th)
+        if closed:
+            u = sos_step(pd_sos, pd_st, ref[k] - tau_s)
+            cmd = u + tau_hat
+        else:
+            u = 0.0
+            cmd = ol[k]
+        if cmd > torque_limit:
+            cmd = torque_limit
+        elif cmd < -torque_limit:
+            cmd = -torque_limit
+        meas[k, 0] = th
+        meas[k, 1] = qq
+        meas[k, 2] = tau_s
+        meas[k, 3] = cmd
+        meas[k, 4] = u
+        meas[k, 5] = tau_hat
+        tau_prev = cmd
+        for j in range(nsub):
+            idx = k * nsub + j - dsub
+            c = meas[idx // nsub, 3] if idx >= 0 else 0.0
+            tau = p[I_GAIN] * c + noise[k]
+            if j == 0:
+                for m in range(5):
+                    truth[k, m] = x[m]
+                truth[k, 7] = tau
+            rk4_substep(x, tau, p, harm, out)
+            if j == 0:
+                truth[k, 5] = out[0]
+                truth[k, 6] = out[1]
+
+
+@dataclass(frozen=True, slots=True)
+class SimulationTruth:
+    """What the simulated hardware really did (never part of the experiment's TOML).
+
+    All arrays have shape (n,) and hold values at the sample times t_n.
+    """
+
+    effects: tuple                   # effect parameter values that were simulated
+    environment: Environment         # the true environment
+    initial_angle: float             # absolute motor angle at theta = 0 [rad]
+    include_nominal_viscous: bool    # d_m omega part of tau_frc
+    theta: np.ndarray                # motor angle [rad]
+    omega: np.ndarray                # motor velocity [rad/s]
+    q: np.ndarray                    # environment angle [rad]
+    v: np.ndarray                    # environment velocity [rad/s]
+    z: np.ndarray                    # LuGre bristle deflection [rad]
+    tau_frc: np.ndarray              # total friction (+ cogging) torque at the motor [N m]
+    tau_s: np.ndarray                # true spring torque (with backlash) [N m]
+    tau_m_applied: np.ndarray        # torque acting on the motor (delay, gain, noise) [N m]
+
+    def columns(self) -> dict[str, np.ndarray]:
+        """The truth signals by name (sidecar CSV columns, without ``t``)."""
+        return {name: getattr(self, name) for name in _TRUTH}
+
+    def metadata(self) -> dict[str, Any]:
+        """Effects, true environment and flags (for the sidecar JSON)."""
+        return {"effects": effects_to_mappings(self.effects), "environment": self.environment.to_mapping(),
+                "initial_angle": self.initial_angle, "include_nominal_viscous": self.include_nominal_viscous}
+
+
+@dataclass(frozen=True, slots=True)
+class SimulationResult:
+    """One simulated run: the measured signals (experiment format) and the truth.
+
+    Attributes
+    ----------
+    design : Design
+        Nominal design, with the controller/compensator that ran (open loop: none).
+    rate_hz : float
+        Control rate [Hz].
+    t : ndarray, shape (n,)
+        Sample times [s].
+    tau_m : ndarray
+        Applied command (after saturation) [N m].
+    theta, q : ndarray
+        Encoder readings [rad].
+    tau_s : ndarray
+        Measured spring torque k (theta - q) [N m].
+    tau_r : ndarray or None
+        Force reference (closed loop) [N m].
+    u : ndarray
+        Force-controller output [N m] (zeros in open loop).
+    tau_frc_hat : ndarray
+        Compensator friction estimate [N m] (zeros without compensator).
+    truth : SimulationTruth
+        The hidden truth.
+    options : dict
+        The simulation options (substeps, seed, noise, ...), for provenance.
+    stability : dict
+        :func:`~forecast_design.simulation.plant.stability_check` of the step.
+    description : str
+        Free text.
+    """
+
+    design: Design
+    rate_hz: float
+    t: np.ndarray
+    tau_m: np.ndarray
+    theta: np.ndarray
+    q: np.ndarray
+    tau_s: np.ndarray
+    tau_r: np.ndarray | None
+    u: np.ndarray
+    tau_frc_hat: np.ndarray
+    truth: SimulationTruth
+    options: Mapping[str, Any] = field(default_factory=dict)
+    stability: Mapping[str, float] = field(default_factory=dict)
+    description: str = ""
+
+    def to_experiment(self):
+        """The measured run as an :class:`~forecast_design.experiment.Experiment` (extra columns u, tau_frc_hat)."""
+        from ..experiment import experiment_from_arrays
+
+        return experiment_from_arrays(self.design, self.rate_hz, self.t, self.tau_m, self.theta, self.q,
+                                      tau_s=self.tau_s, tau_r=self.tau_r,
+                                      extra={"u": self.u, "tau_frc_hat": self.tau_frc_hat},
+                                      description=self.description)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """Summary for JSON: options, truth metadata, stability and a few scalar statistics."""
+        stats = {
+            "n_samples": int(self.t.shape[0]),
+            "duration_s": float(self.t.shape[0] / self.rate_hz),
+            "max_abs_tau_m": float(np.max(np.abs(self.tau_m))) if self.t.size else 0.0,
+            "mae_friction_estimate": float(np.mean(np.abs(self.tau_frc_hat - self.truth.tau_frc))),
+        }
+        if self.tau_r is not None:
+            stats["mae_tracking"] = float(np.mean(np.abs(self.tau_r - self.tau_s)))
+        return {"design": _design_mapping(self.design), "rate_hz": self.rate_hz, "options": dict(self.options),
+                "truth": self.truth.metadata(), "stability": dict(self.stability), "statistics": stats,
+                "description": self.description}
+
+
+def _design_mapping(design: Design) -> dict[str, Any]:
+    out: dict[str, Any] = {"testbed": design.testbed.to_mapping(), "environment": design.environment.to_mapping()}
+    if design.controller is not None:
+        out["controller"] = design.controller.to_mapping()
+    if design.compensator is not None:
+        out["compensator"] = design.compensator.to_mapping()
+    return out
+
+
+def _reference_samples(reference: Any, n: int, rate_hz: float, what: str) -> np.ndarray:
+    t = np.arange(n) / rate_hz
+    if callable(reference):
+        values = np.asarray(reference(t), dtype=float)
+        if values.shape == ():
+            values = np.full(n, float(values))
+    else:
+        values = np.asarray(reference, dtype=float)
+    if values.shape != (n,):
+        raise ParameterError(f"{what} must give {n} samples (duration_s * rate_hz), got shape {values.shape}",
+                             name=what, value=values.shape)
+    if not np.all(np.isfinite(values)):
+        raise ParameterError(f"{what} has non-finite values", name=what, value=None)
+    return np.ascontiguousarray(values)
+
+
+def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | Sequence[float] | np.ndarray,
+             duration_s: float, effects: Sequence[Any] = (), rate_hz: float = 2000.0, substeps: int = 10,
+             seed: int = 0, closed_loop: bool = True, sfm_params: Mapping[str, float] | None = None,
+             derivative_cutoff_hz: float = DEFAULT_DERIVATIVE_CUTOFF_HZ,
+             velocity_cutoff_hz: float = DEFAULT_VELOCITY_CUTOFF_HZ, sfm_deadband: float = 0.0,
+             torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
+             process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
+             include_nominal_viscous: bool = True, method: str = "tustin",
+             description: str = "") -> SimulationResult:
+    """Simulate the testbed: PD force control (+ compensator) or an open-loop torque profile.
+
+    Parameters
+    ----------
+    design : Design
+        Nominal testbed and environment; ``controller`` (default: the
+        paper's PD, P = 5, D = 0.1) and ``compensator`` (default none) are
+        used in closed loop. Observers are built on this nominal design.
+    reference : callable or array_like
+        Closed loop: force reference tau_r(t) [N m]; open loop: torque
+        command profile tau_m(t) [N m]. A callable of the sample times
+        [s] (e.g. :mod:`.references`) or an array of ``n`` samples.
+    duration_s : float
+        Run length [s]; ``n = round(duration_s * rate_hz)`` samples.
+    effects : sequence of effect parameter values
+        Unmodelled effects of the true hardware (:mod:`forecast_design.effects`).
+    rate_hz : float
+        Control/sampling rate [Hz].
+    substeps : int
+        RK4 steps per control period [-] (>= 1; 10 by default).
+    seed : int
+        Seed of ``np.random.default_rng`` for the process noise.
+    closed_loop : bool
+        Force control (True) or open-loop torque (False).
+    sfm_params : Mapping[str, float], optional
+        Required for ``compensator.kind == 'sfm'``: ``viscous`` [N m s/rad],
+        ``coulomb`` [N m], optional ``offset``, ``sin<i>``, ``cos<i>``,
+        ``coulomb_sin<i>``, ``coulomb_cos<i>`` [N m].
+    derivative_cutoff_hz : float
+        PD derivative filter [Hz].
+    velocity_cutoff_hz : float
+        SFM velocity filter [Hz].
+    sfm_deadband : float
+        SFM sign() dead band [rad/s].
+    torque_limit : float
+        Motor torque saturation |tau_m| <= torque_limit [N m].
+    encoder_counts : int or None
+        Encoder counts per revolution on theta and q; ``None`` or 0: exact.
+    process_noise_std : float
+        Std of a motor torque noise held per period [N m].
+    initial_angle : float
+        Absolute motor angle at theta = 0 for angle-dependent effects and
+        the SFM harmonics [rad] (the controller's encoder is homed).
+    include_nominal_viscous : bool
+        Keep ``d_m omega`` in the true plant (False: friction = effects only).
+    method : str
+        Discretisation of controller and observers (default ``tustin``).
+    description : str
+        Free text for the experiment.
+
+    Returns
+    -------
+    SimulationResult
+        Measured signals and the truth.
+
+    Raises
+    ------
+    ParameterError
+        Invalid options, missing ``sfm_params``, or an RK4 step outside the
+        stability region of the plant.
+
+    Examples
+    --------
+    >>> from forecast_design.simulation.references import Step
+    >>> r = simulate(Design.nominal("locked"), reference=Step(amplitude=0.2), duration_s=0.05)
+    >>> r.t.shape
+    (100,)
+    """
+    if not (isinstance(duration_s, (int, float)) and duration_s > 0 and math.isfinite(duration_s)):
+        raise ParameterError(f"duration_s must be > 0 [s], got {duration_s!r}", name="duration_s", value=duration_s)
+    if not (torque_limit > 0):
+        raise ParameterError(f"torque_limit must be > 0 [N m], got {torque_limit!r}", name="torque_limit",
+                             value=torque_limit)
+    if not (process_noise_std >= 0 and math.isfinite(process_noise_std)):
+        raise ParameterError(f"process_noise_std must be >= 0 [N m], got {process_noise_std!r}",
+                             name="process_noise_std", value=process_noise_std)
+    if encoder_counts is not None and (isinstance(encoder_counts, bool) or not isinstance(encoder_counts, int)
+                                       or encoder_counts < 0):
+        raise ParameterError(f"encoder_counts must be an integer >= 0 [counts/rev], got {encoder_counts!r}",
+                             name="encoder_counts", value=encoder_counts)
+    plant: PlantModel = build_plant(design, effects, rate_hz=rate_hz, substeps=substeps,
+                                    initial_angle=initial_angle, include_nominal_viscous=include_nominal_viscous)
+    stability = stability_check(plant)
+    n = int(round(duration_s * rate_hz))
+    if n < 1:
+        raise ParameterError(f"duration_s * rate_hz must give at least one sample, got {duration_s!r}",
+                             name="duration_s", value=duration_s)
+    values = _reference_samples(reference, n, rate_hz, "reference")
+    ref = values if closed_loop else np.zeros(n)
+    ol = np.zeros(n) if closed_loop else values
+
+    controller = (design.controller or PDController()) if closed_loop else None
+    comp = design.compensator if design.compensator is not None else Compensator(kind="none")
+    pd = DiscretePD(controller or PDController(), rate_hz, derivative_cutoff_hz=derivative_cutoff_hz,
+                    method=method)
+    zero_sos = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
+    vel_sos, sfm_coef, sfm_harm = zero_sos, np.zeros(5), np.zeros((4, 1))
+    gm_sos = gs_sos = gt_sos = zero_sos
+    comp_code = 0
+    if comp.kind == "sfm":
+        if sfm_params is None:
+            raise ParameterError("compensator 'sfm' needs sfm_params (viscous, coulomb[, sin<i>, cos<i>...])",
+                                 name="sfm_params", value=None)
+        sfm = SfmCompensator(sfm_params, rate_hz, velocity_cutoff_hz=velocity_cutoff_hz, deadband=sfm_deadband,
+                             angle_offset=initial_angle)
+        vel_sos, sfm_coef, sfm_harm = sfm.velocity_sos, sfm.coefficients.coef, sfm.coefficients.harm
+        comp_code = 1
+    elif comp.is_observer:
+        obs = ObserverCompensator(comp, design, rate_hz, method=method)
+        gm_sos, gs_sos, gt_sos = obs.sos_m, obs.sos_s, obs.sos_theta
+        comp_code = 2
+    elif sfm_params is not None:
+        raise ParameterError(f"sfm_params given but the compensator is {comp.kind!r}", name="sfm_params",
+                             value=sfm_params)
+
+    rng = np.random.default_rng(seed)
+    noise = rng.normal(0.0, process_noise_std, n) if process_noise_std > 0 else np.zeros(n)
+    enc_step = 2.0 * math.pi / encoder_counts if encoder_counts else 0.0
+    x = np.zeros(5)
+    meas = np.empty((n, len(_MEAS)))
+    truth = np.empty((n, len(_TRUTH)))
+
+    def st(sos):
+        return np.zeros((sos.shape[0], 2))
+
+    def rw(a):
+        # one numba signature for every call: writable, C-contiguous float64 copies
+        return np.array(a, dtype=float, order="C")
+
+    pd_sos, vel_sos, gm_sos, gs_sos, gt_sos = (rw(a) for a in (pd.sos, vel_sos, gm_sos, gs_sos, gt_sos))
+    sfm_coef, sfm_harm = rw(sfm_coef), rw(sfm_harm)
+
+    _loop(n, int(substeps), int(plant.delay_substeps), rw(plant.params), rw(plant.harmonics), x, bool(closed_loop),
+          ref, ol, float(torque_limit), float(enc_step), noise, float(design.testbed.k),
+          pd_sos, st(pd_sos), comp_code, sfm_coef, sfm_harm, vel_sos, st(vel_sos),
+          gm_sos, st(gm_sos), gs_sos, st(gs_sos), gt_sos, st(gt_sos), meas, truth)
+
+    ran = dataclasses.replace(design, controller=controller,
+                              compensator=(design.compensator if closed_loop else None))
+    options = {
+        "duration_s": float(duration_s), "substeps": int(substeps), "seed": int(seed),
+        "closed_loop": bool(closed_loop), "derivative_cutoff_hz": float(derivative_cutoff_hz),
+        "velocity_cutoff_hz": float(velocity_cutoff_hz), "sfm_deadband": float(sfm_deadband),
+        "torque_limit": float(torque_limit), "encoder_counts": int(encoder_counts or 0),
+        "process_noise_std": float(process_noise_std), "method": method,
+        "sfm_params": None if sfm_params is None else {k: float(v) for k, v in sfm_params.items()},
+        "compensator": comp.kind, "w_q_hz": comp.w_q_hz if comp.is_observer else None,
+        "q_family": comp.q_family if comp.is_observer else None,
+        "q_order": comp.q_order if comp.is_observer else None,
+        "delay_substeps": int(plant.delay_substeps),
+    }
+    cols = {name: np.ascontiguousarray(meas[:, i]) for i, name in enumerate(_MEAS)}
+    tr = {name: np.ascontiguousarray(truth[:, i]) for i, name in enumerate(_TRUTH)}
+    for arr in list(cols.values()) + list(tr.values()):
+        arr.flags.writeable = False
+    t = np.arange(n) / float(rate_hz)
+    t.flags.writeable = False
+    if closed_loop:
+        ref.flags.writeable = False
+    return SimulationResult(
+        design=ran, rate_hz=float(rate_hz), t=t, tau_m=cols["tau_m"], theta=cols["theta"], q=cols["q"],
+        tau_s=cols["tau_s"], tau_r=ref if closed_loop else None, u=cols["u"], tau_frc_hat=cols["tau_frc_hat"],
+        truth=SimulationTruth(effects=tuple(effects), environment=plant.environment,
+                              initial_angle=float(initial_angle), include_nominal_viscous=include_nominal_viscous,
+                              **tr),
+        options=options, stability=stability, description=description,
+    )
+
+
+def save_simulation(result: SimulationResult, path: str | os.PathLike[str]) -> dict[str, Path]:
+    """Write a simulated run: the experiment (TOML + CSV) and the truth sidecars.
+
+    Parameters
+    ----------
+    result : SimulationResult
+        The run.
+    path : str or os.PathLike
+        The experiment TOML path, e.g. ``RUN.toml``.
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        ``experiment`` (RUN.toml), ``data`` (RUN.csv), ``truth`` (RUN.truth.json:
+        effects, true environment, options, stability) and ``truth_data``
+        (RUN.truth.csv: t and the true signals, ``%.17g``).
+
+    Notes
+    -----
+    The TOML holds the nominal model only, as the format requires; a
+    diagnosis tool reading RUN.toml never sees the truth.
+    """
+    from ..experiment import save_experiment
+
+    toml_path = Path(path)
+    save_experiment(result.to_experiment(), toml_path)
+    stem = toml_path.with_suffix("")
+    truth_json = stem.with_name(stem.name + ".truth.json")
+    truth_csv = stem.with_name(stem.name + ".truth.csv")
+    cols = {"t": result.t, **result.truth.columns()}
+    names = list(cols)
+    data = np.column_stack([cols[k] for k in names])
+    tmp = truth_csv.with_name(truth_csv.name + ".tmp")
+    with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(",".join(names) + "\n")
+        np.savetxt(fh, data, fmt="%.17g", delimiter=",")
+    os.replace(tmp, truth_csv)
+    meta = {"format": "forecast-simulation-truth/1", "experiment": toml_path.name, "data": truth_csv.name,
+            **result.to_mapping()}
+    tmp = truth_json.with_name(truth_json.name + ".tmp")
+    tmp.write_text(json.dumps(meta, indent=2, allow_nan=True) + "\n", encoding="utf-8")
+    os.replace(tmp, truth_json)
+    return {"experiment": toml_path, "data": toml_path.with_suffix(".csv"), "truth": truth_json,
+            "truth_data": truth_csv}

@@ -1,0 +1,360 @@
+"""Scenario files: what to simulate (nominal model + truth + reference + options) in one TOML.
+
+Format ``forecast-scenario/1``: the experiment format's nominal-model
+sections, plus the hidden truth, the reference and the simulation options::
+
+    format = "forecast-scenario/1"
+    description = "Fig. 7: LuGre, PD 5/0.1, EA-FOB 10 Hz"   # optional
+
+    [sampling]
+    rate_hz = 2000.0                 # control rate [Hz]
+
+    [testbed]                        # nominal SEA, as in the experiment format
+    J_m = 0.133
+    d_m = 0.3
+    k = 58.0
+
+    [environment]                    # nominal environment, as in the experiment format
+    J_e = 1.0
+    d_e = 20.0
+    k_e = 100.0
+    J_l = 0.0018
+    d_l = 0.35
+    locked = false
+
+    [controller]                     # optional: present = closed-loop force control
+    kind = "pd"
+    P = 5.0
+    D = 0.1
+
+    [compensator]                    # optional; q_family/q_order allowed here (not in experiments)
+    kind = "ea-fob"
+    w_q_hz = 10.0
+
+    [sfm]                            # required iff compensator kind = "sfm": identified parameters
+    viscous = 0.4                    # viscous, coulomb, offset, sin<i>, cos<i>, coulomb_sin<i>, ...
+    coulomb = 0.4
+
+    [truth]                          # optional: the hardware beyond the nominal model
+    initial_angle = 0.0              # absolute motor angle at theta = 0 [rad]
+    include_nominal_viscous = true   # d_m omega is part of the true friction
+
+    [[truth.effects]]                # one table per effect; words of the spec's vocabulary
+    effect = "stiction"              # fields as in forecast_design.effects (defaults: Table 2)
+    F_s = 0.5
+
+    [[truth.effects]]
+    effect = "environment_mismatch"
+    k_e_scale = 1.5                  # or a [truth.effects.environment] table
+
+    [reference]                      # force reference (closed loop) or torque profile (open loop)
+    kind = "square"                  # constant | step | square | sine | multisine | chirp | ramp | piecewise_linear
+    high = 1.0
+    low = -1.0
+    period_s = 2.0
+
+    [simulation]
+    duration_s = 4.0                 # required [s]
+    substeps = 10                    # RK4 steps per period
+    seed = 0                         # process-noise seed
+    encoder_counts = 2000000         # 0: exact angles
+    process_noise_std = 0.001        # [N m]
+    torque_limit = 10.0              # [N m]; omit for none
+    derivative_cutoff_hz = 200.0     # PD derivative filter [Hz]
+    velocity_cutoff_hz = 50.0        # SFM velocity filter [Hz]
+    sfm_deadband = 0.0               # [rad/s]
+    method = "tustin"                # controller/observer discretisation
+
+Unknown keys are errors; a missing required key names the key and the file.
+Omitted optional keys take the defaults of :func:`~.run.simulate`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from ..effects import effect_from_mapping, effects_to_mappings
+from ..errors import ExperimentFormatError, ParameterError
+from ..params import Compensator, Design, Environment, PDController, Testbed
+from .references import reference_from_mapping
+from .run import SimulationResult, save_simulation, simulate
+
+__all__ = ["SCENARIO_FORMAT", "Scenario", "load_scenario", "scenario_from_mapping", "run_scenario"]
+
+#: The ``format`` string of scenario files.
+SCENARIO_FORMAT = "forecast-scenario/1"
+
+_TOP = ("format", "description", "sampling", "testbed", "environment", "controller", "compensator", "sfm",
+        "truth", "reference", "simulation")
+_SIM_KEYS = {
+    "duration_s": float, "substeps": int, "seed": int, "encoder_counts": int, "process_noise_std": float,
+    "torque_limit": float, "derivative_cutoff_hz": float, "velocity_cutoff_hz": float, "sfm_deadband": float,
+    "method": str,
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Scenario:
+    """A parsed scenario: everything :func:`~.run.simulate` needs.
+
+    Attributes
+    ----------
+    design : Design
+        Nominal model (+ controller/compensator).
+    rate_hz : float
+        Control rate [Hz].
+    closed_loop : bool
+        True when the file has a ``[controller]``.
+    reference : Reference
+        Force reference or torque profile.
+    effects : tuple
+        Effect parameter values.
+    options : dict
+        Keyword arguments for :func:`~.run.simulate` (duration, substeps, seed, ...).
+    description : str
+        Free text.
+    source : str or None
+        The file it came from.
+    """
+
+    design: Design
+    rate_hz: float
+    closed_loop: bool
+    reference: Any
+    effects: tuple
+    options: Mapping[str, Any] = field(default_factory=dict)
+    description: str = ""
+    source: str | None = None
+
+    def run(self) -> SimulationResult:
+        """Simulate the scenario (:func:`~.run.simulate`)."""
+        return simulate(self.design, reference=self.reference, effects=self.effects, rate_hz=self.rate_hz,
+                        closed_loop=self.closed_loop, description=self.description, **self.options)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The scenario as a TOML-ready mapping (round-trips through :func:`scenario_from_mapping`)."""
+        out: dict[str, Any] = {"format": SCENARIO_FORMAT}
+        if self.description:
+            out["description"] = self.description
+        out["sampling"] = {"rate_hz": self.rate_hz}
+        out["testbed"] = self.design.testbed.to_mapping()
+        out["environment"] = self.design.environment.to_mapping()
+        if self.closed_loop:
+            out["controller"] = (self.design.controller or PDController()).to_mapping()
+        comp = self.design.compensator
+        if comp is not None:
+            out["compensator"] = {"kind": comp.kind, "w_q_hz": comp.w_q_hz, "q_family": comp.q_family,
+                                  "q_order": comp.q_order}
+        opts = dict(self.options)
+        sfm = opts.pop("sfm_params", None)
+        if sfm is not None:
+            out["sfm"] = dict(sfm)
+        truth: dict[str, Any] = {}
+        for key in ("initial_angle", "include_nominal_viscous"):
+            if key in opts:
+                truth[key] = opts.pop(key)
+        if self.effects:
+            truth["effects"] = effects_to_mappings(self.effects)
+        if truth:
+            out["truth"] = truth
+        out["reference"] = self.reference.to_mapping()
+        sim = {k: v for k, v in opts.items() if not (k == "torque_limit" and math.isinf(v))}
+        if sim.get("encoder_counts", 1) is None:
+            sim["encoder_counts"] = 0
+        out["simulation"] = sim
+        return out
+
+
+def _table(doc: Mapping[str, Any], key: str, prefix: str, source: str | None, *, required: bool):
+    if key not in doc:
+        if required:
+            raise ExperimentFormatError(f"{prefix}missing required table [{key}]", path=source, key=key)
+        return None
+    value = doc[key]
+    if not isinstance(value, Mapping):
+        raise ExperimentFormatError(f"{prefix}[{key}] must be a table, got {value!r}", path=source, key=key)
+    return value
+
+
+def _typed(value: Any, kind: type, prefix: str, key: str, source: str | None) -> Any:
+    if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if kind is int and isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if kind is str and isinstance(value, str):
+        return value
+    raise ExperimentFormatError(f"{prefix}[simulation] {key} must be {kind.__name__}, got {value!r}",
+                                path=source, key=f"simulation.{key}")
+
+
+def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) -> Scenario:
+    """Validate a scenario mapping (a parsed TOML document).
+
+    Parameters
+    ----------
+    doc : Mapping
+        The document (see the module docstring for the format).
+    source : str, optional
+        File name for error messages.
+
+    Returns
+    -------
+    Scenario
+        The parsed scenario.
+
+    Raises
+    ------
+    ExperimentFormatError
+        Unknown or missing keys, wrong types or invalid values, naming the
+        file and the key.
+    """
+    prefix = f"{source}: " if source else ""
+    for key in doc:
+        if key not in _TOP:
+            raise ExperimentFormatError(f"{prefix}unknown key '{key}'; allowed: {', '.join(_TOP)}",
+                                        path=source, key=key)
+    if "format" not in doc:
+        raise ExperimentFormatError(f"{prefix}missing required key 'format' (= \"{SCENARIO_FORMAT}\")",
+                                    path=source, key="format")
+    if doc["format"] != SCENARIO_FORMAT:
+        raise ExperimentFormatError(f"{prefix}format must be \"{SCENARIO_FORMAT}\", got {doc['format']!r}",
+                                    path=source, key="format")
+    description = doc.get("description", "")
+    if not isinstance(description, str):
+        raise ExperimentFormatError(f"{prefix}description must be a string", path=source, key="description")
+    sampling = _table(doc, "sampling", prefix, source, required=True)
+    for key in sampling:
+        if key != "rate_hz":
+            raise ExperimentFormatError(f"{prefix}[sampling] unknown key '{key}'; allowed: rate_hz",
+                                        path=source, key=f"sampling.{key}")
+    if "rate_hz" not in sampling:
+        raise ExperimentFormatError(f"{prefix}[sampling] missing required key 'rate_hz'", path=source,
+                                    key="sampling.rate_hz")
+    rate = sampling["rate_hz"]
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (rate > 0) or not math.isfinite(rate):
+        raise ExperimentFormatError(f"{prefix}[sampling] rate_hz must be > 0 [Hz], got {rate!r}", path=source,
+                                    key="sampling.rate_hz")
+    testbed = Testbed.from_mapping(_table(doc, "testbed", prefix, source, required=True), source=source)
+    environment = Environment.from_mapping(_table(doc, "environment", prefix, source, required=True),
+                                           source=source)
+    ctrl_table = _table(doc, "controller", prefix, source, required=False)
+    controller = None if ctrl_table is None else PDController.from_mapping(ctrl_table, source=source)
+    comp_table = _table(doc, "compensator", prefix, source, required=False)
+    compensator = None
+    if comp_table is not None:
+        allowed = ("kind", "w_q_hz", "q_family", "q_order")
+        for key in comp_table:
+            if key not in allowed:
+                raise ExperimentFormatError(f"{prefix}[compensator] unknown key '{key}'; allowed: "
+                                            f"{', '.join(allowed)}", path=source, key=f"compensator.{key}")
+        try:
+            compensator = Compensator(**dict(comp_table))
+        except ParameterError as exc:
+            raise ExperimentFormatError(f"{prefix}[compensator] {exc}", path=source,
+                                        key=f"compensator.{exc.name}") from None
+    options: dict[str, Any] = {}
+    sfm = _table(doc, "sfm", prefix, source, required=False)
+    kind = compensator.kind if compensator is not None else "none"
+    if kind == "sfm" and sfm is None:
+        raise ExperimentFormatError(f"{prefix}compensator kind 'sfm' needs a [sfm] table of identified parameters",
+                                    path=source, key="sfm")
+    if sfm is not None:
+        if kind != "sfm":
+            raise ExperimentFormatError(f"{prefix}[sfm] given but the compensator kind is {kind!r}", path=source,
+                                        key="sfm")
+        from .controllers import SfmCompensator
+
+        try:
+            SfmCompensator(sfm, float(rate))
+        except ParameterError as exc:
+            raise ExperimentFormatError(f"{prefix}[sfm] {exc}", path=source, key=f"sfm.{exc.name}") from None
+        options["sfm_params"] = {k: float(v) for k, v in sfm.items()}
+    effects: list[Any] = []
+    truth = _table(doc, "truth", prefix, source, required=False)
+    if truth is not None:
+        for key, value in truth.items():
+            if key == "effects":
+                if not isinstance(value, list):
+                    raise ExperimentFormatError(f"{prefix}[truth] effects must be an array of tables "
+                                                "([[truth.effects]])", path=source, key="truth.effects")
+                effects = [effect_from_mapping(e, source=source, where=f"truth.effects[{i}]")
+                           for i, e in enumerate(value)]
+            elif key == "initial_angle":
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                    raise ExperimentFormatError(f"{prefix}[truth] initial_angle must be a number [rad]",
+                                                path=source, key="truth.initial_angle")
+                options["initial_angle"] = float(value)
+            elif key == "include_nominal_viscous":
+                if not isinstance(value, bool):
+                    raise ExperimentFormatError(f"{prefix}[truth] include_nominal_viscous must be true or false",
+                                                path=source, key="truth.include_nominal_viscous")
+                options["include_nominal_viscous"] = value
+            else:
+                raise ExperimentFormatError(f"{prefix}[truth] unknown key '{key}'; allowed: effects, initial_angle, "
+                                            "include_nominal_viscous", path=source, key=f"truth.{key}")
+    reference = reference_from_mapping(_table(doc, "reference", prefix, source, required=True), source=source)
+    sim = _table(doc, "simulation", prefix, source, required=True)
+    for key, value in sim.items():
+        if key not in _SIM_KEYS:
+            raise ExperimentFormatError(f"{prefix}[simulation] unknown key '{key}'; allowed: {', '.join(_SIM_KEYS)}",
+                                        path=source, key=f"simulation.{key}")
+        options[key] = _typed(value, _SIM_KEYS[key], prefix, key, source)
+    if "duration_s" not in sim:
+        raise ExperimentFormatError(f"{prefix}[simulation] missing required key 'duration_s'", path=source,
+                                    key="simulation.duration_s")
+    design = Design(testbed=testbed, environment=environment,
+                    controller=controller, compensator=compensator)
+    return Scenario(design=design, rate_hz=float(rate), closed_loop=controller is not None, reference=reference,
+                    effects=tuple(effects), options=options, description=description, source=source)
+
+
+def load_scenario(path: str | os.PathLike[str]) -> Scenario:
+    """Read and validate a scenario TOML file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The scenario file.
+
+    Returns
+    -------
+    Scenario
+        The parsed scenario.
+
+    Raises
+    ------
+    ExperimentFormatError
+        Invalid TOML or any rule of the format (naming file and key).
+    """
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            doc = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ExperimentFormatError(f"{p}: invalid TOML: {exc}", path=str(p)) from None
+    return scenario_from_mapping(doc, source=str(p))
+
+
+def run_scenario(path: str | os.PathLike[str], out: str | os.PathLike[str]) -> dict[str, Path]:
+    """Simulate a scenario file and write the run (the ``simulate`` CLI verb).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        Scenario TOML.
+    out : str or os.PathLike
+        Experiment TOML to write (``RUN.toml``; also ``RUN.csv``,
+        ``RUN.truth.json``, ``RUN.truth.csv``).
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        Paths written (see :func:`~.run.save_simulation`).
+    """
+    result = load_scenario(path).run()
+    return save_simulation(result, out)

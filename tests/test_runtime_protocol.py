@@ -1,0 +1,130 @@
+"""Framed protocol: CRC, encoding round trips, resynchronisation and loss accounting."""
+
+import struct
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from forecast_design.errors import ParameterError
+from forecast_design.runtime import protocol as pr
+
+
+def test_crc16_ccitt_false_standard_check_value():
+    # the catalogued check value of CRC-16/CCITT-FALSE (a.k.a. CRC-16/IBM-3740)
+    assert pr.crc16_ccitt_false(b"123456789") == 0x29B1
+    assert pr._crc(b"123456789") == 0x29B1
+
+
+def test_stream_fits_baud_rate_with_margin():
+    # 37-byte frames x 2000 Hz x 10 bits (8N1) = 740 kbit/s
+    frame = len(pr.encode_frame(pr.MsgType.SAMPLE, 0, pr.encode_sample(pr.Sample(0, 0, 0, 0, 0, 0, 0))))
+    assert frame * 2000 * 10 == pr.stream_bits_per_second(2000.0)
+    assert pr.stream_bits_per_second(2000.0) < 0.85 * pr.BAUD_RATE
+
+
+def test_sample_round_trip_is_float32_exact():
+    s = pr.Sample(12345, 0.5, 0.25, -1.5, 0.125, 2.0, -0.2)
+    back = pr.decode_sample(pr.encode_sample(s))
+    assert back.index == 12345
+    assert back.tau_r == struct.unpack("<f", struct.pack("<f", -0.2))[0]
+
+
+@pytest.mark.parametrize("text, kind, amp, period", [
+    ("square:0.2:0.5", "square", 0.2, 0.5), ("sine:1:2", "sine", 1.0, 2.0), ("step:0.2", "step", 0.2, 0.0)])
+def test_parse_reference_forms(text, kind, amp, period):
+    ref = pr.parse_reference(text)
+    assert (ref.kind, ref.amplitude, ref.period) == (kind, amp, period)
+    assert pr.parse_reference(ref.to_string()) == ref
+
+
+@pytest.mark.parametrize("text", ["square:0.2", "triangle:1:2", "square:a:1", "sine:1:0", ""])
+def test_parse_reference_garbage_is_one_line_parameter_error(text):
+    with pytest.raises(ParameterError, match="expected square:AMP:PERIOD|must be > 0") as info:
+        pr.parse_reference(text)
+    assert "\n" not in str(info.value)
+
+
+def test_square_reference_values():
+    ref = pr.parse_reference("square:0.2:0.5")
+    assert ref.value(0.0) == 0.2 and ref.value(0.3) == -0.2 and ref.value(0.5) == 0.2
+
+
+def _frames(n):
+    return [pr.encode_frame(pr.MsgType.SAMPLE, i, pr.encode_sample(pr.Sample(i, i / 2000, 1.0, 2.0, 3.0, 4.0, 5.0)))
+            for i in range(n)]
+
+
+def test_parser_any_chunking_gives_same_frames():
+    data = b"".join(_frames(20))
+    for size in (1, 3, 37, 1000):
+        p = pr.FrameParser()
+        got = []
+        for i in range(0, len(data), size):
+            got += p.feed(data[i:i + size])
+        assert [f.seq for f in got] == list(range(20))
+        assert p.stats.resyncs == 0 and p.stats.corrupt_frames == 0
+
+
+def test_parser_counts_corrupt_frame_and_resync():
+    frames = _frames(3)
+    bad = bytearray(frames[1])
+    bad[12] ^= 0x10  # payload bit: CRC must catch it
+    p = pr.FrameParser()
+    got = p.feed(frames[0] + bytes(bad) + frames[2])
+    assert [f.seq for f in got] == [0, 2]
+    assert p.stats.corrupt_frames == 1 and p.stats.resyncs == 1
+
+
+def test_parser_truncated_stream_reported_on_close():
+    frames = _frames(2)
+    p = pr.FrameParser()
+    got = p.feed(frames[0] + frames[1][:20])
+    assert [f.seq for f in got] == [0]
+    assert p.close() == [] and p.stats.truncated_bytes > 0
+
+
+def test_tracker_counts_gaps_and_tail():
+    t = pr.SampleTracker()
+    for i in (0, 1, 4, 5, 9):
+        t.add(pr.Sample(i, 0, 0, 0, 0, 0, 0))
+    t.add(pr.Sample(5, 0, 0, 0, 0, 0, 0))  # a repeat is counted, not recorded
+    t.finish(12)
+    assert t.lost == [(2, 4), (6, 9), (10, 12)] and t.n_lost == 7 and t.out_of_order == 1
+
+
+damage = st.one_of(st.just(("ok", 0, 0)), st.tuples(st.just("flip"), st.integers(0, 36), st.integers(0, 7)),
+                   st.tuples(st.just("drop"), st.integers(0, 36), st.integers(1, 36)))
+
+
+@settings(max_examples=200, deadline=None)
+@given(plan=st.lists(st.tuples(damage, st.binary(max_size=40)), min_size=1, max_size=30),
+       chunk=st.integers(1, 200))
+def test_parser_recovers_every_intact_frame_in_order(plan, chunk):
+    frames = _frames(len(plan))
+    stream = bytearray()
+    intact = []
+    for i, ((kind, pos, arg), garbage) in enumerate(plan):
+        f = bytearray(frames[i])
+        if kind == "flip":
+            f[pos] ^= 1 << arg
+        elif kind == "drop":
+            del f[pos:pos + arg]
+        else:
+            intact.append(i)
+        stream += garbage + f
+    p = pr.FrameParser()
+    got = []
+    for k in range(0, len(stream), chunk):
+        got += p.feed(bytes(stream[k:k + chunk]))
+    got += p.close()
+    tracker = pr.SampleTracker()
+    for f in got:
+        assert f.type == pr.MsgType.SAMPLE
+        tracker.add(pr.decode_sample(f.payload))
+    tracker.finish(len(plan))
+    indices = [s.index for s in tracker.samples]
+    # every intact frame comes out, in order, nothing else; the rest is reported lost
+    assert indices == intact
+    assert tracker.n_lost == len(plan) - len(intact)
+    assert tracker.out_of_order == 0
