@@ -504,3 +504,34 @@ def _cmd_bench_gap(args: argparse.Namespace) -> int:
         print(f"accuracy {100 * result.accuracy:.1f} %, false alarms {result.false_alarms}, "
               f"lowest held-out reduction of a correct effect {result.min_true_reduction:.3f}")
     return 0
+
+
+# --- simulate ----------------------------------------------------------------------------
+
+
+def _configure_simulate(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", metavar="SCENARIO.toml",
+                   help="nominal model + [truth] effects + [reference] + [simulation] (see docs/scenario.md)")
+    p.add_argument("--out", required=True, metavar="RUN.toml", help="the simulated run, as an experiment")
+    p.add_argument("--json", action="store_true", help="print the written paths as JSON")
+    p.add_argument("--plot", metavar="OUT.png", help="plot the run (torque tracking, friction, motion)")
+
+
+@_command("simulate", "simulate the testbed (friction, effects, controller at 2 kHz) into an experiment",
+          _configure_simulate)
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from .simulation.scenario import load_scenario
+    from .simulation.run import save_simulation
+
+    result = load_scenario(args.scenario).run()
+    paths = save_simulation(result, args.out)
+    if args.plot:
+        from .plotting.simulation import plot_simulation
+
+        plot_simulation({args.scenario: result}, args.plot)
+    if args.json:
+        _print_json({key: str(value) for key, value in paths.items()})
+    else:
+        for key, value in paths.items():
+            print(f"{key}: {value}")
+    return 0

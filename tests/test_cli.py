@@ -199,3 +199,62 @@ def test_identify_csv_bad_columns_exit_2(tmp_path, capsys, extra, fragment):
 def test_identify_requires_exactly_one_log(capsys):
     assert _exit_code(["identify"]) == 2
     assert "exactly one" in capsys.readouterr().err
+
+
+_SCENARIO = """format = "forecast-scenario/1"
+[sampling]
+rate_hz = 2000.0
+[testbed]
+J_m = 0.133
+d_m = 0.3
+k = 58.0
+[environment]
+J_e = 0.0
+d_e = 0.0
+k_e = 0.0
+J_l = 0.0018
+d_l = 0.35
+locked = true
+[controller]
+kind = "pd"
+P = 5.0
+D = 0.1
+[[truth.effects]]
+effect = "coulomb"
+F_c = 0.3
+[reference]
+kind = "step"
+amplitude = 0.2
+[simulation]
+duration_s = 0.5
+"""
+
+
+def test_simulate_writes_an_experiment_that_loads_with_truth_apart(tmp_path, capsys):
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(_SCENARIO)
+    code, out, _ = _run(capsys, "simulate", str(scenario), "--out", str(tmp_path / "run.toml"), "--json",
+                        "--plot", str(tmp_path / "run.png"))
+    assert code == 0
+    paths = json.loads(out)
+    run = __import__("forecast_design.experiment", fromlist=["load_experiment"]).load_experiment(tmp_path / "run.toml")
+    assert run.n_samples == 1000 and run.design.environment.locked
+    assert "truth" not in (tmp_path / "run.toml").read_text()          # the TOML stays the nominal model
+    assert any("truth" in str(p) for p in paths.values())
+    assert (tmp_path / "run.png").read_bytes()[:4] == b"\x89PNG"
+    # Locked output at rest: tau_m = P (tau_r - tau_s) and the motor sticks while
+    # |tau_m - tau_s| <= F_c, so tau_s lies within F_c/(1+P) of P tau_r/(1+P).
+    assert abs(run.signals.tau_s[-200:].mean() - 5.0 * 0.2 / 6.0) <= 0.3 / 6.0 + 2e-3
+
+
+@pytest.mark.parametrize("edit,fragment", [
+    (("amplitude = 0.2", "amplitude = 0.2\nwobble = 1"), "wobble"),
+    (('effect = "coulomb"', 'effect = "gremlins"'), "gremlins"),
+    (("duration_s = 0.5", ""), "duration_s"),
+])
+def test_simulate_bad_scenario_exit_2_names_key(tmp_path, capsys, edit, fragment):
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(_SCENARIO.replace(*edit))
+    code = _exit_code(["simulate", str(scenario), "--out", str(tmp_path / "run.toml")])
+    err = capsys.readouterr().err
+    assert code == 2 and fragment in err and "s.toml" in err and len(err.strip().splitlines()) == 1
