@@ -374,6 +374,10 @@ def test_scenario_file_runs_like_simulate(tmp_path):
     (lambda d: d["simulation"].pop("duration_s"), "missing required key 'duration_s'", "simulation.duration_s"),
     (lambda d: d.pop("reference"), r"missing required table \[reference\]", "reference"),
     (lambda d: d["truth"]["effects"][0].update(sigma3=1.0), "unknown key 'sigma3'", "truth.effects[0].sigma3"),
+    (lambda d: d["truth"]["effects"][1].update(effect="stickiness"), "effect must be one of",
+     "truth.effects[1].effect"),
+    (lambda d: d["reference"].update(amplitud=0.3), "unknown key 'amplitud'", "reference.amplitud"),
+    (lambda d: d["sampling"].pop("rate_hz"), "missing required key 'rate_hz'", "sampling.rate_hz"),
     (lambda d: d["compensator"].update(kind="sfm"), r"needs a \[sfm\] table", "sfm"),
     (lambda d: d["reference"].update(kind="sawtooth"), "kind must be one of", "reference.kind"),
     (lambda d: d.update(extra=1), "unknown key 'extra'", "extra"),
@@ -386,6 +390,46 @@ def test_scenario_errors_name_file_and_key(tmp_path, edit, match, key):
     with pytest.raises(ExperimentFormatError, match=match) as exc:
         load_scenario(path)
     assert exc.value.key == key and str(path) in str(exc.value)
+
+
+def test_example_scenario_is_package_data_and_runs(tmp_path):
+    import subprocess
+    import sys
+    from importlib.resources import files
+
+    from forecast_design.effects import Stiction as _Stiction
+
+    path = files("forecast_design") / "data" / "example_scenario.toml"
+    sc = load_scenario(path)
+    assert sc.closed_loop and sc.design.compensator.kind == "ea-fob" and sc.effects == (_Stiction(),)
+    assert sc.design.environment == Design.nominal("stiff").environment
+    out = tmp_path / "run.toml"
+    proc = subprocess.run([sys.executable, "-m", "forecast_design", "simulate", str(path), "--out", str(out), "--json"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert set(json.loads(proc.stdout)) == {"experiment", "data", "truth", "truth_data"}
+    from forecast_design.experiment import load_experiment
+
+    exp = load_experiment(out)
+    assert exp.signals.t.shape == (16000,)
+    # the Fig. 7 EA-FOB: friction estimate within 0.05 N m of the truth on average
+    truth = np.genfromtxt(tmp_path / "run.truth.csv", delimiter=",", names=True)
+    assert np.mean(np.abs(exp.signals.extra["tau_frc_hat"] - truth["tau_frc"])) < 0.05
+
+
+def test_scenario_doc_example_matches_the_format(tmp_path):
+    from pathlib import Path
+
+    doc = Path(__file__).resolve().parents[1] / "docs" / "scenario.md"
+    text = doc.read_text()
+    block = text.split("## Example", 1)[1].split("```toml", 1)[1].split("```", 1)[0]
+    path = tmp_path / "doc.toml"
+    path.write_text(block)
+    sc = load_scenario(path)
+    assert sc.reference == Square(high=1.0, low=-1.0, period_s=4.0) and sc.options["duration_s"] == 8.0
+    for key in ("format", "sampling", "testbed", "environment", "controller", "compensator", "sfm", "truth",
+                "reference", "simulation"):
+        assert f"`[{key}]`" in text or f"`{key} =" in text or key == "format"
 
 
 # --- references --------------------------------------------------------------------------------

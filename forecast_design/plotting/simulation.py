@@ -7,7 +7,7 @@ from typing import Mapping, Sequence
 
 from ..errors import ParameterError
 
-__all__ = ["plot_simulation", "plot_step_responses"]
+__all__ = ["plot_simulation", "plot_step_responses", "plot_fig7", "plot_table3"]
 
 
 def _items(results) -> list[tuple[str, object]]:
@@ -102,6 +102,92 @@ def plot_step_responses(groups: Mapping[str, Sequence[object]], path: str | Path
         ax.set_xlabel("t [s]")
         ax.set_ylabel(r"$\tau_s$ [N m]")
         ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig
+
+
+def plot_fig7(result, path: str | Path | None = None):
+    """The paper's Fig. 7 from :func:`forecast_design.reproduce.reproduce_fig7`.
+
+    Left SFM, right EA-FOB; top tau_r (grey) and tau_s (black) [N m], bottom
+    the true friction (red) and its estimate (blue dashed) [N m], with each
+    run's friction-estimate MAE in the title.
+
+    Parameters
+    ----------
+    result : Fig7Result
+        The reproduction (its ``runs``).
+    path : str or Path, optional
+        Write the figure there (PNG by suffix).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
+    """
+    runs = getattr(result, "runs", None)
+    if not runs or "sfm" not in runs or "ea-fob" not in runs:
+        raise ParameterError("plot_fig7 needs a Fig7Result with its runs (from reproduce_fig7)", name="result",
+                             value=type(result).__name__)
+    fig = plot_simulation({f"SFM (friction MAE {result.mae_friction_sfm:.3f} N m)": runs["sfm"],
+                           f"EA-FOB (friction MAE {result.mae_friction_eafob:.3f} N m)": runs["ea-fob"]})
+    for ax in fig.axes:
+        ax.title.set_fontsize(9)
+    if path is not None:
+        fig.savefig(path, dpi=120)
+    return fig
+
+
+def plot_table3(result, path: str | Path | None = None):
+    """Step responses like the paper's Figs. 10-12, from :func:`forecast_design.reproduce.reproduce_table3`.
+
+    One row per compensator (PD, PD + SFM, PD + EA-FOB), one column per
+    environment; the ten responses tau_s [N m] overlaid, the frictionless
+    PD response red dashed, each panel titled with its x-corr [-] and MAE [N m].
+
+    Parameters
+    ----------
+    result : Table3Result
+        The reproduction (its ``responses`` and ``expected``).
+    path : str or Path, optional
+        Write the figure there.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    responses = getattr(result, "responses", None)
+    if not responses:
+        raise ParameterError("plot_table3 needs a Table3Result with its responses (from reproduce_table3)",
+                             name="result", value=type(result).__name__)
+    envs = list(dict.fromkeys(env for env, _ in responses))
+    kinds = list(dict.fromkeys(kind for _, kind in responses))
+    names = {"none": "PD", "sfm": "PD + SFM", "ea-fob": "PD + EA-FOB"}
+    fig, axes = plt.subplots(len(kinds), len(envs), sharex=True, squeeze=False,
+                             figsize=(4.8 * len(envs), 2.6 * len(kinds)))
+    for j, env in enumerate(envs):
+        for i, kind in enumerate(kinds):
+            ax = axes[i, j]
+            for r in responses[(env, kind)]:
+                ax.plot(r.t, r.tau_s, lw=0.8, alpha=0.8)
+            e = result.expected.get(env)
+            if e is not None:
+                ax.plot(e.t, e.tau_s, "r--", lw=1.2, label="frictionless PD")
+                ax.legend(loc="lower right", fontsize=7)
+            row = result.row(env, kind)
+            ax.set_title(f"{env}: {names.get(kind, kind)}  x-corr {row.xcorr:.2f}, MAE {row.mae:.3f} N m",
+                         fontsize=9)
+            ax.set_ylabel(r"$\tau_s$ [N m]")
+            ax.grid(True, alpha=0.3)
+        axes[-1, j].set_xlabel("t [s]")
     fig.tight_layout()
     if path is not None:
         fig.savefig(path, dpi=120)

@@ -62,6 +62,9 @@ ENCODER_COUNTS = 2_000_000
 #: Default process torque noise (std of a per-period held torque) [N m].
 DEFAULT_PROCESS_NOISE_STD = 1e-3
 
+# Set once the on-disk cache of _loop has been checked against its inlined callees.
+_KERNEL_CHECKED: list = []
+
 # Columns of the kernel logs.
 _MEAS = ("theta", "q", "tau_s", "tau_m", "u", "tau_frc_hat")
 _TRUTH = ("theta", "omega", "q", "v", "z", "tau_frc", "tau_s", "tau_m_applied")
@@ -116,6 +119,40 @@ def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, no
             if j == 0:
                 truth[k, 5] = out[0]
                 truth[k, 6] = out[1]
+
+
+def _flush_stale_kernel_cache(kernel) -> None:
+    """Drop the on-disk numba cache of ``kernel`` when a module it inlines has changed.
+
+    numba keys a cached function by its *own* file only; ``_loop`` inlines
+    :func:`~forecast_design.export.discretize.sos_step`,
+    :func:`~.plant.rk4_substep` and :func:`~.controllers.sfm_eval`, so an
+    edit there (e.g. a new section recursion) would otherwise leave a stale
+    compiled loop running the old code. A hash of the four sources is kept
+    beside the cache; a mismatch flushes it (one recompilation).
+    """
+    import hashlib
+    import importlib
+
+    mods = [importlib.import_module(f"{__package__.rsplit('.', 1)[0]}.export.discretize"),
+            importlib.import_module(f"{__package__}.plant"), importlib.import_module(f"{__package__}.controllers")]
+
+    cache = getattr(kernel, "_cache", None)
+    path = getattr(cache, "_cache_path", None)
+    if cache is None or path is None:
+        return
+    try:
+        digest = hashlib.sha256()
+        for mod in mods:
+            digest.update(Path(mod.__file__).read_bytes())
+        digest.update(Path(__file__).read_bytes())
+        stamp = Path(path) / f"{__name__.rsplit('.', 1)[-1]}.{kernel.__name__}.deps"
+        current = digest.hexdigest()
+        if not stamp.exists() or stamp.read_text() != current:
+            cache.flush()
+            stamp.write_text(current)
+    except OSError:  # read-only install: numba then caches elsewhere or not at all
+        pass
 
 
 @dataclass(frozen=True, slots=True)
@@ -384,6 +421,9 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         # one numba signature for every call: writable, C-contiguous float64 copies
         return np.array(a, dtype=float, order="C")
 
+    if not _KERNEL_CHECKED:
+        _flush_stale_kernel_cache(_loop)
+        _KERNEL_CHECKED.append(True)
     pd_sos, vel_sos, gm_sos, gs_sos, gt_sos = (rw(a) for a in (pd.sos, vel_sos, gm_sos, gs_sos, gt_sos))
     sfm_coef, sfm_harm = rw(sfm_coef), rw(sfm_harm)
 
