@@ -23,3 +23,12 @@ def test_pipeline_writes_report_with_plots_and_consistent_numbers(tmp_path, caps
     assert abs(summary["steps"]["derive"]["summary"]["locked"]["dc_gain"] - 1.0) < 1e-12
     tuned = summary["steps"]["tune"]["summary"]
     assert tuned["ea-fob"] > tuned["lo-dob"] and tuned["ea-fob"] > tuned["ld-dob"]
+    # The diagnosis names the effect the pipeline withheld from the nominal model.
+    assert summary["steps"]["diagnose"]["summary"]["verdict"] == "cogging"
+    assert summary["steps"]["diagnose"]["summary"]["reduction"] >= 0.5
+    # Friction identified from the simulated log recovers the true mean level within 5 %.
+    ident = summary["steps"]["identify"]["summary"]
+    assert abs(ident["params"]["coulomb"] / ident["truth"]["F_c"] - 1) < 0.05
+    # The exported C uses the tuned cutoff.
+    assert summary["steps"]["export"]["summary"]["w_q_hz"] == tuned["ea-fob"]
+    assert (tmp_path / "report" / "export" / "fd_controller.c").read_text().count("fd_step") >= 1
