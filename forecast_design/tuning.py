@@ -34,23 +34,48 @@ from .params import Compensator, Design, Environment, PDController, environment_
 __all__ = ["TuningResult", "environment_set", "tune_q", "tune_q_shape", "worst_case_ratio"]
 
 _GRID_RAD_S = np.logspace(-2, 4.5, 700)   # constraint/verification grid [rad/s]
+_GRID_POINTS = 700
 _ACTIVE_PER_PLANT = 4                     # frequencies per plant in the first NLP
 _MAX_CUTS = 12                            # cutting-plane rounds
+_FEAS_RTOL = 1e-6                         # relative slack of the ratio requirement
+
+
+@dataclass(frozen=True, slots=True)
+class _Setting:
+    """What every loop of one tuning shares."""
+
+    controller: PDController
+    break_at: str
+    sigma: float
+    sampled: bool = False
+    rate_hz: float = 2000.0
+    delay_samples: int = 1
+
+    def grid(self) -> np.ndarray:
+        """Constraint grid [rad/s]: 1e-2 ... 3e4, or up to just below Nyquist when sampled."""
+        if not self.sampled:
+            return _GRID_RAD_S
+        return np.logspace(-2, math.log10(0.999 * math.pi * self.rate_hz), _GRID_POINTS)
 
 
 @dataclass(frozen=True, slots=True)
 class _Plant:
-    """One true plant of the set, with the observer's belief and precomputed responses."""
+    """One true plant of the set, with the observer's belief and precomputed responses.
+
+    At frequency w the sensitivity offset is a function of D_q(j W / w_q) only:
+    S = (D_q + M) / (D_q + M + CP D_q) (controller) or (D_q - dm) / (...) (plant input),
+    with W = w (continuous) or the Tustin-warped (2/T) tan(w T / 2) (sampled).
+    """
 
     label: str
     true_design: Design
     believed: Design
     alpha_plant: float             # disk margin of the plant alone [-]
     w: np.ndarray                  # frequency grid [rad/s]
-    CP: np.ndarray                 # C_F(jw) P(jw)
-    M: np.ndarray                  # A P + B P_theta - 1
-
-
+    W: np.ndarray                  # argument of Q at those frequencies [rad/s]
+    CP: np.ndarray                 # C_F P (times the command delay when sampled)
+    M: np.ndarray                  # A P + B P_theta - 1 (sampled: delays included)
+    dm: np.ndarray                 # 1, or the observer's z^-1 on the previous command
 @dataclass(frozen=True, slots=True)
 class TuningResult:
     """Outcome of a Q-filter tuning.
@@ -167,27 +192,70 @@ def environment_set(names: Sequence[str] | str, *, uncertainty: float = 0.0,
     return out
 
 
-def _plant_alone_margin(design: Design, controller: PDController, break_at: str) -> float:
-    from .symbolic import force_loop
+def _filter_responses(compensator: Compensator, believed: Design, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A(s), B(s) with G_s = -Q A and G_theta = -Q B (independent of the cutoff)."""
+    from .symbolic import observer_filters
 
-    loop = force_loop(design, None, controller=controller, break_at=break_at)
-    return disk_margin(loop.L, closed_loop_stable=loop.stable).alpha
-
-
-def _precompute(label: str, true_design: Design, believed: Design, compensator: Compensator,
-                controller: PDController, break_at: str, w: np.ndarray) -> _Plant:
-    from .symbolic import derive_motor_angle_plant, force_plant_tf, observer_filters
-
-    s = 1j * w
-    P = force_plant_tf(true_design)(s)
-    P_theta = derive_motor_angle_plant(true_design.environment.locked).at(true_design)(s)
     filters = observer_filters(compensator, believed)
     g_m = np.polyval(filters.from_tau_m.num, s)
-    A = -np.polyval(filters.from_tau_s.num, s) / g_m
-    B = -np.polyval(filters.from_theta.num, s) / g_m
-    M = A * P + B * P_theta - 1.0
-    CP = (controller.P + controller.D * s) * P
-    return _Plant(label, true_design, believed, _plant_alone_margin(true_design, controller, break_at), w, CP, M)
+    return -np.polyval(filters.from_tau_s.num, s) / g_m, -np.polyval(filters.from_theta.num, s) / g_m
+
+
+def _responses(true_design: Design, believed: Design, compensator: Compensator, setting: _Setting,
+               w: np.ndarray, cache: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(W, CP, M, dm) of one plant on the grid ``w`` [rad/s]."""
+    key = (believed, float(w[0]), float(w[-1]), w.size)
+    if setting.sampled:
+        from .analysis import _to_w, _zoh_plant
+        from .simulation.controllers import DiscretePD
+
+        T = 1.0 / setting.rate_hz
+        W = 2.0 / T * np.tan(0.5 * w * T)
+        s = 1j * W
+        zp = _zoh_plant(true_design, setting.rate_hz)
+        P = np.polyval(zp.Ns_w, s) / np.polyval(zp.D_w, s)
+        P_theta = np.polyval(zp.Nt_w, s) / np.polyval(zp.D_w, s)
+        cn, cd = _to_w(DiscretePD(setting.controller, setting.rate_hz).tf)
+        C = np.polyval(cn, s) / np.polyval(cd, s)
+        dm = np.exp(-1j * w * T)
+        dp = dm ** setting.delay_samples
+    else:
+        from .symbolic import derive_motor_angle_plant, force_plant_tf
+
+        W = w
+        s = 1j * w
+        P = force_plant_tf(true_design)(s)
+        P_theta = derive_motor_angle_plant(true_design.environment.locked).at(true_design)(s)
+        C = setting.controller.P + setting.controller.D * s
+        dm = np.ones_like(s)
+        dp = dm
+    try:
+        A, B = cache[key]
+    except KeyError:
+        A, B = cache[key] = _filter_responses(compensator, believed, s)
+    with np.errstate(invalid="ignore"):
+        # B = 0 (no theta path) times a free output's rigid-body pole is 0, not nan
+        theta_term = np.where(B == 0.0, 0.0, B * P_theta)
+    M = (A * P + theta_term) * dp - dm
+    return W, C * P * dp, M, dm
+
+
+def _exact_ratio(true_design: Design, believed: Design, compensator: Compensator | None,
+                 setting: _Setting) -> tuple[float, float]:
+    """Exact disk margin (stability checked) and its critical frequency [rad/s]."""
+    if setting.sampled:
+        from .analysis import sampled_force_loop
+
+        dm = sampled_force_loop(true_design, compensator, controller=setting.controller, believed=believed,
+                                rate_hz=setting.rate_hz, break_at=setting.break_at,
+                                delay_samples=setting.delay_samples).disk_margin(setting.sigma)
+    else:
+        from .symbolic import force_loop
+
+        loop = force_loop(true_design, compensator, controller=setting.controller, believed=believed,
+                          break_at=setting.break_at)
+        dm = disk_margin(loop.L, setting.sigma, closed_loop_stable=loop.stable)
+    return dm.alpha, dm.frequency_rad_s
 
 
 def _q_polynomial(compensator: Compensator) -> np.ndarray:
@@ -199,39 +267,48 @@ def _q_polynomial(compensator: Compensator) -> np.ndarray:
 
 
 def _sensitivity_offset(plant: _Plant, dq: np.ndarray, break_at: str, sigma: float) -> np.ndarray:
-    num = dq + plant.M if break_at == "controller" else dq - 1.0
+    num = dq + plant.M if break_at == "controller" else dq - plant.dm
     return num / (dq + plant.M + plant.CP * dq) + 0.5 * (sigma - 1.0)
 
 
-def _grid_ratios(plants: Sequence[_Plant], coeffs: np.ndarray, w_q: float, break_at: str,
+def _grid_ratios(plants: Sequence[_Plant], coeffs: np.ndarray, w_q_hz: np.ndarray, break_at: str,
                  sigma: float) -> np.ndarray:
-    """Grid estimate of alpha_observer/alpha_plant for every plant (no stability check)."""
-    out = np.empty(len(plants))
+    """Grid alpha_observer/alpha_plant, shape (cutoffs, plants): an upper bound of the exact one.
+
+    On a stable loop the grid peak of |S + (sigma-1)/2| is at most the true peak, so the grid
+    margin is at least the exact one; an unstable loop has exact margin 0. Hence a cutoff
+    that fails on the grid fails exactly, and only grid-feasible cutoffs need exact checks.
+    """
+    w_q = 2.0 * math.pi * np.atleast_1d(np.asarray(w_q_hz, float))
+    out = np.empty((w_q.size, len(plants)))
     for i, plant in enumerate(plants):
-        dq = np.polyval(coeffs[::-1], 1j * plant.w / w_q)
-        peak = np.max(np.abs(_sensitivity_offset(plant, dq, break_at, sigma)))
-        out[i] = (1.0 / peak) / plant.alpha_plant
+        dq = np.polyval(coeffs[::-1], 1j * plant.W[None, :] / w_q[:, None])
+        peak = np.max(np.abs(_sensitivity_offset(plant, dq, break_at, sigma)), axis=1)
+        out[:, i] = (1.0 / peak) / plant.alpha_plant
     return out
 
 
-def _exact_ratios(plants: Sequence[_Plant], compensator: Compensator, controller: PDController,
-                  break_at: str, sigma: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact alpha_observer/alpha_plant (stability checked) and critical frequencies [rad/s]."""
-    from .symbolic import force_loop
-
-    ratios, freqs = np.empty(len(plants)), np.empty(len(plants))
-    for i, plant in enumerate(plants):
-        loop = force_loop(plant.true_design, compensator, controller=controller, believed=plant.believed,
-                          break_at=break_at)
-        dm = disk_margin(loop.L, sigma, closed_loop_stable=loop.stable)
-        ratios[i] = dm.alpha / plant.alpha_plant
-        freqs[i] = dm.frequency_rad_s
-    return ratios, freqs
+def _exact_ratios(plants: Sequence[_Plant], compensator: Compensator, setting: _Setting,
+                  order: Sequence[int] | None = None, stop_below: float | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Exact alpha_observer/alpha_plant (stability checked), critical frequencies [rad/s] and the
+    number of evaluations; with ``stop_below``, stop at the first ratio under it (others nan)."""
+    ratios, freqs = np.full(len(plants), np.nan), np.full(len(plants), np.nan)
+    n = 0
+    for i in (range(len(plants)) if order is None else order):
+        plant = plants[i]
+        alpha, freqs[i] = _exact_ratio(plant.true_design, plant.believed, compensator, setting)
+        ratios[i] = alpha / plant.alpha_plant
+        n += 1
+        if stop_below is not None and ratios[i] < stop_below:
+            break
+    return ratios, freqs, n
 
 
 def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("soft", "stiff"), *,
                      uncertainty: float = 0.0, controller: PDController = PDController(),
-                     break_at: str = "controller", sigma: float = 0.0) -> tuple[float, str]:
+                     break_at: str = "controller", sigma: float = 0.0, sampled: bool = False,
+                     rate_hz: float = 2000.0, delay_samples: int = 1, seed: int = 0) -> tuple[float, str]:
     """Exact worst ratio alpha_observer / alpha_plant over an environment set.
 
     Parameters
@@ -248,28 +325,59 @@ def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("sof
         Loop-break point (``'controller'`` or ``'plant-input'``).
     sigma : float
         Disk skew [-].
+    sampled : bool
+        Use the sampled-data loop (:func:`forecast_design.analysis.sampled_force_loop`).
+    rate_hz : float
+        Sampling rate when ``sampled`` [Hz].
+    delay_samples : int
+        Computation delay when ``sampled`` [samples].
+    seed : int
+        Seed of ``random:N`` sets.
 
     Returns
     -------
     (float, str)
         The worst ratio [-] and the label of the plant attaining it.
     """
-    plants = _plants(compensator, envs, uncertainty, controller, break_at)
-    ratios, _ = _exact_ratios(plants, compensator, controller, break_at, sigma)
+    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
+    plants = _plants(compensator, envs, uncertainty, setting, seed)
+    ratios, _, _ = _exact_ratios(plants, compensator, setting)
     i = int(np.argmin(ratios))
     return float(ratios[i]), plants[i].label
 
 
-def _plants(compensator, envs, uncertainty, controller, break_at, seed=0) -> list[_Plant]:
+def _plants(compensator: Compensator, envs, uncertainty: float, setting: _Setting, seed: int = 0,
+            progress: Callable[[int, int], None] | None = None) -> list[_Plant]:
     if not compensator.is_observer:
         raise ParameterError(f"tuning needs an observer kind (ea-fob, lo-dob, ld-dob, motor-fob), "
                              f"got {compensator.kind!r}", name="observer", value=compensator.kind)
+    if setting.break_at not in ("controller", "plant-input"):
+        raise ParameterError(f"break_at must be 'controller' or 'plant-input', got {setting.break_at!r}",
+                             name="break_at", value=setting.break_at)
     base = Design()
-    return [
-        _precompute(label, dataclasses.replace(base, environment=true), dataclasses.replace(base, environment=bel),
-                    compensator, controller, break_at, _GRID_RAD_S)
-        for label, true, bel in environment_set(envs, uncertainty=uncertainty, seed=seed)
-    ]
+    w = setting.grid()
+    cache: dict = {}
+    alone: dict = {}
+    pairs = environment_set(envs, uncertainty=uncertainty, seed=seed)
+    out = []
+    for n, (label, true, bel) in enumerate(pairs):
+        true_design = dataclasses.replace(base, environment=true)
+        believed = dataclasses.replace(base, environment=bel)
+        if true_design not in alone:
+            alone[true_design] = _exact_ratio(true_design, true_design, None, setting)[0]
+        W, CP, M, dm = _responses(true_design, believed, compensator, setting, w, cache)
+        out.append(_Plant(label, true_design, believed, alone[true_design], w, W, CP, M, dm))
+        if progress:
+            progress(n + 1, len(pairs))
+    return out
+
+
+def _with_frequency(plant: _Plant, compensator: Compensator, setting: _Setting, w_new: float) -> _Plant:
+    """The plant with one more grid frequency (a cut at an exact peak between grid points)."""
+    w = np.append(plant.w, w_new)
+    W, CP, M, dm = _responses(plant.true_design, plant.believed, compensator, setting, np.array([w_new]), {})
+    return dataclasses.replace(plant, w=w, W=np.append(plant.W, W), CP=np.append(plant.CP, CP),
+                               M=np.append(plant.M, M), dm=np.append(plant.dm, dm))
 
 
 def _complex_ops():
@@ -298,7 +406,8 @@ def _casadi_abs2_G(ca, mul, add, abs2, plant: _Plant, idx: np.ndarray, dq_re, dq
         M = (float(plant.M[i].real), float(plant.M[i].imag))
         CP = (float(plant.CP[i].real), float(plant.CP[i].imag))
         den = add(add(dq, M), mul(CP, dq))
-        num = add(dq, M) if break_at == "controller" else (dq[0] - 1.0, dq[1])
+        dm = plant.dm[i]
+        num = add(dq, M) if break_at == "controller" else (dq[0] - float(dm.real), dq[1] - float(dm.imag))
         # G = num/den + c  ->  |num + c den|^2 / |den|^2
         top = add(num, (c * den[0], c * den[1]))
         exprs.append((abs2(top), abs2(den)))
@@ -338,14 +447,20 @@ def _solve_max_cutoff(plants, coeffs, bound, log_lo, log_hi, x0, active, break_a
     """max log(w_q) s.t. |G_e(w_i)|^2 <= bound_e^2 on the active frequencies."""
     ca, mul, add, abs2 = _complex_ops()
     x = ca.SX.sym("log_w_q")
-    g = []
+    g, dens = [], []
     for p, plant in enumerate(plants):
         idx = np.asarray(sorted(active[p]), dtype=int)
-        u = plant.w[idx] / ca.exp(x)
+        u = plant.W[idx] / ca.exp(x)
         dq = [_dq_casadi(ca, coeffs, u[k]) for k in range(len(idx))]
         for top, den in _casadi_abs2_G(ca, mul, add, abs2, plant, idx, [d[0] for d in dq],
                                        [d[1] for d in dq], break_at, sigma):
             g.append(top - bound[p] ** 2 * den)   # |G|^2 <= bound^2, cleared of the denominator
+            dens.append(den)
+    # |den|^2 spans many decades (D_q grows like (w/w_q)^n up to Nyquist): scale each
+    # constraint by its denominator at the start point so ipopt sees O(1) rows
+    scale = np.asarray(ca.Function("den", [x], [ca.vertcat(*dens)])(x0)).ravel()
+    scale = np.where(np.isfinite(scale) & (scale > 0.0), scale, 1.0)
+    g = [gi / float(sc) for gi, sc in zip(g, scale)]
     nlp = {"x": x, "f": -x, "g": ca.vertcat(*g)}
     sol, info = _ipopt(ca, nlp, [x0], [log_lo], [log_hi], [-ca.inf] * len(g), [0.0] * len(g))
     return float(sol[0]), info
@@ -355,6 +470,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
            uncertainty: float = 0.0, min_ratio: float = 0.9, band_hz: tuple[float, float] = (0.5, 30.0),
            q_family: str = "butterworth", q_order: int = 2, controller: PDController = PDController(),
            break_at: str = "controller", sigma: float = 0.0, scan_points: int = 80, seed: int = 0,
+           sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1, scan: str = "bounded",
            progress: Callable[[int, int], None] | None = None) -> TuningResult:
     """Largest Q cutoff keeping the disk margin near the plant's own in every environment.
 
@@ -373,7 +489,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     q_family, q_order : str, int
         Q-filter family and order.
     controller : PDController
-        C_F = P + D s.
+        C_F = P + D s (sampled: with the simulator's 200 Hz derivative filter).
     break_at : str
         ``'controller'`` (paper) or ``'plant-input'``.
     sigma : float
@@ -382,8 +498,21 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
         Points of the independent verification scan (log-spaced over the band).
     seed : int
         Seed for ``random:N`` environment sets.
+    sampled : bool
+        Tune on the sampled-data loop (:func:`forecast_design.analysis.sampled_force_loop`):
+        constraints on the discrete frequency response up to Nyquist, exact verification on
+        the sampled loop.
+    rate_hz : float
+        Sampling rate when ``sampled`` [Hz].
+    delay_samples : int
+        Computation delay when ``sampled`` [samples].
+    scan : str
+        ``'bounded'`` (default): the scan evaluates every cutoff on the grid at once and
+        checks exactly only the grid-feasible cutoffs, from the top, until one passes (the
+        grid margin bounds the exact one from above, so the result is the same as the full
+        scan's); ``'exact'``: exact margins at every scan point and plant.
     progress : callable, optional
-        ``progress(done, total)`` during the scan.
+        ``progress(done, total)`` while the plant set is prepared and the scan runs.
 
     Returns
     -------
@@ -400,57 +529,93 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     written as |num|^2 - bound^2 |den|^2 <= 0 so nothing divides by zero.
     The active set starts with the largest sensitivities of each plant and
     grows by cutting planes: after each solve the 700-point grid
-    (1e-2 ... 3e4 rad/s) is checked and each violating plant's worst
-    frequency is added. The answer is then verified with exact disk margins
-    (closed-loop stability included, peak found exactly); where the exact
-    peak lies between grid points it is added as a cut. The independent
-    scan evaluates exact margins at ``scan_points`` cutoffs and the answer
-    must be feasible and within 2 % of the scan's best feasible cutoff.
+    (1e-2 ... 3e4 rad/s; sampled: up to just below Nyquist) is checked and
+    each violating plant's worst frequency is added. The answer is then
+    verified with exact disk margins (closed-loop stability included, peak
+    found exactly); where the exact peak lies between grid points it is
+    added as a cut. The independent scan finds the best feasible cutoff
+    among ``scan_points`` log-spaced ones (exact margins, see ``scan``) and
+    the answer must be feasible and within 2 % of it.
+
+    When sampled, at frequency w the Tustin filters equal the continuous
+    ones at W = (2/T) tan(w T / 2), the plant is the ZOH plant at
+    z = exp(j w T), the command is delayed by z^-d and G_m sees z^-1: the
+    sensitivity keeps the form above with D_q(j W / w_q).
     """
     if not (0.0 < band_hz[0] < band_hz[1]):
         raise ParameterError(f"band must satisfy 0 < lo < hi [Hz], got {band_hz}", name="band", value=band_hz)
     if not (0.0 < min_ratio <= 1.0):
         raise ParameterError(f"min_ratio must be in (0, 1], got {min_ratio}", name="min_ratio", value=min_ratio)
+    if scan not in ("bounded", "exact"):
+        raise ParameterError(f"scan must be 'bounded' or 'exact', got {scan!r}", name="scan", value=scan)
+    if sampled and band_hz[1] >= rate_hz / 2.0:
+        raise ParameterError(f"band upper end {band_hz[1]} Hz must be below Nyquist ({rate_hz / 2.0} Hz)",
+                             name="band", value=band_hz)
+    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
     base = Compensator(kind=observer, w_q_hz=band_hz[0], q_family=q_family, q_order=q_order)
-    plants = _plants(base, envs, uncertainty, controller, break_at, seed)
+    plants = _plants(base, envs, uncertainty, setting, seed)
     coeffs = _q_polynomial(base)
-    evaluations = 0
+    evaluations = len({p.true_design for p in plants})    # plant-alone margins
+    threshold = min_ratio * (1.0 - _FEAS_RTOL)
 
-    def exact(w_q_hz: float):
+    def exact(w_q_hz: float, order=None, stop_below=None):
         nonlocal evaluations
-        evaluations += len(plants)
-        return _exact_ratios(plants, dataclasses.replace(base, w_q_hz=w_q_hz), controller, break_at, sigma)
+        ratios, freqs, n = _exact_ratios(plants, dataclasses.replace(base, w_q_hz=w_q_hz), setting, order, stop_below)
+        evaluations += n
+        return ratios, freqs
 
-    # Independent dense scan with exact margins.
-    scan = np.geomspace(band_hz[0], band_hz[1], scan_points)
-    feasible_scan = []
-    for n, f in enumerate(scan):
-        ratios, _ = exact(float(f))
-        feasible_scan.append(ratios.min() >= min_ratio)
-        if progress:
-            progress(n + 1, len(scan))
-    feasible_scan = np.asarray(feasible_scan)
-    scan_best = float(scan[np.flatnonzero(feasible_scan)[-1]]) if feasible_scan.any() else math.nan
+    # Independent dense scan with exact margins (all points, or the grid-feasible ones from the top).
+    scan_hz = np.geomspace(band_hz[0], band_hz[1], scan_points)
+    scan_best = math.nan
+    if scan == "exact":
+        for n, f in enumerate(scan_hz):
+            ratios, _ = exact(float(f))
+            if ratios.min() >= threshold:
+                scan_best = float(f)
+            if progress:
+                progress(n + 1, len(scan_hz))
+    else:
+        grid = _grid_ratios(plants, coeffs, scan_hz, break_at, sigma)
+        candidates = np.flatnonzero(grid.min(axis=1) >= threshold * (1.0 - 1e-9))[::-1]
+        for n, k in enumerate(candidates):
+            # the plants closest to failing first: an infeasible cutoff usually fails at once
+            ratios, _ = exact(float(scan_hz[k]), order=np.argsort(grid[k]), stop_below=threshold)
+            if progress:
+                progress(n + 1, len(candidates))
+            if np.all(ratios >= threshold):
+                scan_best = float(scan_hz[k])
+                break
+    feasible_scan = not math.isnan(scan_best)
 
     # NLP with cutting planes, started at the scan's best (or the band's low end).
-    start_hz = scan_best if feasible_scan.any() else band_hz[0]
+    start_hz = scan_best if feasible_scan else band_hz[0]
     bound = 1.0 / (min_ratio * np.array([p.alpha_plant for p in plants]))
     active = []
     for plant in plants:
-        dq = np.polyval(coeffs[::-1], 1j * plant.w / (2 * math.pi * start_hz))
+        dq = np.polyval(coeffs[::-1], 1j * plant.W / (2 * math.pi * start_hz))
         mags = np.abs(_sensitivity_offset(plant, dq, break_at, sigma))
         active.append(set(np.argsort(mags)[-_ACTIVE_PER_PLANT:].tolist()))
     log_lo, log_hi = math.log(2 * math.pi * band_hz[0]), math.log(2 * math.pi * band_hz[1])
     x = math.log(2 * math.pi * start_hz)
     info: dict = {}
     answer = math.nan
-    for _ in range(_MAX_CUTS):
-        x, info = _solve_max_cutoff(plants, coeffs, bound, log_lo, log_hi, x, active, break_at, sigma)
+    nyquist = math.pi * rate_hz if sampled else math.inf
+    rounds = 0 if feasible_scan and scan_best >= band_hz[1] else _MAX_CUTS
+    if not rounds:
+        # the band's upper end passed the exact check: nothing above it to search for
+        answer, info = scan_best, {"return_status": "not needed: band upper end verified", "iterations": 0,
+                                   "success": True}
+    for _ in range(rounds):
+        try:
+            x, info = _solve_max_cutoff(plants, coeffs, bound, log_lo, log_hi, x, active, break_at, sigma)
+        except SolverError as exc:
+            info = dict(exc.stats or {})    # keep the verified scan point below
+            break
         evaluations += 1
         w_q = math.exp(x)
         added = False
         for p, plant in enumerate(plants):
-            dq = np.polyval(coeffs[::-1], 1j * plant.w / w_q)
+            dq = np.polyval(coeffs[::-1], 1j * plant.W / w_q)
             mags = np.abs(_sensitivity_offset(plant, dq, break_at, sigma))
             worst = int(np.argmax(mags))
             if mags[worst] > bound[p] * (1 + 1e-9) and worst not in active[p]:
@@ -460,29 +625,28 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
             continue
         w_q_hz = min(max(w_q / (2 * math.pi), band_hz[0]), band_hz[1])  # ipopt's bound tolerance
         ratios, freqs = exact(w_q_hz)
-        if ratios.min() >= min_ratio * (1 - 1e-6):
+        if ratios.min() >= threshold:
             answer = w_q_hz
             break
         # Exact peak between grid points, or instability: cut at the exact critical frequency,
-        # else fall back to the best verified point.
-        bad = np.flatnonzero(ratios < min_ratio * (1 - 1e-6))
+        # else search below this cutoff.
         new_cut = False
-        for p in bad:
-            if math.isfinite(freqs[p]):
-                plant = plants[p]
-                w_new = np.append(plant.w, freqs[p])
-                plants[p] = dataclasses.replace(plant, w=w_new, CP=_precompute_at(plant, base, controller, w_new)[0],
-                                                M=_precompute_at(plant, base, controller, w_new)[1])
-                active[p].add(len(w_new) - 1)
+        for p in np.flatnonzero(ratios < threshold):
+            if math.isfinite(freqs[p]) and 0.0 < freqs[p] < nyquist:
+                plants[p] = _with_frequency(plants[p], base, setting, float(freqs[p]))
+                active[p].add(plants[p].w.size - 1)
                 new_cut = True
         if not new_cut:
-            log_hi = x - 1e-3   # unstable at this cutoff: search below it
+            log_hi = x - 1e-3
             x = min(x, log_hi)
-    if math.isnan(answer) and feasible_scan.any():
+    if math.isnan(answer) and feasible_scan:
         answer = scan_best   # the NLP could not improve on the verified scan point
-    ratios, _ = exact(answer) if not math.isnan(answer) else (np.array([0.0]), None)
+    if not math.isnan(answer):
+        ratios, _ = exact(answer)
+    else:
+        ratios = np.array([0.0])
     worst = int(np.argmin(ratios))
-    feasible = bool(ratios.min() >= min_ratio * (1 - 1e-6)) and not math.isnan(answer)
+    feasible = bool(ratios.min() >= threshold) and not math.isnan(answer)
     agrees = feasible and (math.isnan(scan_best) or answer >= scan_best * 0.98)
     return TuningResult(
         observer=observer, w_q_hz=answer, worst_ratio=float(ratios.min()),
@@ -492,16 +656,11 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     )
 
 
-def _precompute_at(plant: _Plant, compensator: Compensator, controller: PDController,
-                   w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    fresh = _precompute(plant.label, plant.true_design, plant.believed, compensator, controller, "controller", w)
-    return fresh.CP, fresh.M
-
-
 def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff"), *,
                  w_q_hz: float = 10.0, uncertainty: float = 0.0, damping_range: tuple[float, float] = (0.3, 2.0),
                  controller: PDController = PDController(), break_at: str = "controller",
-                 sigma: float = 0.0, seed: int = 0) -> TuningResult:
+                 sigma: float = 0.0, seed: int = 0, sampled: bool = False, rate_hz: float = 2000.0,
+                 delay_samples: int = 1) -> TuningResult:
     """Maximise the worst-case margin ratio at a fixed Q bandwidth over the Q damping.
 
     Parameters
@@ -525,6 +684,12 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
         Disk skew [-].
     seed : int
         Seed for ``random:N`` sets.
+    sampled : bool
+        Use the sampled-data loop (see :func:`tune_q`).
+    rate_hz : float
+        Sampling rate when ``sampled`` [Hz].
+    delay_samples : int
+        Computation delay when ``sampled`` [samples].
 
     Returns
     -------
@@ -537,22 +702,23 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
     active frequencies of every plant (cutting planes as in :func:`tune_q`), over
     (zeta, t). Verified against a dense exact scan over zeta.
     """
+    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
     base = Compensator(kind=observer, w_q_hz=w_q_hz, q_family="butterworth", q_order=2)
-    plants = _plants(base, envs, uncertainty, controller, break_at, seed)
+    plants = _plants(base, envs, uncertainty, setting, seed)
     w_q = 2 * math.pi * w_q_hz
     ca, mul, add, abs2 = _complex_ops()
     alpha = np.array([p.alpha_plant for p in plants])
 
     def exact_at(zeta: float) -> np.ndarray:
         comp = dataclasses.replace(base, q_damping=float(zeta))
-        return np.array([_shape_exact_ratio(plant, comp, controller, break_at, sigma) for plant in plants])
+        return _exact_ratios(plants, comp, setting)[0]
 
     zetas = np.linspace(*damping_range, 60)
     scan = np.array([exact_at(z).min() for z in zetas])
     z0 = float(zetas[int(np.argmax(scan))])
     active = []
     for plant in plants:
-        u = 1j * plant.w / w_q
+        u = 1j * plant.W / w_q
         mags = np.abs(_sensitivity_offset(plant, u**2 + 2 * z0 * u + 1, break_at, sigma))
         active.append(set(np.argsort(mags)[-_ACTIVE_PER_PLANT:].tolist()))
     zeta, info = z0, {}
@@ -564,7 +730,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
             idx = np.asarray(sorted(active[p]), dtype=int)
             for i, (top, den) in zip(idx, _casadi_abs2_G(
                     ca, mul, add, abs2, plant, idx,
-                    [1 - (plant.w[i] / w_q) ** 2 for i in idx], [2 * z * plant.w[i] / w_q for i in idx],
+                    [1 - (plant.W[i] / w_q) ** 2 for i in idx], [2 * z * plant.W[i] / w_q for i in idx],
                     break_at, sigma)):
                 g.append(t**2 * alpha[p] ** 2 * top - den)
         nlp = {"x": ca.vertcat(z, t), "f": -t, "g": ca.vertcat(*g)}
@@ -573,7 +739,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
         zeta = float(np.clip(sol[0], *damping_range))   # ipopt's bound tolerance
         added = False
         for p, plant in enumerate(plants):
-            u = 1j * plant.w / w_q
+            u = 1j * plant.W / w_q
             mags = np.abs(_sensitivity_offset(plant, u**2 + 2 * zeta * u + 1, break_at, sigma))
             worst = int(np.argmax(mags))
             if worst not in active[p] and 1.0 / (mags[worst] * alpha[p]) < sol[1] * (1 - 1e-9):
@@ -593,13 +759,3 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
         scan_w_q_hz=w_q_hz, agrees_with_scan=bool(ratios.min() >= best_scan * 0.98), min_ratio=0.0,
         band_hz=(w_q_hz, w_q_hz), plants=len(plants), q_damping=zeta, solver=info,
     )
-
-
-def _shape_exact_ratio(plant: _Plant, compensator: Compensator, controller: PDController, break_at: str,
-                       sigma: float) -> float:
-    """Exact alpha_observer/alpha_plant for one plant and compensator."""
-    from .symbolic import force_loop
-
-    loop = force_loop(plant.true_design, compensator, controller=controller, believed=plant.believed,
-                      break_at=break_at)
-    return disk_margin(loop.L, sigma, closed_loop_stable=loop.stable).alpha / plant.alpha_plant

@@ -78,3 +78,67 @@ def test_shape_mode_beats_both_standard_q_families():
 def test_bad_tuning_input_raises_parameter_error(kwargs, match):
     with pytest.raises(ParameterError, match=match):
         tune_q(**kwargs)
+
+
+@pytest.mark.parametrize("observer", ["lo-dob", "ld-dob"])
+def test_bounded_scan_finds_the_same_best_cutoff_as_the_full_exact_scan(observer):
+    """The grid margin bounds the exact one from above, so skipping grid-infeasible cutoffs
+    cannot change the scan's best feasible cutoff."""
+    kw = dict(uncertainty=0.1, min_ratio=0.9, band_hz=(0.5, 30.0), scan_points=30)
+    fast = tune_q(observer, "soft,stiff", scan="bounded", **kw)
+    full = tune_q(observer, "soft,stiff", scan="exact", **kw)
+    assert fast.scan_w_q_hz == full.scan_w_q_hz
+    assert fast.w_q_hz == pytest.approx(full.w_q_hz, rel=1e-9)
+    assert fast.evaluations < full.evaluations
+
+
+def test_grid_ratio_is_an_upper_bound_of_the_exact_ratio():
+    from forecast_design.tuning import _exact_ratios, _grid_ratios, _plants, _q_polynomial, _Setting
+    from forecast_design.params import PDController
+
+    for sampled in (False, True):
+        setting = _Setting(PDController(), "controller", 0.0, sampled)
+        base = Compensator(kind="lo-dob", w_q_hz=1.0)
+        plants = _plants(base, "soft,stiff", 0.2, setting)
+        for wq in (0.7, 3.0, 12.0):
+            grid = _grid_ratios(plants, _q_polynomial(base), np.array([wq]), "controller", 0.0)[0]
+            exact, _, _ = _exact_ratios(plants, dataclasses.replace(base, w_q_hz=wq), setting)
+            assert np.all(exact <= grid * (1 + 1e-9))
+            assert np.max(np.abs(exact - grid) / exact) < 1e-3    # the 700-point grid is close
+
+
+@pytest.fixture(scope="module")
+def sampled_results():
+    return {obs: tune_q(obs, "soft,stiff", min_ratio=0.9, band_hz=(0.5, 30.0), sampled=True, scan_points=40)
+            for obs in ("ea-fob", "lo-dob")}
+
+
+def test_sampled_tuning_is_verified_on_the_sampled_loop(sampled_results):
+    from forecast_design.analysis import sampled_force_loop
+    from forecast_design.params import Design
+
+    for obs, result in sampled_results.items():
+        assert result.feasible and result.agrees_with_scan, obs
+        worst = min(
+            sampled_force_loop(Design.nominal(env), Compensator(kind=obs, w_q_hz=result.w_q_hz)).disk_margin().alpha
+            / sampled_force_loop(Design.nominal(env)).disk_margin().alpha
+            for env in ("soft", "stiff"))
+        assert worst == pytest.approx(result.worst_ratio, rel=1e-9)
+        assert worst >= 0.9 * (1 - 1e-6)
+    assert sampled_results["ea-fob"].w_q_hz >= 5 * sampled_results["lo-dob"].w_q_hz
+
+
+def test_sampled_lo_dob_cutoff_is_locally_maximal(sampled_results):
+    r = sampled_results["lo-dob"]
+    above, _ = worst_case_ratio(Compensator(kind="lo-dob", w_q_hz=r.w_q_hz * 1.02), "soft,stiff", sampled=True)
+    assert above < 0.9 <= r.worst_ratio + 1e-6
+
+
+def test_sampled_band_must_stay_below_nyquist():
+    with pytest.raises(ParameterError, match="Nyquist"):
+        tune_q("ea-fob", "soft", sampled=True, rate_hz=50.0, band_hz=(0.5, 30.0))
+
+
+def test_bad_scan_mode_raises():
+    with pytest.raises(ParameterError, match="scan"):
+        tune_q("ea-fob", "soft", scan="sometimes")
