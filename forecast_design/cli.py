@@ -143,6 +143,7 @@ def _cmd_tf(args: argparse.Namespace) -> int:
 
 def _configure_reproduce(p: argparse.ArgumentParser) -> None:
     p.add_argument("figure", choices=["fig6", "fig7", "table3"], help="which result of the paper")
+    p.add_argument("--sigma", type=_float_range, default=0.0, help="fig6: disk skew (0 = balanced, the paper's)")
     p.add_argument("--json", metavar="OUT", nargs="?", const="-",
                    help="write the result as JSON to OUT (stdout with no OUT or '-')")
     p.add_argument("--plot", metavar="OUT.png", help="draw the figure")
@@ -161,12 +162,12 @@ def _write_json(target: str, obj: Any) -> None:
 def _reproduce_fig6(args: argparse.Namespace) -> int:
     from .analysis import fig6_table
 
-    rows = fig6_table()
+    rows = fig6_table(sigma=args.sigma)
     mapping = [row.to_mapping() for row in rows]
     if args.plot:
         from .plotting.margins import plot_fig6
 
-        plot_fig6(rows, args.plot)
+        plot_fig6(rows, args.plot, sigma=args.sigma)
     if args.json:
         _write_json(args.json, mapping)
     if args.json != "-":
@@ -263,6 +264,11 @@ def _configure_tune_q(p: argparse.ArgumentParser) -> None:
                    help="instead: at this fixed cutoff, choose the 2nd-order Q damping that "
                         "maximises the worst-case margin ratio")
     p.add_argument("--seed", type=int, default=0, help="seed of random:N environment sets")
+    p.add_argument("--sampled", action="store_true",
+                   help="analyse the sampled-data loop (discretised controller/observer, ZOH plant)")
+    p.add_argument("--rate-hz", type=_float_range, default=2000.0, help="--sampled: control rate [Hz]")
+    p.add_argument("--delay-samples", type=int, default=1, help="--sampled: computation delay [samples]")
+    p.add_argument("--exact-scan", action="store_true", help="verify with a full exact scan (slow)")
     p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write JSON to OUT (or stdout)")
 
 
@@ -273,7 +279,8 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
 
     if args.max_margin is not None:
         result = tune_q_shape(args.observer, args.envs, w_q_hz=args.max_margin, uncertainty=args.uncertainty,
-                              break_at=args.break_at, seed=args.seed)
+                              break_at=args.break_at, seed=args.seed, sampled=args.sampled, rate_hz=args.rate_hz,
+                              delay_samples=args.delay_samples)
     else:
         from tqdm import tqdm
 
@@ -284,7 +291,9 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
 
             result = tune_q(args.observer, args.envs, uncertainty=args.uncertainty, min_ratio=args.min_ratio,
                             band_hz=tuple(args.band), q_family=args.q_family, q_order=args.q_order,
-                            break_at=args.break_at, seed=args.seed, progress=progress)
+                            break_at=args.break_at, seed=args.seed, progress=progress, sampled=args.sampled,
+                            rate_hz=args.rate_hz, delay_samples=args.delay_samples,
+                            scan="exact" if args.exact_scan else "bounded")
     mapping = result.to_mapping()
     if args.json:
         _write_json(args.json, mapping)
@@ -575,4 +584,57 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     else:
         for key, value in paths.items():
             print(f"{key}: {value}")
+    return 0
+
+
+# --- margins ---------------------------------------------------------------------------------
+
+
+def _configure_margins(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--env", default="soft", metavar="NAME", help="true environment preset (default soft)")
+    p.add_argument("--observer", default="none", choices=_COMPENSATOR_CHOICES)
+    p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz]")
+    p.add_argument("--q-family", default="butterworth", choices=["butterworth", "binomial"])
+    p.add_argument("--believed", metavar="NAME", help="environment the observer believes in (default: the true one)")
+    p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D")
+    p.add_argument("--break-at", default="controller", choices=["controller", "plant-input"])
+    p.add_argument("--sampled", action="store_true", help="sampled-data loop at --rate-hz")
+    p.add_argument("--rate-hz", type=_float_range, default=2000.0)
+    p.add_argument("--delay-samples", type=int, default=1)
+    p.add_argument("--sigma", type=_float_range, default=0.0, help="disk skew (0 balanced)")
+    p.add_argument("--json", action="store_true", help="print the margins as JSON")
+    p.add_argument("--plot", metavar="OUT.png", help="frequency-dependent disk margin")
+
+
+@_command("margins", "disk margins of one force loop (environment, observer, knowledge error)", _configure_margins)
+def _cmd_margins(args: argparse.Namespace) -> int:
+    from .analysis import loop_margins
+    from .export.c import parse_controller
+    from .params import Compensator, Design
+
+    design = Design.nominal(args.env)
+    comp = None if args.observer == "none" else Compensator(kind=args.observer, w_q_hz=args.w_q_hz,
+                                                            q_family=args.q_family)
+    believed = Design.nominal(args.believed) if args.believed else None
+    controller = parse_controller(args.controller)
+    dm = loop_margins(design, comp, believed=believed, controller=controller, break_at=args.break_at,
+                      sampled=args.sampled, rate_hz=args.rate_hz, delay_samples=args.delay_samples, sigma=args.sigma)
+    if args.plot:
+        import numpy as np
+
+        from .analysis import disk_margin_curve, sampled_force_loop
+        from .plotting.margins import plot_disk_margin_curve
+        from .symbolic import force_loop
+
+        kwargs = dict(controller=controller, believed=believed, break_at=args.break_at)
+        loop = (sampled_force_loop(design, comp, rate_hz=args.rate_hz, delay_samples=args.delay_samples, **kwargs)
+                if args.sampled else force_loop(design, comp, **kwargs))
+        top = np.pi * args.rate_hz if args.sampled else 1e4
+        plot_disk_margin_curve(disk_margin_curve(loop.L, np.geomspace(1e-2, top, 800), args.sigma), args.plot)
+    if args.json:
+        _print_json(dm.to_mapping())
+    else:
+        lo, hi = dm.gain_margin_db
+        print(f"disk margin {dm.alpha:.4f} (stable {dm.stable}): gain [{lo:.3f}, {hi:.3f}] dB, phase "
+              f"{dm.phase_margin_deg:.2f} deg at {dm.frequency_rad_s:.4g} rad/s; delay margin {dm.delay_margin_s:.4g} s")
     return 0

@@ -258,3 +258,22 @@ def test_simulate_bad_scenario_exit_2_names_key(tmp_path, capsys, edit, fragment
     code = _exit_code(["simulate", str(scenario), "--out", str(tmp_path / "run.toml")])
     err = capsys.readouterr().err
     assert code == 2 and fragment in err and "s.toml" in err and len(err.strip().splitlines()) == 1
+
+
+def test_margins_verb_agrees_with_fig6_and_reports_instability(capsys):
+    code, out, _ = _run(capsys, "margins", "--env", "stiff", "--observer", "ld-dob", "--w-q-hz", "5", "--json")
+    assert code == 0
+    dm = json.loads(out)
+    _, fig6, _ = _run(capsys, "reproduce", "fig6", "--json")
+    row = next(r for r in json.loads(fig6) if r["environment"] == "stiff" and r["observer"] == "ld-dob"
+               and r["w_q_hz"] == 5)
+    assert dm["alpha"] == pytest.approx(row["disk_margin"], rel=1e-12)
+    _, out, _ = _run(capsys, "margins", "--env", "stiff", "--observer", "ld-dob", "--w-q-hz", "10", "--json")
+    assert json.loads(out)["stable"] is False and json.loads(out)["alpha"] == 0.0
+
+
+def test_tune_q_sampled_json(capsys):
+    code, out, _ = _run(capsys, "tune-q", "--observer", "ea-fob", "--sampled", "--json")
+    result = json.loads(out)
+    assert code == 0 and result["feasible"] and result["agrees_with_scan"]
+    assert set(result) >= {"observer", "w_q_hz", "worst_ratio", "worst_environment", "feasible", "evaluations"}

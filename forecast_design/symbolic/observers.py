@@ -165,6 +165,7 @@ def compensator_q_tf(compensator: Compensator) -> RationalTF:
     return RationalTF((w_q**2,), (1.0, 2.0 * compensator.q_damping * w_q, w_q**2), name="Q")
 
 
+@lru_cache(maxsize=None)
 def required_q_order(kind: str) -> int:
     """Smallest Q order making the observer proper (relative degree of P_n).
 
