@@ -277,3 +277,9 @@ def test_tune_q_sampled_json(capsys):
     result = json.loads(out)
     assert code == 0 and result["feasible"] and result["agrees_with_scan"]
     assert set(result) >= {"observer", "w_q_hz", "worst_ratio", "worst_environment", "feasible", "evaluations"}
+
+
+def test_bench_gap_rejects_a_nonpositive_count(capsys):
+    assert _exit_code(["bench-gap", "--per-effect", "0"]) == 2
+    err = capsys.readouterr().err
+    assert "--per-effect must be >= 1" in err and len(err.strip().splitlines()) == 1
