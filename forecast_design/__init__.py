@@ -12,6 +12,8 @@ from .errors import (
     ParameterError,
     SolverError,
 )
+from .effects import Effect
+from .experiment import Experiment, Signals, experiment_from_arrays, load_experiment, save_experiment
 from .lti import RationalTF
 from .params import (
     COMPENSATOR_KINDS,
@@ -43,4 +45,49 @@ __all__ = [
     "ENVIRONMENT_PRESETS",
     "COMPENSATOR_KINDS",
     "environment_preset",
+    "Effect",
+    "Experiment",
+    "Signals",
+    "load_experiment",
+    "save_experiment",
+    "experiment_from_arrays",
+    # imported on first use (sympy, casadi, numba, matplotlib stay out of `import forecast_design`)
+    "transfer_functions",
+    "force_loop",
+    "disk_margin",
+    "loop_margins",
+    "fig6_table",
+    "tune_q",
+    "identify",
+    "fit_friction",
+    "simulate",
+    "diagnose",
+    "export_controller",
+    "run_pipeline",
 ]
+
+_LAZY = {
+    "transfer_functions": "symbolic",
+    "force_loop": "symbolic",
+    "disk_margin": "analysis",
+    "loop_margins": "analysis",
+    "fig6_table": "analysis",
+    "tune_q": "tuning",
+    "identify": "friction",
+    "fit_friction": "friction",
+    "simulate": "simulation",
+    "diagnose": "gap",
+    "export_controller": "export.c",
+    "run_pipeline": "pipeline",
+}
+
+
+def __getattr__(name: str):
+    """Import the heavier capabilities on first use (PEP 562)."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'forecast_design' has no attribute {name!r}")

@@ -123,3 +123,13 @@ def test_every_cli_verb_has_a_test():
     tests = "".join(p.read_text() for p in (ROOT / "tests").glob("test_*.py"))
     untested = [v for v in verbs if f'"{v}"' not in tests]
     assert not untested, untested
+
+
+def test_importing_the_package_keeps_heavy_dependencies_at_the_edges():
+    import subprocess
+    import sys
+
+    code = ("import sys, forecast_design; "
+            "print(sorted(m for m in ('sympy', 'casadi', 'numba', 'matplotlib', 'cvxpy', 'serial') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
