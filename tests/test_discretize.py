@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from scipy import signal
 
 from forecast_design.errors import ParameterError
-from forecast_design.export import DiscreteFilter, discretize
+from forecast_design.export import FIRST_DIFFERENCE, DiscreteFilter, delta_to_sos, discretize, sos_to_delta
 from forecast_design.lti import RationalTF
 
 SCIPY_METHOD = {"tustin": "bilinear", "zoh": "zoh", "backward-euler": "backward_diff", "forward-euler": "euler"}
@@ -143,3 +143,99 @@ def test_discretize_rejects_bad_input():
         discretize(RationalTF([1.0], [1.0, 1.0]), 0.0)
     with pytest.raises(ParameterError, match="continuous"):
         discretize(RationalTF([1.0], [1.0, 1.0], dt=0.01), 100.0)
+
+
+# --- the delta-operator realisation -------------------------------------------------------
+
+def _delta_response(dsos, w_rad_s, rate_hz):
+    """Frequency response of delta sections, evaluated in rho = exp(j w T) - 1 (no cancellation)."""
+    wt = np.asarray(w_rad_s) / rate_hz
+    r = -2.0 * np.sin(wt / 2) ** 2 + 1j * np.sin(wt)  # exp(j wT) - 1 without cancellation
+    h = np.ones_like(r)
+    for b0, b1, b2, _, a1, a2 in dsos:
+        if b2 == 0.0 and a2 == 0.0:
+            h *= (b0 * r + b1) / (r + a1)
+        else:
+            h *= (b0 * r * r + b1 * r + b2) / (r * r + a1 * r + a2)
+    return h
+
+
+def _observer_tfs(kind, env="exp-soft", w_q_hz=10.0, method="tustin"):
+    from forecast_design.params import Compensator, Design
+    from forecast_design.simulation.controllers import ObserverCompensator
+
+    design = Design.nominal(env, compensator=Compensator(kind=kind, w_q_hz=w_q_hz))
+    return [tf for tf in ObserverCompensator(design.compensator, design, 2000.0, method=method).tfs
+            if any(c != 0.0 for c in tf.num)]
+
+
+@pytest.mark.parametrize("kind", ["ea-fob", "lo-dob", "ld-dob", "motor-fob"])
+@pytest.mark.parametrize("env", ["exp-soft", "locked", "link-only"])
+def test_delta_sections_are_the_tustin_map_of_the_continuous_filter(kind, env):
+    # Tustin identity: H_d(exp(j w T)) = H((2/T) tan(w T / 2) j), exact; the delta realisation
+    # meets it to float64 round-off although its poles sit within 0.01 of z = 1
+    w = 2 * np.pi * np.logspace(-1, np.log10(900.0), 80)
+    for tf in _observer_tfs(kind, env):
+        h = _delta_response(tf.to_delta_sos(), w, 2000.0)
+        ref = tf.source.freqresp(2 * 2000.0 * np.tan(w / (2 * 2000.0)))
+        np.testing.assert_allclose(h, ref, rtol=1e-11, atol=1e-11 * np.max(np.abs(ref)))
+
+
+@pytest.mark.parametrize("kind", ["ea-fob", "ld-dob", "motor-fob"])
+def test_zoh_delta_sections_match_scipy_state_space(kind):
+    w = 2 * np.pi * np.logspace(-1, np.log10(900.0), 40)
+    for tf in _observer_tfs(kind, method="zoh"):
+        A, B, C, D = signal.tf2ss(tf.source.num, tf.source.den)
+        Ad, Bd, Cd, Dd, _ = signal.cont2discrete((A, B, C, D), 1 / 2000.0, method="zoh")
+        z = np.exp(1j * w / 2000.0)
+        ref = np.array([(Cd @ np.linalg.solve(zz * np.eye(A.shape[0]) - Ad, Bd))[0, 0] + Dd[0, 0] for zz in z])
+        h = _delta_response(tf.to_delta_sos(), w, 2000.0)
+        np.testing.assert_allclose(h, ref, rtol=1e-6, atol=1e-9 * np.max(np.abs(ref)))
+
+
+def test_float32_delta_coefficients_keep_the_dc_gain_shift_coefficients_do_not():
+    # EA-FOB's G_s = -Q / P_n^EA has DC gain -1 and poles/zeros within 0.01 of z = 1 at 2 kHz.
+    (g_m, g_s) = _observer_tfs("ea-fob")
+    assert g_s.source.dcgain() == pytest.approx(-1.0, rel=1e-12)
+    delta32 = g_s.to_delta_sos(np.float32).astype(float)
+    dc_delta = np.prod([b2 / a2 for b0, b1, b2, _, a1, a2 in delta32])
+    shift32 = g_s.to_sos(np.float32).astype(float)
+    dc_shift = np.prod([(b0 + b1 + b2) / (1 + a1 + a2) for b0, b1, b2, _, a1, a2 in shift32])
+    assert dc_delta == -1.0                      # every section: b2 is the very number a2
+    assert abs(dc_shift + 1.0) > 1e-3            # float32 shift form: > 0.1 % off
+    # Q (= G_m) keeps Q(1) = 1 exactly in float32: the observer loop 1 - Q keeps its integral action
+    q32 = g_m.to_delta_sos(np.float32)
+    y = DiscreteFilter(q32).filter(np.full(20000, 0.7, dtype=np.float32))
+    assert abs(float(y[-1]) - 0.7) <= 2 * np.spacing(np.float32(0.7))
+
+
+def test_differentiators_start_with_exact_first_differences():
+    # motor-side FOB: G_theta = -Q J_m s^2 -> two first differences, then the Q sections
+    (_, _, g_theta) = _observer_tfs("motor-fob")
+    d = g_theta.to_delta_sos()
+    assert np.array_equal(d[:2], np.array([FIRST_DIFFERENCE] * 2))
+    # a large angle (1000 rad) moving: float32 and float64 runs of the same float32 input agree
+    # to 1e-7 N m once the start-up transient has gone (the differences are exact; nothing has
+    # to cancel against an integrated 1000 rad state)
+    n = np.arange(8000)
+    theta = (1000.0 + 0.5 * n / 2000.0 + 0.01 * np.sin(2 * np.pi * 2.0 * n / 2000.0)).astype(np.float32)
+    y32 = DiscreteFilter(g_theta.to_delta_sos(np.float32)).filter(theta).astype(float)
+    y64 = DiscreteFilter(g_theta.to_delta_sos()).filter(theta.astype(float))
+    assert np.max(np.abs(y64[4000:])) > 0.1
+    assert np.max(np.abs(y32 - y64)[4000:]) < 1e-7
+    np.testing.assert_allclose(delta_to_sos(np.array([FIRST_DIFFERENCE])), [[1.0, -1.0, 0.0, 1.0, 0.0, 0.0]])
+
+
+@given(b=st.lists(st.floats(-2, 2), min_size=3, max_size=3), r=st.floats(0.05, 0.95), phi=st.floats(0.0, 3.0))
+@settings(max_examples=40, deadline=None)
+def test_delta_and_shift_sections_convert_both_ways(b, r, phi):
+    sos = np.array([[b[0], b[1], b[2], 1.0, -2 * r * math.cos(phi), r * r]])
+    dsos = sos_to_delta(sos)
+    np.testing.assert_allclose(delta_to_sos(dsos), sos, rtol=1e-12, atol=1e-12)
+    x = np.random.default_rng(0).normal(size=200)
+    np.testing.assert_allclose(DiscreteFilter(dsos).filter(x), signal.sosfilt(sos, x), rtol=1e-9, atol=1e-9)
+
+
+def test_zoh_of_a_zero_filter_raises_no_warning():
+    d = discretize(RationalTF([0.0], [1.0, 88.9, 3948.0]), 2000.0, "zoh")  # warnings are errors here
+    assert np.all(DiscreteFilter(d).filter(np.ones(5)) == 0.0)

@@ -1,5 +1,16 @@
 """Controller export: discretisation (and, later, C emission) of filters and controllers."""
 
-from .discretize import METHODS, DiscreteFilter, DiscreteTF, discretize, sos_filter, sos_step
+from .discretize import (
+    FIRST_DIFFERENCE,
+    METHODS,
+    DiscreteFilter,
+    DiscreteTF,
+    delta_to_sos,
+    discretize,
+    sos_filter,
+    sos_step,
+    sos_to_delta,
+)
 
-__all__ = ["METHODS", "DiscreteTF", "DiscreteFilter", "discretize", "sos_step", "sos_filter"]
+__all__ = ["METHODS", "FIRST_DIFFERENCE", "DiscreteTF", "DiscreteFilter", "discretize", "sos_step", "sos_filter",
+           "delta_to_sos", "sos_to_delta"]

@@ -62,7 +62,8 @@ class Channel:
     source : str
         One of :data:`SOURCES`.
     sos : ndarray, shape (n_sections, 6)
-        Rows ``[b0, b1, b2, 1, a1, a2]`` (float64 design values).
+        Delta sections, rows ``[b0, b1, b2, 1, a1, a2]`` in ``rho = z - 1`` (float64 design values;
+        :mod:`forecast_design.export.discretize`).
     group : str
         ``"u"`` (controller output) or ``"hat"`` (friction estimate); the
         command is ``sat(sum(u) + sum(hat))``, each sum in channel order.

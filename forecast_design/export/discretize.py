@@ -2,20 +2,64 @@
 
 :func:`discretize` maps a continuous :class:`~forecast_design.lti.RationalTF`
 to a :class:`DiscreteTF` that records how it was made (method, rate,
-prewarp). :meth:`DiscreteTF.to_sos` gives second-order sections and
-:class:`DiscreteFilter` runs them with the recursion below, the same one the
-simulator runs and the C export emits.
+prewarp). :meth:`DiscreteTF.to_delta_sos` realises it as *delta-operator
+second-order sections* and :class:`DiscreteFilter` runs them with the
+recursion below, the same one the simulator runs and the C export emits.
 
-Second-order-section recursion (direct form II transposed, per section
-``[b0, b1, b2, 1, a1, a2]``, sections in series, state ``s1, s2`` per
-section, initially zero)::
+Why the delta operator
+----------------------
+At 2 kHz the poles and zeros of 1-100 Hz filters sit within a few
+hundredths of z = 1. Shift-operator coefficients ``a1 ~ -2``, ``a2 ~ 1``
+then carry the filter in their last few bits: in float32 the EA-FOB's
+G_s = -Q / P_n^EA lost 0.6 % of its DC gain and a motor-side FOB's
+double differentiator no longer had its zeros at z = 1. Rewriting every
+section in ``rho = z - 1`` (the delta operator with T = 1) stores
+``(z - p1)(z - p2) = rho^2 + (d1 + d2) rho + d1 d2`` with ``d = 1 - p``,
+so poles and zeros near z = 1 keep their *relative* precision. The
+coefficients are computed from the continuous roots mapped exactly
+(Tustin ``rho = 2 s / (c - s)``, Euler ``rho = s T``, ``s T / (1 - s T)``,
+ZOH ``rho = expm1(s T)``), never from the expanded z-polynomial.
+
+Three more rules make the float32 realisation match float64 to ~1e-6:
+
+* zeros exactly at s = 0 (differentiators: the motor-side FOB's
+  J_m s^2, the SFM's velocity filter) become leading first-difference
+  sections ``(1 - z^-1)`` that act on the raw input; the difference of two
+  nearby floats is exact, so a large angle never has to cancel against
+  an integrated state;
+* each section with a finite, non-zero DC gain is scaled to DC gain 1
+  *exactly* (its constant numerator coefficient is the very same number
+  as its constant denominator coefficient), and the overall gain goes
+  into the first non-difference section: a unity-DC Q filter keeps
+  Q(1) = 1 in float32, so the observer loop ``1 - Q`` keeps its integral
+  action and the estimate does not drift;
+* poles are grouped in conjugate pairs (two real poles share a section,
+  an odd one gets a first-order section); zeros are given to the pole
+  group nearest the unit circle first, each taking its nearest zeros;
+  sections run fastest-first, the slowest (most sensitive) last.
+
+Delta section recursion
+-----------------------
+Each row ``[b0, b1, b2, 1, a1, a2]`` of a delta-SOS array is::
+
+    H(rho) = (b0 + b1 rho^-1 + b2 rho^-2) / (1 + a1 rho^-1 + a2 rho^-2),  rho = z - 1,
+
+run in transposed direct form II with ``rho^-1`` (an accumulator
+``s[n+1] = s[n] + v[n]``) in place of ``z^-1``; states ``s1, s2`` per
+section, initially zero, and this exact order of operations::
 
     y  = b0 x + s1
-    s1 = b1 x - a1 y + s2
-    s2 = b2 x - a2 y
+    t1 = (b1 x - a1 y) + s2
+    t2 = b2 x - a2 y
+    s1 = s1 + t1
+    s2 = s2 + t2
 
 The output ``y`` of section ``i`` is the input ``x`` of section ``i + 1``.
-This is exactly ``scipy.signal.sosfilt``'s recursion.
+A row with ``b2 = a2 = 0`` is a first-order section ``(b0 rho + b1) / (rho
++ a1)`` (``s2`` stays 0); ``[1, 0, 0, 1, 1, 0]`` is the first difference
+``1 - z^-1``. :func:`delta_to_sos` / :func:`sos_to_delta` convert to and
+from scipy's shift-operator sections (for interoperability only: the
+conversion to shift form is exactly what loses the precision).
 """
 
 from __future__ import annotations
@@ -49,6 +93,9 @@ __all__ = [
     "discretize",
     "sos_step",
     "sos_filter",
+    "delta_to_sos",
+    "sos_to_delta",
+    "FIRST_DIFFERENCE",
 ]
 
 #: Supported methods: ``tustin`` (bilinear, optional prewarp), ``zoh``
@@ -59,14 +106,14 @@ METHODS = ("tustin", "zoh", "backward-euler", "forward-euler")
 
 @_njit
 def sos_step(sos, state, x):
-    """Advance a cascade of second-order sections by one sample (in place).
+    """Advance a cascade of delta-operator second-order sections by one sample (in place).
 
     Parameters
     ----------
     sos : ndarray, shape (n_sections, 6)
-        Rows ``[b0, b1, b2, 1, a1, a2]``.
+        Delta sections, rows ``[b0, b1, b2, 1, a1, a2]`` (module docstring).
     state : ndarray, shape (n_sections, 2)
-        DF-II-transposed states ``s1, s2``; updated in place.
+        Accumulator states ``s1, s2``; updated in place.
     x : float
         Input sample.
 
@@ -74,14 +121,17 @@ def sos_step(sos, state, x):
     -------
     float
         Output sample. The arithmetic is done in the dtype of ``sos``/``state``
-        (float32 arrays give float32 arithmetic, as a C ``float`` filter).
+        (float32 arrays give float32 arithmetic, bit for bit the emitted C
+        ``float`` code built without FMA contraction).
     """
     y = x
     for i in range(sos.shape[0]):
         xi = y
         y = sos[i, 0] * xi + state[i, 0]
-        state[i, 0] = sos[i, 1] * xi - sos[i, 4] * y + state[i, 1]
-        state[i, 1] = sos[i, 2] * xi - sos[i, 5] * y
+        t1 = sos[i, 1] * xi - sos[i, 4] * y + state[i, 1]
+        t2 = sos[i, 2] * xi - sos[i, 5] * y
+        state[i, 0] = state[i, 0] + t1
+        state[i, 1] = state[i, 1] + t2
     return y
 
 
@@ -92,7 +142,7 @@ def sos_filter(sos, state, x, y):
     Parameters
     ----------
     sos : ndarray, shape (n_sections, 6)
-        Sections.
+        Delta sections.
     state : ndarray, shape (n_sections, 2)
         States, updated in place.
     x : ndarray, shape (n,)
@@ -122,20 +172,303 @@ def _substitute(coeffs: tuple[float, ...], order: int, num_s: np.ndarray, den_s:
     return total
 
 
-def _zoh(num: tuple[float, ...], den: tuple[float, ...], dt: float) -> tuple[np.ndarray, np.ndarray]:
-    from scipy import linalg, signal
+def _controllable_ss(num: tuple[float, ...], den: tuple[float, ...]):
+    """Controllable canonical (A, B, C, D) of a proper num/den (no scipy normalisation warnings)."""
+    a = np.asarray(den, dtype=float) / den[0]
+    n = len(a) - 1
+    b = np.concatenate([np.zeros(n + 1 - len(num)), np.asarray(num, dtype=float)]) / den[0]
+    A = np.zeros((n, n))
+    A[0, :] = -a[1:]
+    A[1:, :-1] = np.eye(n - 1)
+    B = np.zeros((n, 1))
+    B[0, 0] = 1.0
+    C = (b[1:] - b[0] * a[1:]).reshape(1, n)
+    return A, B, C, float(b[0])
 
+
+def _zoh_ss(num: tuple[float, ...], den: tuple[float, ...], dt: float):
+    """ZOH of num/den in delta form: (A_d - I, B_d, C, D), A_d - I = A int_0^T exp(A t) dt (no cancellation)."""
+    from scipy import linalg
+
+    A, B, C, D = _controllable_ss(num, den)
+    # Companion matrices of fast filters span many decades (w^n); a diagonal similarity brings
+    # the entries to one scale so expm and the zero pencil keep their precision.
+    _, (scale, _) = linalg.matrix_balance(A, permute=False, separate=True)
+    A, B, C = A * scale[None, :] / scale[:, None], B / scale[:, None], C * scale[None, :]
+    n = A.shape[0]
+    m = np.zeros((2 * n, 2 * n))
+    m[:n, :n] = A * dt
+    m[:n, n:] = np.eye(n) * dt
+    gamma = linalg.expm(m)[:n, n:]
+    return A @ gamma, gamma @ B, C, D
+
+
+def _zoh(num: tuple[float, ...], den: tuple[float, ...], dt: float) -> tuple[np.ndarray, np.ndarray]:
     n = len(den) - 1
     if n == 0:
-        return np.array([num[0] / den[0]]), np.array([1.0])
-    A, B, C, D = signal.tf2ss(num, den)
-    m = np.zeros((n + 1, n + 1))
-    m[:n, :n] = A * dt
-    m[:n, n:] = B * dt
-    e = linalg.expm(m)
-    Ad, Bd = e[:n, :n], e[:n, n:]
-    numd, dend = signal.ss2tf(Ad, Bd, C, D)
-    return np.atleast_1d(np.squeeze(numd)), np.atleast_1d(dend)
+        return np.array([num[-1] / den[0]]), np.array([1.0])
+    Ar, Bd, C, D = _zoh_ss(num, den, dt)
+    Ad = Ar + np.eye(n)
+    dend = np.poly(Ad)
+    numd = np.poly(Ad - Bd @ C) + (D - 1.0) * dend  # SISO ss2tf
+    return np.real(numd), np.real(dend)
+
+
+#: The delta section of the first difference ``1 - z^-1 = rho / (rho + 1)``.
+FIRST_DIFFERENCE = (1.0, 0.0, 0.0, 1.0, 1.0, 0.0)
+
+# Roots with |imag| below this fraction of their modulus are real (np.roots splits a repeated
+# real root, e.g. a binomial Q filter's, into a pair with a tiny imaginary part).
+_REAL_TOL = 1e-9
+
+
+def delta_to_sos(dsos: np.ndarray) -> np.ndarray:
+    """Convert delta sections to scipy's shift-operator sections (float64).
+
+    Parameters
+    ----------
+    dsos : ndarray, shape (n, 6)
+        Delta sections ``[b0, b1, b2, 1, a1, a2]`` in ``rho = z - 1``.
+
+    Returns
+    -------
+    ndarray, shape (n, 6)
+        ``[b0, b1, b2, 1, a1, a2]`` in ``z^-1`` (``scipy.signal.sosfilt``
+        layout), the same transfer function. First-order rows (``b2 = a2 =
+        0``) map to first-order shift sections.
+    """
+    d = np.asarray(dsos, dtype=float).reshape(-1, 6)
+    out = np.zeros_like(d)
+    for row, (b0, b1, b2, _, a1, a2) in zip(out, d):
+        if b2 == 0.0 and a2 == 0.0:  # (b0 rho + b1) / (rho + a1)
+            row[:] = (b0, b1 - b0, 0.0, 1.0, a1 - 1.0, 0.0)
+        else:
+            row[:] = (b0, b1 - 2.0 * b0, b0 - b1 + b2, 1.0, a1 - 2.0, 1.0 - a1 + a2)
+    return out
+
+
+def sos_to_delta(sos: np.ndarray) -> np.ndarray:
+    """Convert scipy shift-operator sections to delta sections (float64).
+
+    Parameters
+    ----------
+    sos : ndarray, shape (n, 6)
+        ``[b0, b1, b2, a0, a1, a2]`` in ``z^-1``, ``a0 != 0``.
+
+    Returns
+    -------
+    ndarray, shape (n, 6)
+        The same transfer function as delta sections. The conversion is
+        exact algebra but cannot restore precision that shift-operator
+        coefficients have already lost (prefer :meth:`DiscreteTF.to_delta_sos`).
+    """
+    s = np.asarray(sos, dtype=float).reshape(-1, 6)
+    out = np.zeros_like(s)
+    for row, (b0, b1, b2, a0, a1, a2) in zip(out, s):
+        b0, b1, b2, a1, a2 = b0 / a0, b1 / a0, b2 / a0, a1 / a0, a2 / a0
+        if b2 == 0.0 and a2 == 0.0:
+            row[:] = (b0, b1 + b0, 0.0, 1.0, a1 + 1.0, 0.0)
+        else:
+            row[:] = (b0, b1 + 2.0 * b0, b0 + b1 + b2, 1.0, a1 + 2.0, 1.0 + a1 + a2)
+    return out
+
+
+def _expm1_complex(w: np.ndarray) -> np.ndarray:
+    """exp(w) - 1 without cancellation for small complex w."""
+    a, b = w.real, w.imag
+    return np.expm1(a) * np.cos(b) - 2.0 * np.sin(b / 2.0) ** 2 + 1j * np.exp(a) * np.sin(b)
+
+
+def _split_real(roots: np.ndarray) -> tuple[list[float], list[complex]]:
+    """Real roots and one representative (imag > 0) per conjugate pair."""
+    roots = np.asarray(roots, dtype=complex)
+    is_real = np.abs(roots.imag) <= _REAL_TOL * np.abs(roots)
+    pos = roots[~is_real & (roots.imag > 0)]
+    neg = roots[~is_real & (roots.imag < 0)]
+    if len(pos) != len(neg) or not np.allclose(np.sort_complex(pos), np.sort_complex(np.conj(neg)),
+                                               rtol=1e-6, atol=0.0):
+        raise ParameterError(f"roots {roots} are not closed under conjugation", name="roots", value=roots)
+    return [float(r) for r in roots[is_real].real], [complex(r) for r in pos]
+
+
+def _closeness(p: complex) -> float:
+    """Distance of the z-plane root 1 + p from the unit circle (small: sensitive, slow)."""
+    return abs(1.0 - abs(1.0 + p))
+
+
+def _pair_sections(zeros: np.ndarray, poles: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Group poles in pairs and give each group its nearest zeros (rho-plane roots).
+
+    Returns (numerator, denominator) monic rho-polynomials per section,
+    least sensitive first. Numerators may be shorter than denominators
+    (zeros at infinity).
+    """
+    preal, ppair = _split_real(poles)
+    zreal, zpair = _split_real(zeros)
+    groups: list[list[complex]] = [[p, np.conj(p)] for p in ppair]
+    preal.sort(key=_closeness)
+    groups += [preal[i:i + 2] for i in range(0, len(preal), 2)]
+    groups.sort(key=lambda g: min(_closeness(p) for p in g))  # most sensitive first
+    assigned: list[list[complex]] = []
+    for k, g in enumerate(groups):
+        rest = groups[k + 1:]
+        cap = sum(len(h) for h in rest)
+        n2 = sum(len(h) == 2 for h in rest)
+
+        def dist(r: complex) -> float:
+            return min(abs(r - p) for p in g)
+
+        options: list[tuple[list[complex], list[float], list[complex]]] = [([], zreal, zpair)]
+        by_dist = sorted(zreal, key=dist)
+        if by_dist:
+            options.append(([by_dist[0]], [r for r in zreal if r is not by_dist[0]], zpair))
+        if len(g) == 2 and len(by_dist) >= 2:
+            options.append((by_dist[:2], [r for r in zreal if r is not by_dist[0] and r is not by_dist[1]], zpair))
+        if len(g) == 2:
+            for c in zpair:
+                options.append(([c, np.conj(c)], zreal, [d for d in zpair if d is not c]))
+        feasible = [o for o in options if len(o[2]) <= n2 and 2 * len(o[2]) + len(o[1]) <= cap]
+        chosen, zreal, zpair = min(feasible, key=lambda o: (-len(o[0]), max((dist(r) for r in o[0]), default=0.0)))
+        assigned.append(chosen)
+    sections = []
+    for g, zs in zip(groups, assigned):
+        num = np.real(np.poly(zs)) if zs else np.array([1.0])
+        sections.append((num, np.real(np.poly(g))))
+    return sections[::-1]
+
+
+#: Where the realisation's gain is fitted: z0 = j (a quarter of the sample rate), far from
+#: every pole and zero that matters here.
+_Z0 = 1j
+
+
+def _rho_roots(dtf: "DiscreteTF") -> tuple[int, np.ndarray, np.ndarray, float | None, complex]:
+    """(m, zeros, poles, DC gain, H(z0)) in rho = z - 1 of the realisation ``(1 - z^-1)^m R(rho)``.
+
+    The m leading differences stand for the source's zeros exactly at s = 0;
+    R's zeros include the m compensating zeros at rho = -1 (z = 0). The DC
+    gain (every method here preserves it) is ``None`` unless finite and
+    non-zero. ``H(z0)`` is the exact discrete response at :data:`_Z0`,
+    evaluated from the source (or the delta-form state space for ZOH), not
+    from the expanded z-polynomials.
+    """
+    num = np.asarray(dtf.source.num, dtype=float)
+    den = np.asarray(dtf.source.den, dtype=float)
+    m_num = len(num) - 1 - int(np.flatnonzero(num)[-1])
+    m_den = len(den) - 1 - int(np.flatnonzero(den)[-1])
+    common = min(m_num, m_den)  # s^k / s^k: cancel exactly
+    if common:
+        num, den = num[:len(num) - common], den[:len(den) - common]
+    m = m_num - common
+    num_red = num[:len(num) - m] if m else num
+    n_inf = (len(den) - 1) - (len(num) - 1)
+    s_zeros = np.roots(num_red).astype(complex)
+    s_poles = np.roots(den).astype(complex)
+    T = dtf.dt
+    if dtf.method == "tustin":
+        if dtf.prewarp_hz is None:
+            c = 2.0 / T
+        else:
+            wp = 2.0 * math.pi * dtf.prewarp_hz
+            c = wp / math.tan(wp * T / 2.0)
+        zeros = np.concatenate([2.0 * s_zeros / (c - s_zeros), np.full(n_inf, -2.0)])
+        poles = 2.0 * s_poles / (c - s_poles)
+        s0 = c * (_Z0 - 1.0) / (_Z0 + 1.0)
+        target = np.polyval(num, s0) / np.polyval(den, s0)
+    elif dtf.method == "backward-euler":
+        zeros = np.concatenate([s_zeros * T / (1.0 - s_zeros * T), np.full(n_inf, -1.0)])
+        poles = s_poles * T / (1.0 - s_poles * T)
+        s0 = (_Z0 - 1.0) / (T * _Z0)
+        target = np.polyval(num, s0) / np.polyval(den, s0)
+    elif dtf.method == "forward-euler":
+        zeros, poles = s_zeros * T, s_poles * T
+        s0 = (_Z0 - 1.0) / T
+        target = np.polyval(num, s0) / np.polyval(den, s0)
+    else:  # zoh: poles map exactly; zeros are the finite generalised eigenvalues in delta form
+        from scipy import linalg
+
+        poles = _expm1_complex(s_poles * T)
+        Ar, Bd, C, D = _zoh_ss(tuple(num), tuple(den), T)
+        n = Ar.shape[0]
+        # scale input and output so the pencil's blocks share one magnitude (zeros are invariant)
+        a_norm = max(np.max(np.abs(Ar)), 1e-300)
+        su = a_norm / max(np.max(np.abs(Bd)), 1e-300)
+        sy = a_norm / max(np.max(np.abs(C)), abs(D), 1e-300)
+        sys_m = np.block([[Ar, Bd * su], [C * sy, np.array([[D * su * sy]])]])
+        sys_n = np.zeros((n + 1, n + 1))
+        sys_n[:n, :n] = np.eye(n)
+        alpha, beta = linalg.eigvals(sys_m, sys_n, homogeneous_eigvals=True)
+        n_finite = n if D != 0.0 else n - 1  # generic: one sampling zero fewer than poles
+        finite = np.argsort(-np.abs(beta) / np.maximum(np.abs(alpha), 1e-300))[:n_finite]
+        zeros = alpha[finite] / beta[finite]
+        target = (C @ np.linalg.solve((_Z0 - 1.0) * np.eye(n) - Ar, Bd))[0, 0] + D
+        # A zero-hold keeps one zero exactly at z = 1 per zero DC gain; with s^2 and higher the
+        # others land within ~(w T)^k of it, below what the eigen-solver resolves (~1e-11).
+        # Zeros within 1e-8 of z = 1 (a frequency of 1e-8 rad/sample) are differences.
+        tiny = np.abs(zeros) < 1e-8
+        if m and not np.any(tiny):  # pragma: no cover - the exact zero must be found
+            raise ParameterError(f"{dtf.name or 'filter'}: zoh lost the zero at z = 1", name="tf", value=dtf.source)
+        m = int(np.count_nonzero(tiny))
+        zeros = zeros[~tiny]
+    zeros = np.concatenate([zeros, np.full(m, -1.0)])
+    dc = float(num[-1] / den[-1]) if m == 0 and num[-1] != 0.0 and den[-1] != 0.0 else None
+    return m, zeros, poles, dc, complex(target)
+
+
+def _realise(dtf: "DiscreteTF") -> np.ndarray:
+    """Delta sections of ``dtf`` in float64 (module docstring's rules)."""
+    num = np.trim_zeros(np.asarray(dtf.num, dtype=float), "f")
+    if num.size == 0:  # the zero filter (e.g. an observer path that is not used)
+        return np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
+    if dtf.order == 0:
+        return np.array([[dtf.num[-1] / dtf.den[0], 0.0, 0.0, 1.0, 0.0, 0.0]])
+    m, zeros, poles, dc, target = _rho_roots(dtf)
+    if len(poles) == 0:  # everything cancelled: a static gain
+        return np.array([[float(dtf.dcgain()), 0.0, 0.0, 1.0, 0.0, 0.0]])
+    rows, normalised = [], True
+    for n_poly, d_poly in _pair_sections(zeros, poles):
+        order = len(d_poly) - 1
+        n_poly = np.concatenate([np.zeros(order + 1 - len(n_poly)), n_poly])
+        if n_poly[-1] != 0.0 and d_poly[-1] != 0.0:
+            c = d_poly[-1] / n_poly[-1]
+            n_poly = n_poly * c
+            n_poly[-1] = d_poly[-1]  # the same number: DC gain exactly 1 in any precision
+        else:
+            normalised = False
+        if order == 1:
+            rows.append([n_poly[0], n_poly[1], 0.0, 1.0, d_poly[1], 0.0])
+        else:
+            rows.append([n_poly[0], n_poly[1], n_poly[2], 1.0, d_poly[1], d_poly[2]])
+    sections = np.array(rows)
+    # Overall gain: the exact response at z0 over the sections' response there.
+    rho0 = _Z0 - 1.0
+    have = (rho0 / _Z0) ** m
+    for b0, b1, b2, _, a1, a2 in sections:
+        if b2 == 0.0 and a2 == 0.0:
+            have *= (b0 * rho0 + b1) / (rho0 + a1)
+        else:
+            have *= (b0 * rho0**2 + b1 * rho0 + b2) / (rho0**2 + a1 * rho0 + a2)
+    gain = target / have
+    if abs(gain.imag) > 1e-6 * abs(gain) or (dc is not None and normalised
+                                              and abs(gain.real - dc) > 1e-6 * abs(dc)):
+        raise ParameterError(f"{dtf.name or 'filter'}: realisation gain {gain} disagrees with the "
+                             f"transfer function (DC gain {dc}); roots too ill-conditioned",
+                             name="num", value=dtf.num)
+    if dc is not None and normalised:
+        # every section has DC gain 1 and every method keeps the DC gain: use it exactly, so a
+        # unity-DC filter is realised with gain 1.0 (no 1e-16 drift for float32 to round either way)
+        sections[0, :3] *= dc
+    else:
+        sections[0, :3] *= gain.real
+    diffs = np.tile(np.array(FIRST_DIFFERENCE), (m, 1))
+    return np.ascontiguousarray(np.vstack([diffs, sections]))
+
+
+def _check_dtype(dtype: Any) -> np.dtype:
+    dtype = np.dtype(dtype)
+    if dtype not in (np.dtype(np.float64), np.dtype(np.float32)):
+        raise ParameterError(f"sections dtype must be float64 or float32, got {dtype}", name="dtype", value=dtype)
+    return dtype
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,45 +524,47 @@ class DiscreteTF:
         """Gain at z = 1 [-]; inf at a pole there."""
         return self.to_rational().dcgain()
 
-    def to_sos(self, dtype: Any = np.float64) -> np.ndarray:
-        """Second-order sections ``[b0, b1, b2, 1, a1, a2]`` per row.
+    def to_delta_sos(self, dtype: Any = np.float64) -> np.ndarray:
+        """The realisation: delta-operator second-order sections (module docstring).
 
         Parameters
         ----------
         dtype : numpy dtype
-            ``np.float64`` (default) or ``np.float32`` coefficients.
+            ``np.float64`` (default) or ``np.float32`` coefficients (rounded
+            from the float64 design values).
 
         Returns
         -------
-        ndarray, shape (max(1, ceil(order / 2)), 6)
-            Sections from :func:`scipy.signal.tf2sos` (nearest pole-zero
-            pairing, overall gain in the first section).
-        """
-        from scipy import signal
+        ndarray, shape (n_sections, 6)
+            Rows ``[b0, b1, b2, 1, a1, a2]`` in ``rho = z - 1``: first the
+            first-difference sections of the source's zeros at s = 0, then
+            the pole groups, least sensitive first.
 
-        dtype = np.dtype(dtype)
-        if dtype not in (np.dtype(np.float64), np.dtype(np.float32)):
-            raise ParameterError(f"to_sos dtype must be float64 or float32, got {dtype}", name="dtype", value=dtype)
-        num = np.trim_zeros(np.asarray(self.num, dtype=float), "f")
-        if num.size == 0:  # the zero filter (e.g. an observer path that is not used)
-            sos = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
-        elif self.order == 0:
-            sos = np.array([[self.num[-1] / self.den[0], 0.0, 0.0, 1.0, 0.0, 0.0]])
-        else:
-            # tf2sos would strip a leading b0 = 0 (strictly proper, e.g. ZOH) and so advance the
-            # output by one sample. Build H(z) z^d from zeros/poles instead (zpk2sos pads zeros at
-            # the origin: factors z), then take the d delays back out of sections with b2 == 0.
-            delay = len(self.num) - num.size
-            sos = signal.zpk2sos(np.roots(num), np.roots(self.den), num[0] / self.den[0])
-            for sec in sos:
-                while delay > 0 and sec[2] == 0.0 and np.any(sec[:3] != 0.0):
-                    sec[1:3] = sec[0:2].copy()
-                    sec[0] = 0.0
-                    delay -= 1
-            if delay:  # pragma: no cover - zpk2sos always pads enough origin zeros
-                raise ParameterError(f"to_sos: could not place {delay} delays in the sections",
-                                     name="num", value=self.num)
-        return np.ascontiguousarray(sos, dtype=dtype)
+        Raises
+        ------
+        ParameterError
+            For a dtype other than float64/float32.
+        """
+        dtype = _check_dtype(dtype)
+        return np.ascontiguousarray(_realise(self), dtype=dtype)
+
+    def to_sos(self, dtype: Any = np.float64) -> np.ndarray:
+        """The same sections in scipy's shift-operator layout (for interoperability).
+
+        Parameters
+        ----------
+        dtype : numpy dtype
+            ``np.float64`` (default) or ``np.float32``.
+
+        Returns
+        -------
+        ndarray, shape (n_sections, 6)
+            :func:`delta_to_sos` of :meth:`to_delta_sos`, usable with
+            ``scipy.signal.sosfilt``/``sosfreqz``. The filters of this
+            package never run this form (it loses precision near z = 1).
+        """
+        dtype = _check_dtype(dtype)
+        return np.ascontiguousarray(delta_to_sos(_realise(self)), dtype=dtype)
 
     def to_mapping(self) -> dict[str, Any]:
         """Coefficients and provenance (for JSON and the C export header)."""
@@ -338,13 +673,14 @@ def discretize(tf: RationalTF, rate_hz: float, method: str = "tustin",
 
 
 class DiscreteFilter:
-    """A running discrete filter: second-order sections in DF-II-transposed form.
+    """A running discrete filter: delta-operator second-order sections.
 
     Parameters
     ----------
     dtf : DiscreteTF or ndarray
-        The discrete TF (converted with :meth:`DiscreteTF.to_sos`) or an SOS
-        array of shape (n_sections, 6).
+        The discrete TF (realised with :meth:`DiscreteTF.to_delta_sos`) or a
+        delta-SOS array of shape (n_sections, 6) (rows ``[b0, b1, b2, 1, a1,
+        a2]`` in ``rho = z - 1``; convert scipy sections with :func:`sos_to_delta`).
     dtype : numpy dtype
         ``np.float64`` (default) or ``np.float32``: coefficients, states and
         arithmetic (float32 emulates a C ``float`` implementation).
@@ -361,7 +697,7 @@ class DiscreteFilter:
 
     def __init__(self, dtf: DiscreteTF | np.ndarray, dtype: Any = np.float64) -> None:
         if isinstance(dtf, DiscreteTF):
-            sos = dtf.to_sos(dtype)
+            sos = dtf.to_delta_sos(dtype)
             self.dtf = dtf
         else:
             sos = np.ascontiguousarray(np.atleast_2d(np.asarray(dtf)), dtype=dtype)
