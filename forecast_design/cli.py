@@ -430,6 +430,8 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
     p.add_argument("--method", default="tustin", help="discretisation: tustin (default), zoh, backward-euler")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0, help="control rate [Hz] (default 2000)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for fd_controller.h / fd_controller.c")
+    p.add_argument("--check-arm", action="store_true",
+                   help="cross-compile for the Cortex-M4, run on qemu (mps2-an386), compare with the host build")
     p.add_argument("--json", action="store_true", help="print the export summary as JSON")
 
 
@@ -439,10 +441,20 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
     result = export_controller(out_dir=args.out, controller=args.controller, compensator=args.compensator,
                                env=args.env, w_q_hz=args.w_q_hz, rate_hz=args.rate_hz, method=args.method)
+    mapping = result.to_mapping()
+    if args.check_arm:
+        from .export.toolchain import check_on_cortex_m4
+
+        mapping["cortex_m4"] = check_on_cortex_m4(args.out)
     if args.json:
-        _print_json(result.to_mapping())
+        _print_json(mapping)
     else:
         print(f"wrote {result.header} and {result.source} (sha256 {result.digest[:12]})")
+        if args.check_arm:
+            m4 = mapping["cortex_m4"]
+            print(f"Cortex-M4 (qemu): {m4['instructions_per_step']:.0f} instructions/step, <= "
+                  f"{m4['cycles_per_step_bound']:.0f} cycles of {m4['budget_cycles_2khz_168mhz']:.0f}; "
+                  f".text {m4['text_bytes']} B; max |M4 - host| {m4['max_abs_diff_vs_host']:.3g} N m")
     return 0
 
 

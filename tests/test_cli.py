@@ -283,3 +283,10 @@ def test_bench_gap_rejects_a_nonpositive_count(capsys):
     assert _exit_code(["bench-gap", "--per-effect", "0"]) == 2
     err = capsys.readouterr().err
     assert "--per-effect must be >= 1" in err and len(err.strip().splitlines()) == 1
+
+
+def test_export_bad_controller_string_exit_2(tmp_path, capsys):
+    assert _exit_code(["export", "--controller", "pid:1:2:3", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "pid:1:2:3" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "fd_controller.c").exists()

@@ -51,3 +51,14 @@ def test_cortex_m4_build_matches_host_build(kind, inputs, tmp_path):
     assert static <= run.instructions_per_step <= static + 40 or kind == "sfm"  # + call/loop; sfm calls libm
     assert run.cycles_per_step_bound < 0.05 * toolchain.budget_cycles(2000.0)
     assert toolchain.text_size(tmp_path / "arm" / "fd_controller.o") < 4096
+
+
+def test_export_check_arm_from_the_command_line(tmp_path, capsys):
+    import json
+
+    from forecast_design.cli import main
+
+    assert main(["export", "--compensator", "motor-fob", "--out", str(tmp_path), "--check-arm", "--json"]) == 0
+    m4 = json.loads(capsys.readouterr().out)["cortex_m4"]
+    assert m4["max_abs_diff_vs_host"] == 0.0 and m4["double_precision_symbols"] == []
+    assert m4["budget_fraction"] < 0.05 and m4["steps"] == 20_000
