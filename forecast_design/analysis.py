@@ -1008,10 +1008,10 @@ def _to_w(dtf: Any) -> tuple[np.ndarray, np.ndarray]:
 
 def _common_plant(design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N_s, N_theta, D): P and P_theta of a design over one continuous denominator."""
-    from .symbolic import derive_motor_angle_plant, force_plant_tf
+    from .symbolic import force_plant_tf, motor_angle_tf
 
     P = force_plant_tf(design)
-    Pt = derive_motor_angle_plant(design.environment.locked).at(design)
+    Pt = motor_angle_tf(design)
     pn, pd = np.asarray(P.num, float), np.asarray(P.den, float)
     tn, td = np.asarray(Pt.num, float), np.asarray(Pt.den, float)
     pn, pd = pn / pd[0], pd / pd[0]

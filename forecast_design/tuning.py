@@ -220,12 +220,12 @@ def _responses(true_design: Design, believed: Design, compensator: Compensator, 
         dm = np.exp(-1j * w * T)
         dp = dm ** setting.delay_samples
     else:
-        from .symbolic import derive_motor_angle_plant, force_plant_tf
+        from .symbolic import force_plant_tf, motor_angle_tf
 
         W = w
         s = 1j * w
         P = force_plant_tf(true_design)(s)
-        P_theta = derive_motor_angle_plant(true_design.environment.locked).at(true_design)(s)
+        P_theta = motor_angle_tf(true_design)(s)
         C = setting.controller.P + setting.controller.D * s
         dm = np.ones_like(s)
         dp = dm

@@ -1,24 +1,24 @@
 """Symbolic SEA models (sympy), observer filters and the numeric force loop.
 
-Importing this package imports sympy; the rest of the toolbox imports it
-only where symbolic models are needed.
+The models are derived in sympy (:mod:`.plant`, :mod:`.bridge`); their
+coefficient polynomials are also written to a generated numeric catalogue
+(:mod:`.codegen`, kept identical by a test), so evaluating plants, observers
+and loops does not import sympy. The sympy-backed names below are imported on
+first use.
 """
 
-from .bridge import (
+from .loops import BREAK_POINTS, ForceLoop, force_loop
+from .numeric import (
     NOMINAL_KINDS,
-    ParametricTF,
     TransferFunctionEntry,
     TransferFunctions,
-    derive_force_plant,
-    derive_joint_angle_plant,
-    derive_locked_force_plant,
-    derive_motor_angle_plant,
+    catalogue_tf,
     force_plant_tf,
-    nominal_plant,
+    motor_angle_tf,
+    nominal_plant_tf,
     parameter_values,
     transfer_functions,
 )
-from .loops import BREAK_POINTS, ForceLoop, force_loop
 from .observers import (
     ObserverFilters,
     compensator_q_tf,
@@ -33,12 +33,15 @@ __all__ = [
     "ParametricTF",
     "TransferFunctionEntry",
     "TransferFunctions",
+    "catalogue_tf",
     "derive_force_plant",
     "derive_joint_angle_plant",
     "derive_locked_force_plant",
     "derive_motor_angle_plant",
     "force_plant_tf",
+    "motor_angle_tf",
     "nominal_plant",
+    "nominal_plant_tf",
     "parameter_values",
     "transfer_functions",
     "BREAK_POINTS",
@@ -51,3 +54,17 @@ __all__ = [
     "compensator_q_tf",
     "required_q_order",
 ]
+
+_SYMPY_BACKED = ("ParametricTF", "derive_force_plant", "derive_joint_angle_plant", "derive_locked_force_plant",
+                 "derive_motor_angle_plant", "nominal_plant")
+
+
+def __getattr__(name: str):
+    """Import the sympy-backed derivations on first use (PEP 562)."""
+    if name in _SYMPY_BACKED:
+        from . import bridge
+
+        value = getattr(bridge, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'forecast_design.symbolic' has no attribute {name!r}")

@@ -21,6 +21,16 @@ from ..errors import ParameterError
 from ..lti import RationalTF
 from ..params import Design
 from . import plant as _plant
+from .numeric import (
+    NOMINAL_KINDS,
+    TransferFunctionEntry,
+    TransferFunctions,
+    force_plant_tf,
+    ordered_values,
+    parameter_values,
+    strip_common_s,
+    transfer_functions,
+)
 
 __all__ = [
     "ParametricTF",
@@ -36,52 +46,6 @@ __all__ = [
     "TransferFunctions",
     "transfer_functions",
 ]
-
-#: Compensator kinds that have a nominal plant P_n(s).
-NOMINAL_KINDS = ("ea-fob", "lo-dob", "ld-dob")
-
-
-def parameter_values(params: Design | Mapping[str, float]) -> dict[str, float]:
-    """Flat parameter values keyed by symbol name.
-
-    Parameters
-    ----------
-    params : Design or Mapping[str, float]
-        A design (``Design.parameters()``; plus ``w_q`` = 2 pi ``w_q_hz``
-        [rad/s] when it has a compensator) or a mapping from symbol names
-        (``J_m``, ``d_m``, ``k``, ``J``, ``d``, ``k_e``, ``J_l``, ``d_l``,
-        ``w_q``) to values in SI units.
-
-    Returns
-    -------
-    dict of str to float
-        The values.
-    """
-    if isinstance(params, Design):
-        values = params.parameters()
-        if params.compensator is not None:
-            values["w_q"] = 2.0 * math.pi * params.compensator.w_q_hz
-        return values
-    if not isinstance(params, Mapping):
-        raise ParameterError(
-            "parameters must be a Design or a mapping of symbol names to numbers, "
-            f"got {type(params).__name__}",
-            name="params", value=params,
-        )
-    return {str(key): value for key, value in params.items()}
-
-
-def _strip_common_s(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Divide num and den by the largest common power of s (exact trailing zeros).
-
-    A parameter that is exactly 0 (k_e = 0: free output; d_l = 0) makes a
-    factor s appear in both polynomials; dividing it out is exact.
-    """
-    if not np.any(num != 0.0):
-        return num, den
-    while len(num) > 1 and len(den) > 1 and num[-1] == 0.0 and den[-1] == 0.0:
-        num, den = num[:-1], den[:-1]
-    return num, den
 
 
 class _Coefficients:
@@ -156,21 +120,7 @@ class ParametricTF:
         return sp.degree(self.den, _plant.s) - sp.degree(self.num, _plant.s)
 
     def _values(self, params: Design | Mapping[str, float]) -> tuple[float, ...]:
-        values = parameter_values(params)
-        out = []
-        for name in self.symbol_names:
-            if name not in values:
-                where = "design (no compensator sets w_q)" if name == "w_q" else "parameters"
-                raise ParameterError(
-                    f"{self.name or 'transfer function'} needs parameter '{name}', missing from the {where}",
-                    name=name, value=None,
-                )
-            value = values[name]
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-                raise ParameterError(f"parameter '{name}' must be a number, got {value!r}",
-                                     name=name, value=value)
-            out.append(float(value))
-        return tuple(out)
+        return ordered_values(self.symbol_names, params, self.name)
 
     def at(self, params: Design | Mapping[str, float]) -> RationalTF:
         """Numeric transfer function at given parameter values.
@@ -194,7 +144,7 @@ class ParametricTF:
             If a parameter is missing or the denominator vanishes identically.
         """
         values = self._values(params)
-        num, den = _strip_common_s(self._num(values), self._den(values))
+        num, den = strip_common_s(self._num(values), self._den(values))
         if not np.any(den != 0.0):
             raise ParameterError(
                 f"{self.name or 'transfer function'} has a zero denominator at "
@@ -333,84 +283,3 @@ def nominal_plant(kind: str) -> ParametricTF:
         )
     make, name = exprs[kind]
     return ParametricTF(make(), name=name)
-
-
-def force_plant_tf(design: Design) -> RationalTF:
-    """Numeric P(s) = tau_s/tau_m for a design, locked or not.
-
-    Parameters
-    ----------
-    design : Design
-        Uses J_m [kg m^2], d_m [N m s/rad], k [N m/rad] and, unless
-        ``environment.locked``, J [kg m^2], d [N m s/rad], k_e [N m/rad].
-
-    Returns
-    -------
-    RationalTF
-        P(s), coefficients in descending powers of s [N m/N m].
-
-    Examples
-    --------
-    >>> from forecast_design.params import Design
-    >>> round(force_plant_tf(Design.nominal("locked")).dcgain(), 12)
-    1.0
-    """
-    return (derive_locked_force_plant() if design.environment.locked else derive_force_plant()).at(design)
-
-
-@dataclass(frozen=True, slots=True)
-class TransferFunctionEntry:
-    """One transfer function: its symbolic form and its value at a design."""
-
-    latex: str        # LaTeX of the parametric expression
-    tf: RationalTF    # value at the design [N m/N m]
-
-    def to_mapping(self) -> dict[str, Any]:
-        """``{"latex", "num", "den", "poles", "dc_gain"}`` with den[0] == 1."""
-        return {"latex": self.latex, **self.tf.to_mapping()}
-
-
-@dataclass(frozen=True, slots=True)
-class TransferFunctions:
-    """The plant and the three nominal plants at one design (the ``tf`` verb)."""
-
-    P: TransferFunctionEntry    # true force plant, eq. (2) (locked plant if locked)
-    EA: TransferFunctionEntry   # EA-FOB nominal plant, eq. (5) (= LO if locked)
-    LO: TransferFunctionEntry   # LO-DOB nominal plant, eq. (6)
-    LD: TransferFunctionEntry   # LD-DOB nominal plant, eq. (8)
-
-    def to_mapping(self) -> dict[str, dict[str, Any]]:
-        """``{"P": {...}, "EA": {...}, "LO": {...}, "LD": {...}}`` (see TransferFunctionEntry)."""
-        return {name: getattr(self, name).to_mapping() for name in ("P", "EA", "LO", "LD")}
-
-
-def transfer_functions(design: Design) -> TransferFunctions:
-    """P and the nominal plants P_n^EA, P_n^LO, P_n^LD at a design.
-
-    Parameters
-    ----------
-    design : Design
-        EA uses the design's own environment (with d_m = 0); LD uses its
-        J_l [kg m^2] and d_l [N m s/rad]; LO depends on J_m and k only.
-        For a locked design P is the locked plant and EA equals LO.
-
-    Returns
-    -------
-    TransferFunctions
-        ``.to_mapping()`` gives, per name, ``latex``, ``num``, ``den``
-        (descending powers, den[0] == 1), ``poles`` ([[re, im], ...]) and
-        ``dc_gain``.
-    """
-    plant = derive_locked_force_plant() if design.environment.locked else derive_force_plant()
-
-    def entry(ptf: ParametricTF, name: str) -> TransferFunctionEntry:
-        tf = ptf.at(design)
-        return TransferFunctionEntry(ptf.latex(), RationalTF(tf.num, tf.den, name=name))
-
-    ea = nominal_plant("lo-dob" if design.environment.locked else "ea-fob")
-    return TransferFunctions(
-        P=entry(plant, "P"),
-        EA=entry(ea, "P_n^EA"),
-        LO=entry(nominal_plant("lo-dob"), "P_n^LO"),
-        LD=entry(nominal_plant("ld-dob"), "P_n^LD"),
-    )

@@ -19,15 +19,13 @@ characteristic polynomial chi = Delta + C_F N_s D_o.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 
 from ..errors import ParameterError
 from ..lti import RationalTF
 from ..params import Compensator, Design, PDController
-from . import plant as _plant
-from .bridge import _Coefficients
+from .numeric import catalogue_polynomials
 from .observers import ObserverFilters, observer_filters
 
 __all__ = ["ForceLoop", "force_loop", "BREAK_POINTS", "STABILITY_TOLERANCE"]
@@ -38,20 +36,10 @@ BREAK_POINTS = ("controller", "plant-input")
 STABILITY_TOLERANCE = 1e-9
 
 
-@lru_cache(maxsize=None)
-def _plant_coefficients(locked: bool) -> tuple[tuple[str, ...], tuple[_Coefficients, ...]]:
-    polys = _plant.sea_polynomials(locked=locked)
-    free = set().union(*(p.free_symbols for p in polys)) - {_plant.s}
-    symbols = tuple(sorted(free, key=lambda sym: sym.name))
-    return tuple(sym.name for sym in symbols), tuple(_Coefficients(p, symbols) for p in polys)
-
-
 def _plant_polynomials(design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(N_s, N_theta, D) of the true plant, descending powers of s."""
-    names, coeffs = _plant_coefficients(design.environment.locked)
-    params = design.parameters()
-    values = tuple(params[name] for name in names)
-    return tuple(_trim(c(values)) for c in coeffs)
+    """(N_s, N_theta, D) of the true plant (plant.sea_polynomials), descending powers of s."""
+    polys = catalogue_polynomials("sea_locked" if design.environment.locked else "sea", design)
+    return tuple(_trim(p) for p in polys)
 
 
 def _trim(p: np.ndarray) -> np.ndarray:

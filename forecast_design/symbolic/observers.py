@@ -46,14 +46,18 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import sympy as sp
 
 from ..errors import ParameterError
 from ..lti import RationalTF
 from ..params import Q_FAMILIES, Compensator, Design
-from . import plant as _plant
-from .bridge import ParametricTF, nominal_plant
+from ._catalogue import MODELS
+from .numeric import catalogue_relative_degree, catalogue_tf, nominal_plant_tf
+
+if TYPE_CHECKING:  # sympy is imported only where a symbolic expression is asked for
+    import sympy as sp
 
 __all__ = [
     "q_filter",
@@ -68,8 +72,10 @@ __all__ = [
 _MOTOR_FOB_RELATIVE_DEGREE = 2
 
 
-def _butterworth_polynomial(order: int) -> sp.Expr:
+def _butterworth_polynomial(order: int) -> "sp.Expr":
     """Normalised Butterworth polynomial B_n(x) (cutoff 1 rad/s), exact coefficients."""
+    import sympy as sp
+
     x = sp.Symbol("x")
     poly = sp.Integer(1)
     for i in range(1, order // 2 + 1):
@@ -81,7 +87,7 @@ def _butterworth_polynomial(order: int) -> sp.Expr:
 
 
 @lru_cache(maxsize=None)
-def q_filter(family: str = "butterworth", order: int = 2) -> sp.Expr:
+def q_filter(family: str = "butterworth", order: int = 2) -> "sp.Expr":
     """Low-pass Q(s) with unity DC gain, symbolic in ``s`` and ``w_q``.
 
     Parameters
@@ -111,6 +117,10 @@ def q_filter(family: str = "butterworth", order: int = 2) -> sp.Expr:
     if isinstance(order, bool) or not isinstance(order, int) or order < 1:
         raise ParameterError(f"Q-filter order must be an integer >= 1, got {order!r}",
                              name="q_order", value=order)
+    import sympy as sp
+
+    from . import plant as _plant
+
     s, w_q = _plant.s, _plant.w_q
     if family == "binomial":
         return w_q**order / (s + w_q) ** order
@@ -120,7 +130,9 @@ def q_filter(family: str = "butterworth", order: int = 2) -> sp.Expr:
 
 
 @lru_cache(maxsize=None)
-def _q_parametric(family: str, order: int) -> ParametricTF:
+def _q_parametric(family: str, order: int):
+    from .bridge import ParametricTF
+
     return ParametricTF(q_filter(family, order), name="Q")
 
 
@@ -141,7 +153,12 @@ def q_filter_tf(family: str, order: int, w_q_hz: float) -> RationalTF:
     RationalTF
         Q(s), unity DC gain.
     """
-    return _q_parametric(family, order).at({"w_q": 2.0 * math.pi * float(w_q_hz)})
+    values = {"w_q": 2.0 * math.pi * float(w_q_hz)}
+    key = f"Q_{family}_{order}"
+    if key in MODELS:
+        return catalogue_tf(key, values)
+    q_filter(family, order)          # validates family and order with a one-line error
+    return _q_parametric(family, order).at(values)   # beyond the catalogue: derive once with sympy
 
 
 def compensator_q_tf(compensator: Compensator) -> RationalTF:
@@ -181,7 +198,10 @@ def required_q_order(kind: str) -> int:
     """
     if kind == "motor-fob":
         return _MOTOR_FOB_RELATIVE_DEGREE
-    return nominal_plant(kind).relative_degree
+    if kind not in ("ea-fob", "lo-dob", "ld-dob"):
+        raise ParameterError(f"observer kind must be ea-fob, lo-dob, ld-dob or motor-fob, got {kind!r}",
+                             name="kind", value=kind)
+    return catalogue_relative_degree({"ea-fob": "P_n^EA", "lo-dob": "P_n^LO", "ld-dob": "P_n^LD"}[kind])
 
 
 @dataclass(frozen=True, slots=True)
@@ -281,7 +301,7 @@ def observer_filters(compensator: Compensator | None, believed: Design) -> Obser
         den = qd
     else:
         nominal_kind = "lo-dob" if (kind == "ea-fob" and believed.environment.locked) else kind
-        pn = nominal_plant(nominal_kind).at(believed)
+        pn = nominal_plant_tf(nominal_kind, believed)
         if pn.num == (0.0,):
             raise ParameterError(
                 f"{kind} nominal plant is identically zero for the believed design "
