@@ -25,7 +25,7 @@ from enum import StrEnum
 from typing import Any, ClassVar, Mapping, Sequence
 
 from .errors import ParameterError
-from .params import Environment
+from .params import Environment, check_number
 
 __all__ = [
     "Effect",
@@ -59,17 +59,7 @@ class Effect(StrEnum):
     ENVIRONMENT_MISMATCH = "environment_mismatch"
 
 
-def _num(owner: str, name: str, value: Any, *, positive: bool = False, nonneg: bool = True) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(f"{owner} {name} must be a number, got {value!r}", name=name, value=value)
-    value = float(value)
-    if not math.isfinite(value):
-        raise ParameterError(f"{owner} {name} must be finite, got {value!r}", name=name, value=value)
-    if positive and value <= 0.0:
-        raise ParameterError(f"{owner} {name} must be > 0, got {value!r}", name=name, value=value)
-    if nonneg and value < 0.0:
-        raise ParameterError(f"{owner} {name} must be >= 0, got {value!r}", name=name, value=value)
-    return value
+_num = check_number
 
 
 def _harmonics(owner: str, name: str, values: Any) -> tuple[float, ...]:

@@ -33,20 +33,40 @@ OBSERVER_KINDS = ("ea-fob", "lo-dob", "ld-dob", "motor-fob")
 Q_FAMILIES = ("butterworth", "binomial")
 
 
-def _number(owner: str, name: str, value: Any, *, positive: bool = False) -> float:
-    """Validate one physical number; raise ParameterError naming it."""
+def check_number(owner: str, name: str, value: Any, *, positive: bool = False, nonneg: bool = True) -> float:
+    """Validate one physical number at the boundary; raise ParameterError naming it.
+
+    Parameters
+    ----------
+    owner : str
+        Where the number lives, e.g. ``"[testbed]"`` or ``"stiction"``.
+    name : str
+        Its name.
+    value : object
+        The candidate (bool and non-numbers are rejected).
+    positive : bool
+        Require > 0.
+    nonneg : bool
+        Require >= 0 (ignored when ``positive``).
+
+    Returns
+    -------
+    float
+        The value as a float.
+    """
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParameterError(
-            f"{owner} {name} must be a number, got {value!r}", name=name, value=value
-        )
+        raise ParameterError(f"{owner} {name} must be a number, got {value!r}", name=name, value=value)
     value = float(value)
     if not math.isfinite(value):
         raise ParameterError(f"{owner} {name} must be finite, got {value!r}", name=name, value=value)
     if positive and value <= 0.0:
         raise ParameterError(f"{owner} {name} must be > 0, got {value!r}", name=name, value=value)
-    if not positive and value < 0.0:
+    if nonneg and not positive and value < 0.0:
         raise ParameterError(f"{owner} {name} must be >= 0, got {value!r}", name=name, value=value)
     return value
+
+
+_number = check_number
 
 
 def _from_mapping(cls, mapping: Mapping[str, Any], *, section: str, source: str | None,

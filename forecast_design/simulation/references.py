@@ -16,6 +16,7 @@ from typing import Any, ClassVar, Mapping, Sequence
 import numpy as np
 
 from ..errors import ExperimentFormatError, ParameterError
+from ..params import check_number
 
 __all__ = [
     "Constant",
@@ -32,14 +33,7 @@ __all__ = [
 
 
 def _f(owner: str, name: str, value: Any, *, positive: bool = False, nonneg: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise ParameterError(f"{owner} {name} must be a finite number, got {value!r}", name=name, value=value)
-    value = float(value)
-    if positive and value <= 0.0:
-        raise ParameterError(f"{owner} {name} must be > 0, got {value!r}", name=name, value=value)
-    if nonneg and value < 0.0:
-        raise ParameterError(f"{owner} {name} must be >= 0, got {value!r}", name=name, value=value)
-    return value
+    return check_number(owner, name, value, positive=positive, nonneg=nonneg)
 
 
 def _floats(owner: str, name: str, values: Any) -> tuple[float, ...]:
