@@ -19,7 +19,6 @@ absolute motor angle (see ``initial_angle`` of the simulator).
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any, ClassVar, Mapping, Sequence
