@@ -48,6 +48,50 @@ def test_delayed_input_of_a_ramp_is_the_ramp_shifted():
     np.testing.assert_allclose(zoh_input(ramp)[1:], ramp[1:] - 0.5, atol=1e-12)
 
 
+@pytest.mark.parametrize("delay_samples", [0.0, 0.3, 1.0, 2.7])
+def test_delayed_input_is_exact_for_a_pure_inertia_under_held_command(rng, delay_samples):
+    # A pure inertia J theta'' = tau_zoh(t - D): integrate the held, delayed command exactly
+    # (piecewise-constant acceleration between the breakpoints t_j + D) and check that the
+    # one-period second difference equals delayed_input / J at every sample.
+    rate, J, n = 1000.0, 0.2, 60
+    T = 1.0 / rate
+    tau = rng.normal(size=n)
+    D = delay_samples * T
+    # breakpoints of the delayed held command, and its value on each piece
+    knots = np.concatenate([[-1.0], np.arange(n) * T + D])
+    vals = np.concatenate([[tau[0]], tau])      # first value repeated before the start
+
+    def theta(t):
+        th, v, t0 = 0.0, 0.0, -1.0
+        for i in range(knots.size):
+            t1 = knots[i + 1] if i + 1 < knots.size else np.inf
+            h = min(t, t1) - t0
+            if h <= 0:
+                break
+            a = vals[i] / J
+            th, v, t0 = th + v * h + 0.5 * a * h * h, v + a * h, t0 + h
+        return th
+
+    th = np.array([theta(k * T) for k in range(n)])
+    d2 = (th[2:] - 2 * th[1:-1] + th[:-2]) / T ** 2
+    np.testing.assert_allclose(J * d2[5:-5], delayed_input(tau, D, rate)[1:-1][5:-5], atol=1e-9)
+
+
+def test_nominal_closed_loop_square_wave_leaves_no_residual_and_no_spurious_delay():
+    # exact plant (no noise, no quantisation, exact parameters) under derivative kicks
+    design = Design.nominal("exp-soft", controller=PDController())
+    res = simulate(design, reference=refs.Square(high=1.0, low=-1.0, period_s=1.3), duration_s=6.0, seed=5,
+                   closed_loop=True, process_noise_std=0.0, encoder_counts=None)
+    exp = res.to_experiment().replace_signals(tau_s=None)
+    d = diagnose(exp, joint=False)
+    tau_rms = float(np.std(exp.signals.tau_m))
+    assert d.gap_before < 1e-4 * tau_rms
+    assert d.effect is Effect.NONE
+    delay = next(r for r in d.ranking if r.effect is Effect.DELAY)
+    assert delay.reduction < 0.2
+    assert d.baseline.calibration["J_m"] == pytest.approx(design.testbed.J_m, rel=1e-3)
+
+
 def test_held_out_test_matches_scipy_one_sided_t_test_on_log_ratios(rng):
     from forecast_design.gap.candidates import CandidateFit
 
@@ -167,3 +211,108 @@ def test_too_short_log_raises_parameter_error():
 
     with pytest.raises(ParameterError, match="too short"):
         diagnose(_log((), duration_s=0.25), options=GapOptions(n_blocks=20))
+
+
+def test_replay_windows_matches_scipy_dlsim(rng):
+    from scipy import signal as sps
+
+    from forecast_design.gap.replay import replay_windows
+    from forecast_design.params import environment_preset
+
+    design = Design.nominal("exp-soft")
+    tb, env = design.testbed, environment_preset("exp-soft")
+    rate, n = 1000.0, 400
+    u = np.column_stack([rng.normal(size=n), np.zeros(n)])
+    A = np.array([[0, 1, 0, 0], [-tb.k / tb.J_m, -tb.d_m / tb.J_m, tb.k / tb.J_m, 0], [0, 0, 0, 1],
+                  [tb.k / env.J, 0, -(tb.k + env.k_e) / env.J, -env.d / env.J]])
+    B = np.array([[0], [1 / tb.J_m], [0], [0]])
+    sysd = sps.cont2discrete((A, B, np.eye(4), np.zeros((4, 1))), 1 / rate, method="zoh")
+    x0 = np.array([0.1, -0.2, 0.05, 0.3])
+    _, _, xs = sps.dlsim((sysd[0], sysd[1], sysd[2], sysd[3], 1 / rate), u[:, :1], x0=x0)
+    X = replay_windows(tb, env, u, x0[None, :], np.array([0]), n, rate)
+    np.testing.assert_allclose(X[0], xs, rtol=1e-9, atol=1e-12)
+
+
+def test_replay_check_nominal_log_is_tight_and_effect_log_improves():
+    exp = _log((), env="locked", duration_s=4.0)
+    d = diagnose(exp, joint=False)
+    assert d.replay is not None and d.replay.relative_before < 0.01
+    d2 = diagnose(_log((fx.Coulomb(F_c=0.3),), env="locked", duration_s=4.0), joint=False)
+    assert d2.effect is Effect.COULOMB
+    assert d2.replay.relative_before > 0.1
+    assert d2.replay.tau_s_error_after < 0.2 * d2.replay.tau_s_error_before
+    assert "replay" in d2.to_mapping()["location"]["summary"]
+
+
+def test_two_effects_are_both_named():
+    d = diagnose(_log((fx.Coulomb(F_c=0.3), fx.TorqueGain(gain=0.7)), duration_s=6.0), joint=False)
+    assert {d.effect, d.secondary.effect if d.secondary else Effect.NONE} == {Effect.COULOMB, Effect.TORQUE_GAIN}
+
+
+def test_single_tone_none_verdict_warns_that_delay_is_not_excluded():
+    design = Design.nominal("stiff", controller=PDController())
+    res = simulate(design, reference=refs.Sine(amplitude=1.0, frequency_hz=0.8), duration_s=6.0, seed=2,
+                   closed_loop=True, effects=(fx.Delay(delay_s=4e-3),))
+    d = diagnose(res.to_experiment().replace_signals(tau_s=None), joint=False)
+    assert d.location.single_tone
+    # a single tone cannot separate delay, torque gain and re-calibration: the answer must say so
+    assert any("delay" in c and "torque_gain" in c for c in d.caveats)
+
+
+def _save(exp, path):
+    from forecast_design.experiment import save_experiment
+
+    save_experiment(exp, path)
+    return path
+
+
+@pytest.mark.parametrize("case", ["no-motion", "no-command", "too-short"])
+def test_bad_logs_give_one_line_forecast_error(tmp_path, capsys, case):
+    from forecast_design.cli import main
+    from forecast_design.errors import ForecastError
+    from forecast_design.experiment import experiment_from_arrays
+
+    design = Design.nominal("locked")
+    n = 4000 if case != "too-short" else 300
+    t = np.arange(n) / 2000.0
+    tau_m = np.zeros(n) if case == "no-command" else 1e-6 * np.sin(2 * np.pi * 3 * t)
+    if case == "too-short":
+        exp = _log((), env="locked", duration_s=0.15)
+    else:
+        exp = experiment_from_arrays(design, 2000.0, t, tau_m, np.zeros(n), np.zeros(n))
+    with pytest.raises(ForecastError):
+        diagnose(exp)
+    path = _save(exp, tmp_path / "bad.toml")
+    code = main(["diagnose", str(path)])
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert err.count("\n") == 1 and err.startswith("forecast-design: error:")
+    assert "Traceback" not in err
+
+
+def test_nan_in_log_is_rejected_with_one_line(tmp_path, capsys):
+    from forecast_design.cli import main
+
+    exp = _log((), env="locked", duration_s=1.0)
+    path = _save(exp, tmp_path / "ok.toml")
+    csv = next(p for p in tmp_path.iterdir() if p.suffix == ".csv")
+    lines = csv.read_text().splitlines()
+    cells = lines[-50].split(",")
+    cells[1] = "nan"
+    lines[-50] = ",".join(cells)
+    csv.write_text("\n".join(lines) + "\n")
+    code = main(["diagnose", str(path)])
+    _, err = capsys.readouterr()
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_twenty_second_two_kilohertz_log_is_diagnosed_in_under_30_s():
+    import time
+
+    exp = _log((fx.Coulomb(F_c=0.3),), duration_s=20.0)
+    assert exp.rate_hz == 2000.0 and exp.n_samples == 40000
+    t0 = time.perf_counter()
+    d = diagnose(exp)
+    assert time.perf_counter() - t0 < 30.0
+    assert d.effect is Effect.COULOMB

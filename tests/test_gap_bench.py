@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from forecast_design.effects import Effect
-from forecast_design.gap.bench import BENCH_WORDS, benchmark, draw_case
+from forecast_design.gap.bench import ANGLE_EFFECTS, BENCH_WORDS, benchmark, draw_case, identifiability, make_log
 
 
 def test_draw_case_is_deterministic_and_keeps_truth_apart():
@@ -17,8 +18,22 @@ def test_draw_case_is_deterministic_and_keeps_truth_apart():
     assert a.effects[0].effect is Effect.DELAY
     assert all(abs(e) <= 0.03 for e in a.errors)
     assert draw_case(Effect.NONE, 0, 7).effects == ()
+    assert draw_case(Effect.DELAY, 2, 7, attempt=1) != a
     # a locked output cannot show an environment mismatch
     assert all(draw_case(Effect.ENVIRONMENT_MISMATCH, i, 7).environment != "locked" for i in range(10))
+    # angle effects only where ~1 N m turns the motor a revolution, with a sweep
+    for w in ANGLE_EFFECTS:
+        for i in range(6):
+            spec = draw_case(w, i, 7)
+            assert spec.environment in ("soft", "link-only") and spec.excitation.endswith("sweep")
+
+
+def test_generated_angle_effect_log_turns_a_revolution():
+    spec, exp, res = make_log(Effect.COGGING, 0, 3, duration_s=6.0)
+    assert identifiability(spec, res) is None
+    assert np.ptp(res.truth.theta) >= 2 * np.pi
+    # what the diagnosis sees (encoder angle) covers the same span as the truth
+    assert np.ptp(exp.signals.theta) == pytest.approx(np.ptp(res.truth.theta), abs=1e-4)
 
 
 @pytest.mark.slow

@@ -1,9 +1,9 @@
 """Withheld-effect benchmark of the gap diagnosis on the virtual testbed.
 
 Each case draws, from its own seed, one effect word (or none) with a random
-magnitude, an environment preset, an excitation (open-loop multisine or chirp
-torque; closed-loop PD tracking of a square, sine or multisine force
-reference), a random absolute motor angle and nominal-parameter errors: the
+magnitude, an environment preset, an excitation (open-loop multisine, chirp or
+sweep torque; closed-loop PD tracking of a square, sine, multisine or sweep
+force reference; a sweep is a slow 0.05-0.1 Hz swing plus a small multisine), a random absolute motor angle and nominal-parameter errors: the
 experiment's ``J_m``, ``d_m`` and ``k`` are off by up to ``param_error`` from
 the simulated truth. The simulator records 2,000,000-count encoders and a small
 process torque noise. Only the experiment reaches :func:`diagnose`; the truth
@@ -12,6 +12,33 @@ stays in the case record.
 Magnitudes are drawn where the effect is physically distinguishable from the
 tolerated parameter errors (e.g. a torque gain beyond +-15 %: a smaller one is a
 common rescaling of ``J_m``, ``d_m`` and ``k``).
+
+Scoring rule (the main score). Every log of the main suite is *identifiable*:
+the generator redraws the scenario (environment, excitation, magnitude; next
+``attempt`` of the same seed, at most ``MAX_ATTEMPTS``) until the *truth* shows
+that the log can tell the effect apart, by these criteria:
+
+* ``cogging``, ``position_friction``: the true motor angle covers >= one
+  revolution (2 pi rad) and the motor reverses direction >= 2 times; only
+  environments whose series stiffness lets ~1 N m turn the motor a revolution
+  (``k_series 2 pi <= 3 N m``: ``soft``, ``link-only``) with a sweep
+  excitation are drawn;
+* ``coulomb``, ``stiction``: >= 2 direction reversals;
+* ``delay``, ``torque_gain``: the command is not a single sine (< 95 % of its
+  variance in one spectral line), since at one frequency a delay is extra
+  damping and a gain error a rescaling of ``J_m``, ``d_m`` and ``k``;
+* ``backlash``: the true spring deflection exceeds the dead band (99th
+  percentile of ``|theta - q|`` > width);
+* ``environment_mismatch``: the output is not locked.
+
+A verdict is correct when it names the withheld effect (``none`` for the
+effect-free logs). The optional *hard* suite (``hard=N``) runs logs that are
+deliberately *not* identifiable (angle effects in ``stiff``/``locked``
+environments, a delay or torque gain under a closed-loop single sine); there a verdict is
+scored *honest* when it names the effect, or when the diagnosis's caveats name
+the withheld effect as not excluded. The *pairs* suite (``pairs=N``) withholds
+two effects at once and compares the forward-selection secondary effect of
+:func:`diagnose` with the joint group-lasso attribution.
 """
 
 from __future__ import annotations
@@ -22,7 +49,7 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -31,19 +58,35 @@ from ..effects import Effect
 from ..errors import ParameterError
 from ..params import Design, PDController, environment_preset
 
-__all__ = ["BenchCase", "BenchResult", "benchmark", "draw_case", "run_case", "BENCH_WORDS"]
+__all__ = ["BenchCase", "BenchResult", "benchmark", "draw_case", "run_case", "make_log", "identifiability",
+           "BENCH_WORDS", "PAIRS", "MAX_ATTEMPTS"]
 
 #: Effect words of the benchmark: every vocabulary word, ``none`` included.
 BENCH_WORDS: tuple[Effect, ...] = tuple(Effect)
 ENVIRONMENTS = ("soft", "stiff", "link-only", "locked", "exp-soft")
-EXCITATIONS = ("ol-multisine", "ol-chirp", "cl-square", "cl-sine", "cl-multisine")
+EXCITATIONS = ("ol-multisine", "ol-chirp", "ol-sweep", "cl-square", "cl-sine", "cl-multisine", "cl-sweep")
+#: Two-effect combinations of the pairs suite.
+PAIRS: tuple[tuple[Effect, Effect], ...] = (
+    (Effect.COULOMB, Effect.COGGING), (Effect.DELAY, Effect.TORQUE_GAIN), (Effect.COULOMB, Effect.DELAY),
+    (Effect.BACKLASH, Effect.TORQUE_GAIN), (Effect.COGGING, Effect.ENVIRONMENT_MISMATCH),
+)
+#: Hard (non-identifiable) scenarios: effect, environments, excitations.
+HARD: tuple[tuple[Effect, tuple[str, ...], tuple[str, ...]], ...] = (
+    (Effect.POSITION_FRICTION, ("stiff", "locked"), EXCITATIONS),
+    (Effect.COGGING, ("stiff", "locked"), EXCITATIONS),
+    (Effect.DELAY, ENVIRONMENTS, ("cl-sine",)),
+    (Effect.TORQUE_GAIN, ENVIRONMENTS, ("cl-sine",)),
+)
+#: Redraws allowed to find an identifiable scenario.
+MAX_ATTEMPTS = 12
+ANGLE_EFFECTS = (Effect.COGGING, Effect.POSITION_FRICTION)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class CaseSpec:
     """Everything needed to simulate one benchmark log (the truth)."""
 
-    word: Effect
+    words: tuple[Effect, ...]
     index: int
     seed: int
     environment: str
@@ -52,6 +95,13 @@ class CaseSpec:
     errors: tuple[float, float, float]
     initial_angle: float
     duration_s: float
+    attempt: int = 0
+    suite: str = "main"
+
+    @property
+    def word(self) -> Effect:
+        """The (first) withheld effect; ``none`` for effect-free logs."""
+        return self.words[0] if self.words else Effect.NONE
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -61,7 +111,7 @@ class BenchCase:
     Parameters
     ----------
     truth : Effect
-        The withheld effect.
+        The withheld effect (the first one for the pairs suite).
     verdict : Effect
         The diagnosis's verdict.
     joint : tuple of Effect
@@ -76,6 +126,16 @@ class BenchCase:
         The simulated effect's parameters.
     seconds : float
         Wall time of the diagnosis alone [s].
+    suite : str
+        ``main``, ``hard`` or ``pairs``.
+    truths : tuple of Effect
+        All withheld effects (two for the pairs suite).
+    secondary : Effect
+        The diagnosis's secondary effect (``none`` when it names none).
+    caveats : tuple of str
+        The diagnosis's caveats.
+    attempts : int
+        Scenario draws needed to find an identifiable log (main suite) [-].
     """
 
     truth: Effect
@@ -87,26 +147,41 @@ class BenchCase:
     excitation: str
     effect_params: dict
     seconds: float
+    suite: str = "main"
+    truths: tuple[Effect, ...] = ()
+    secondary: Effect = Effect.NONE
+    caveats: tuple[str, ...] = ()
+    attempts: int = 1
 
     @property
     def correct(self) -> bool:
-        """True when the verdict names the withheld effect."""
+        """Main suite: the verdict names the withheld effect. Hard suite: honest (see module doc)."""
+        if self.suite == "hard":
+            return self.verdict == self.truth or any(str(self.truth) in c for c in self.caveats)
         return self.verdict == self.truth
+
+    @property
+    def named(self) -> frozenset:
+        """Effects named by verdict + secondary (pairs suite)."""
+        return frozenset(e for e in (self.verdict, self.secondary) if e is not Effect.NONE)
 
     @property
     def joint_correct(self) -> bool:
         """True when the joint attribution names exactly the withheld effect (nothing for none)."""
         if self.truth is Effect.NONE:
             return len(self.joint) == 0
+        if self.suite == "pairs":
+            return frozenset(self.joint) == frozenset(self.truths)
         return len(self.joint) >= 1 and self.joint[0] == self.truth
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready mapping."""
-        return {"truth": str(self.truth), "verdict": str(self.verdict), "joint": [str(e) for e in self.joint],
-                "reduction": self.reduction,
+        return {"suite": self.suite, "truth": str(self.truth), "truths": [str(e) for e in self.truths],
+                "verdict": str(self.verdict), "secondary": str(self.secondary),
+                "joint": [str(e) for e in self.joint], "reduction": self.reduction,
                 "true_reduction": None if math.isnan(self.true_reduction) else self.true_reduction,
-                "environment": self.environment, "excitation": self.excitation,
-                "effect_params": self.effect_params, "seconds": self.seconds}
+                "environment": self.environment, "excitation": self.excitation, "attempts": self.attempts,
+                "effect_params": self.effect_params, "caveats": list(self.caveats), "seconds": self.seconds}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -116,46 +191,79 @@ class BenchResult:
     Parameters
     ----------
     cases : tuple of BenchCase
-        Every log's outcome.
+        Every log's outcome (all suites).
     per_effect : int
-        Logs per effect word [-].
+        Logs per effect word in the main suite [-].
     seed : int
         Master seed.
     elapsed_s : float
         Wall time of the whole benchmark [s].
+    workers : int
+        Worker processes used [-].
     """
 
     cases: tuple[BenchCase, ...]
     per_effect: int
     seed: int
     elapsed_s: float
+    workers: int = 1
+
+    def suite(self, name: str) -> tuple[BenchCase, ...]:
+        """The cases of one suite (``main``, ``hard``, ``pairs``)."""
+        return tuple(c for c in self.cases if c.suite == name)
+
+    @property
+    def main(self) -> tuple[BenchCase, ...]:
+        """The main (identifiable, one-effect) suite."""
+        return self.suite("main")
 
     @property
     def accuracy(self) -> float:
-        """Share of verdicts naming the withheld effect [-]."""
-        return sum(c.correct for c in self.cases) / max(1, len(self.cases))
+        """Share of main-suite verdicts naming the withheld effect [-]."""
+        m = self.main
+        return sum(c.correct for c in m) / max(1, len(m))
 
     @property
     def joint_accuracy(self) -> float:
-        """Share of joint attributions naming exactly the withheld effect first [-]."""
-        return sum(c.joint_correct for c in self.cases) / max(1, len(self.cases))
+        """Share of main-suite joint attributions naming exactly the withheld effect first [-]."""
+        m = self.main
+        return sum(c.joint_correct for c in m) / max(1, len(m))
 
     @property
     def false_alarms(self) -> int:
         """Effect-free logs blamed on an effect [-]."""
-        return sum(1 for c in self.cases if c.truth is Effect.NONE and c.verdict is not Effect.NONE)
+        return sum(1 for c in self.main if c.truth is Effect.NONE and c.verdict is not Effect.NONE)
 
     @property
     def min_true_reduction(self) -> float:
-        """Smallest held-out reduction of the true effect's candidate over effect logs [-]."""
-        vals = [c.true_reduction for c in self.cases if c.truth is not Effect.NONE and not math.isnan(c.true_reduction)]
+        """Smallest held-out reduction of the true effect's candidate over main-suite effect logs [-]."""
+        vals = [c.true_reduction for c in self.main
+                if c.truth is not Effect.NONE and not math.isnan(c.true_reduction)]
         return min(vals) if vals else float("nan")
 
+    @property
+    def hard_honesty(self) -> float:
+        """Share of hard-suite logs answered correctly or with the withheld effect named in a caveat [-]."""
+        h = self.suite("hard")
+        return sum(c.correct for c in h) / len(h) if h else float("nan")
+
+    def pairs_scores(self) -> dict[str, float]:
+        """Pairs suite: exact two-effect recovery by forward selection and by the group lasso [-]."""
+        p = self.suite("pairs")
+        if not p:
+            return {}
+        n = len(p)
+        return {"n_logs": n,
+                "forward_exact": sum(c.named == frozenset(c.truths) for c in p) / n,
+                "forward_verdict_in_truth": sum(c.verdict in c.truths for c in p) / n,
+                "joint_exact": sum(frozenset(c.joint) == frozenset(c.truths) for c in p) / n,
+                "joint_first_in_truth": sum(bool(c.joint) and c.joint[0] in c.truths for c in p) / n}
+
     def confusion(self) -> dict[str, dict[str, int]]:
-        """``confusion[truth][verdict]`` counts over the vocabulary."""
+        """``confusion[truth][verdict]`` counts over the vocabulary (main suite)."""
         words = [str(e) for e in BENCH_WORDS]
         out = {t: {v: 0 for v in words} for t in words}
-        for c in self.cases:
+        for c in self.main:
             out[str(c.truth)][str(c.verdict)] += 1
         return out
 
@@ -172,10 +280,12 @@ class BenchResult:
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready summary with the confusion matrix and every case."""
         secs = [c.seconds for c in self.cases]
-        return {"per_effect": self.per_effect, "seed": self.seed, "n_logs": len(self.cases),
+        return {"per_effect": self.per_effect, "seed": self.seed, "n_logs": len(self.main),
                 "accuracy": self.accuracy, "joint_accuracy": self.joint_accuracy,
                 "false_alarms": self.false_alarms, "min_true_reduction": self.min_true_reduction,
-                "confusion": self.confusion(), "elapsed_s": self.elapsed_s,
+                "confusion": self.confusion(), "elapsed_s": self.elapsed_s, "workers": self.workers,
+                "hard_honesty": None if math.isnan(self.hard_honesty) else self.hard_honesty,
+                "n_hard": len(self.suite("hard")), "pairs": self.pairs_scores(),
                 "diagnosis_seconds": {"mean": float(np.mean(secs)) if secs else None,
                                       "max": float(np.max(secs)) if secs else None},
                 "cases": [c.to_mapping() for c in self.cases]}
@@ -218,14 +328,33 @@ def _draw_effect(word: Effect, rng: np.random.Generator, environment: str) -> tu
     raise ParameterError(f"no benchmark generator for effect {word!r}", name="word", value=word)
 
 
-def draw_case(word: Effect, index: int, seed: int, *, duration_s: float = 10.0,
-              param_error: float = 0.03) -> CaseSpec:
-    """Draw one benchmark scenario (deterministic in ``word``, ``index`` and ``seed``).
+def _k_series(environment: str) -> float:
+    """Static stiffness seen by the motor [N m/rad]: k in series with k_e (k when locked)."""
+    env = environment_preset(environment)
+    k = Design.nominal(environment).testbed.k
+    if env.locked:
+        return k
+    return k * env.k_e / (k + env.k_e)
+
+
+def _environments(words: Sequence[Effect]) -> list[str]:
+    envs = list(ENVIRONMENTS)
+    if Effect.ENVIRONMENT_MISMATCH in words:
+        envs = [e for e in envs if not environment_preset(e).locked]
+    if any(w in ANGLE_EFFECTS for w in words):
+        # ~1 N m of torque must be able to turn the motor through a revolution
+        envs = [e for e in envs if _k_series(e) * 2.0 * np.pi <= 3.0]
+    return envs
+
+
+def draw_case(word: Effect | Sequence[Effect], index: int, seed: int, *, duration_s: float = 10.0,
+              param_error: float = 0.03, attempt: int = 0, suite: str = "main") -> CaseSpec:
+    """Draw one benchmark scenario (deterministic in its arguments).
 
     Parameters
     ----------
-    word : Effect
-        The effect to withhold (``Effect.NONE``: effect-free).
+    word : Effect or sequence of Effect
+        The effect(s) to withhold (``Effect.NONE``: effect-free; two for the pairs suite).
     index : int
         Case number within the word [-].
     seed : int
@@ -234,21 +363,37 @@ def draw_case(word: Effect, index: int, seed: int, *, duration_s: float = 10.0,
         Log length [s].
     param_error : float
         Largest relative error of the nominal ``J_m``, ``d_m``, ``k`` [-].
+    attempt : int
+        Redraw number (the generator redraws until the log is identifiable) [-].
+    suite : str
+        ``main``, ``hard`` or ``pairs``.
 
     Returns
     -------
     CaseSpec
         The scenario, truth included.
     """
-    rng = np.random.default_rng([seed, list(Effect).index(word), index])
-    envs = [e for e in ENVIRONMENTS if not (word is Effect.ENVIRONMENT_MISMATCH and e == "locked")]
-    environment = str(envs[(index + int(rng.integers(len(envs)))) % len(envs)])
-    excitation = str(EXCITATIONS[(index + int(rng.integers(len(EXCITATIONS)))) % len(EXCITATIONS)])
-    effects = _draw_effect(word, rng, environment)
+    words = tuple(Effect(w) for w in ((word,) if isinstance(word, (str, Effect)) else word))
+    words = tuple(w for w in words if w is not Effect.NONE)
+    ids = [list(Effect).index(w) for w in words] or [0]
+    key = [seed, *ids, index, attempt, ("main", "hard", "pairs").index(suite)]
+    rng = np.random.default_rng(key)
+    if suite == "hard":
+        _, envs, excs = next(h for h in HARD if h[0] == words[0])
+        envs, excs = list(envs), list(excs)
+    else:
+        envs, excs = _environments(words), list(EXCITATIONS)
+        if any(w in ANGLE_EFFECTS for w in words):
+            # only a slow swing turns the motor through revolutions within a 10 s log
+            excs = [e for e in excs if e.endswith("sweep")]
+    environment = str(envs[(index + attempt + int(rng.integers(len(envs)))) % len(envs)])
+    excitation = str(excs[(index + attempt + int(rng.integers(len(excs)))) % len(excs)])
+    effects = tuple(e for w in words for e in _draw_effect(w, rng, environment))
     errors = tuple(float(x) for x in rng.uniform(-param_error, param_error, 3))
-    return CaseSpec(word=word, index=index, seed=int(rng.integers(2 ** 31)), environment=environment,
+    return CaseSpec(words=words, index=index, seed=int(rng.integers(2 ** 31)), environment=environment,
                     excitation=excitation, effects=effects, errors=errors,
-                    initial_angle=float(rng.uniform(0, 2 * np.pi)), duration_s=duration_s)
+                    initial_angle=float(rng.uniform(0, 2 * np.pi)), duration_s=duration_s, attempt=attempt,
+                    suite=suite)
 
 
 def _reference(spec: CaseSpec, rng: np.random.Generator):
@@ -267,6 +412,13 @@ def _reference(spec: CaseSpec, rng: np.random.Generator):
         return refs.Square(high=amp, low=-amp, period_s=rng.uniform(0.5, 2.0)), True
     if kind == "cl-sine":
         return refs.Sine(amplitude=rng.uniform(0.5, 1.5), frequency_hz=rng.uniform(0.3, 3.0)), True
+    if kind in ("ol-sweep", "cl-sweep"):
+        # a slow, large swing (turns a compliant output through revolutions) plus a small multisine
+        f = np.array([rng.uniform(0.05, 0.1), 1.1, 2.9, 6.7])
+        a = np.concatenate([[rng.uniform(1.5, 2.5) if kind == "ol-sweep" else rng.uniform(1.0, 2.0)],
+                            rng.uniform(0.1, 0.3, 3)])
+        return refs.Multisine(amplitudes=tuple(a), frequencies_hz=tuple(f),
+                              phases_rad=tuple(rng.uniform(0, 2 * np.pi, f.size))), kind == "cl-sweep"
     f = np.array([0.3, 1.1, 2.9, 6.7])
     return refs.Multisine(amplitudes=tuple(rng.uniform(0.2, 0.5, f.size)), frequencies_hz=tuple(f),
                           phases_rad=tuple(rng.uniform(0, 2 * np.pi, f.size))), True
@@ -302,13 +454,90 @@ def simulate_case(spec: CaseSpec):
     return exp, result
 
 
-def run_case(spec: CaseSpec) -> BenchCase:
-    """Simulate one case and diagnose it blind.
+def identifiability(spec: CaseSpec, result: Any) -> str | None:
+    """Why a simulated log cannot tell its withheld effect(s) apart, from the truth; ``None`` if it can.
 
     Parameters
     ----------
     spec : CaseSpec
         The scenario.
+    result : SimulationResult
+        The simulation (truth and measured command).
+
+    Returns
+    -------
+    str or None
+        The failed criterion in words (see the module docstring), or ``None``.
+    """
+    from .locate import tone_fraction
+
+    tr = result.truth
+    omega = np.asarray(tr.omega)
+    moving = omega[np.abs(omega) > 1e-2]
+    reversals = int(np.count_nonzero(np.diff(np.sign(moving)) != 0))
+    span = float(np.ptp(tr.theta))
+    for w in spec.words:
+        if w in ANGLE_EFFECTS and span < 2.0 * np.pi:
+            return f"motor angle spans {span:.2f} rad < 2 pi"
+        if w in (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION) and reversals < 2:
+            return f"{reversals} direction reversals < 2"
+        if w in (Effect.DELAY, Effect.TORQUE_GAIN):
+            frac, f_hz = tone_fraction(np.asarray(result.tau_m), result.rate_hz)
+            if frac >= 0.95:
+                return f"single-tone command ({100 * frac:.0f} % at {f_hz:.2g} Hz)"
+        if w is Effect.BACKLASH:
+            width = next(e.width_rad for e in spec.effects if e.effect is Effect.BACKLASH)
+            if np.percentile(np.abs(np.asarray(tr.theta) - np.asarray(tr.q)), 99) <= width:
+                return "spring deflection inside the dead band"
+    return None
+
+
+def make_log(word: Effect | Sequence[Effect], index: int, seed: int, *, duration_s: float = 10.0,
+             suite: str = "main"):
+    """Draw and simulate the case, redrawing until identifiable (main and pairs suites).
+
+    Parameters
+    ----------
+    word : Effect or sequence of Effect
+        Withheld effect(s).
+    index, seed : int
+        Case number and master seed [-].
+    duration_s : float
+        Log length [s].
+    suite : str
+        ``main``, ``hard`` (no redraw) or ``pairs``.
+
+    Returns
+    -------
+    (CaseSpec, Experiment, SimulationResult)
+        The accepted scenario, the blind log and the simulation.
+
+    Raises
+    ------
+    ParameterError
+        If no identifiable scenario is found in ``MAX_ATTEMPTS`` draws.
+    """
+    last = ""
+    for attempt in range(MAX_ATTEMPTS):
+        spec = draw_case(word, index, seed, duration_s=duration_s, attempt=attempt, suite=suite)
+        exp, result = simulate_case(spec)
+        if suite == "hard":
+            return spec, exp, result
+        why = identifiability(spec, result)
+        if why is None:
+            return spec, exp, result
+        last = why
+    raise ParameterError(f"no identifiable scenario for {word} #{index} in {MAX_ATTEMPTS} draws (last: {last})",
+                         name="word", value=word)
+
+
+def run_case(job: tuple) -> BenchCase:
+    """Simulate one case and diagnose it blind.
+
+    Parameters
+    ----------
+    job : tuple
+        ``(words, index, seed, duration_s, suite)``.
 
     Returns
     -------
@@ -317,7 +546,8 @@ def run_case(spec: CaseSpec) -> BenchCase:
     """
     from .diagnose import diagnose
 
-    exp, _ = simulate_case(spec)
+    words, index, seed, duration_s, suite = job
+    spec, exp, _ = make_log(words, index, seed, duration_s=duration_s, suite=suite)
     t0 = time.perf_counter()
     diag = diagnose(exp)
     seconds = time.perf_counter() - t0
@@ -325,20 +555,31 @@ def run_case(spec: CaseSpec) -> BenchCase:
     for r in diag.ranking:
         if r.effect == spec.word:
             true_red = r.reduction
-    params = spec.effects[0].to_mapping() if spec.effects else {}
+    params = spec.effects[0].to_mapping() if len(spec.effects) == 1 else \
+        {"effects": [e.to_mapping() for e in spec.effects]}
     return BenchCase(truth=spec.word, verdict=diag.effect, joint=diag.joint.effects if diag.joint else (),
                      reduction=diag.reduction, true_reduction=true_red, environment=spec.environment,
-                     excitation=spec.excitation, effect_params=params, seconds=seconds)
+                     excitation=spec.excitation, effect_params=params, seconds=seconds, suite=suite,
+                     truths=spec.words, secondary=diag.secondary.effect if diag.secondary else Effect.NONE,
+                     caveats=diag.caveats, attempts=spec.attempt + 1)
+
+
+def available_workers() -> int:
+    """Cores this process may run on [-]."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *, duration_s: float = 10.0,
-              words: Sequence[Effect] = BENCH_WORDS, progress: bool = True) -> BenchResult:
+              words: Sequence[Effect] = BENCH_WORDS, hard: int = 0, pairs: int = 0,
+              progress: bool = True) -> BenchResult:
     """Run the withheld-effect benchmark.
 
     Parameters
     ----------
     per_effect : int
-        Logs per effect word (``none`` included) [-].
+        Logs per effect word (``none`` included) in the main suite [-].
     seed : int
         Master seed [-].
     workers : int, optional
@@ -346,7 +587,11 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
     duration_s : float
         Length of each log [s].
     words : sequence of Effect
-        Effect words to include.
+        Effect words of the main suite.
+    hard : int
+        Logs per hard (non-identifiable) scenario [-].
+    pairs : int
+        Logs per two-effect combination of ``PAIRS`` [-].
     progress : bool
         Show a tqdm progress bar (on stderr).
 
@@ -357,24 +602,28 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
     """
     from tqdm import tqdm
 
-    if isinstance(per_effect, bool) or not isinstance(per_effect, int) or per_effect < 1:
-        raise ParameterError(f"per_effect must be an integer >= 1, got {per_effect!r}", name="per_effect",
+    for name, value, lo in (("per_effect", per_effect, 0), ("hard", hard, 0), ("pairs", pairs, 0)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+            raise ParameterError(f"{name} must be an integer >= {lo}, got {value!r}", name=name, value=value)
+    jobs = [((Effect(w),), i, seed, duration_s, "main") for w in words for i in range(per_effect)]
+    jobs += [((h[0],), i, seed, duration_s, "hard") for h in HARD for i in range(hard)]
+    jobs += [(pair, i, seed, duration_s, "pairs") for pair in PAIRS for i in range(pairs)]
+    if not jobs:
+        raise ParameterError("the benchmark has no logs: per_effect, hard and pairs are all 0", name="per_effect",
                              value=per_effect)
-    specs = [draw_case(Effect(w), i, seed, duration_s=duration_s) for w in words for i in range(per_effect)]
-    n_workers = workers if workers is not None else (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
-                                                     else (os.cpu_count() or 1))
+    n_workers = workers if workers is not None else available_workers()
     t0 = time.perf_counter()
-    bar = tqdm(total=len(specs), desc="bench-gap", disable=not progress, unit="log")
+    bar = tqdm(total=len(jobs), desc="bench-gap", disable=not progress, unit="log")
     cases: list[BenchCase] = []
     if n_workers <= 1:
-        for spec in specs:
-            cases.append(run_case(spec))
+        for job in jobs:
+            cases.append(run_case(job))
             bar.update()
     else:
         with ProcessPoolExecutor(max_workers=n_workers) as pool:
-            for case in pool.map(run_case, specs):
+            for case in pool.map(run_case, jobs):
                 cases.append(case)
                 bar.update()
     bar.close()
     return BenchResult(cases=tuple(cases), per_effect=per_effect, seed=seed,
-                       elapsed_s=time.perf_counter() - t0)
+                       elapsed_s=time.perf_counter() - t0, workers=n_workers)

@@ -30,7 +30,7 @@ from scipy.optimize import lsq_linear
 from ..effects import Effect
 from .residuals import GapData, delayed_input
 
-__all__ = ["CandidateFit", "fit_baseline", "fit_candidate", "fit_all", "CANDIDATE_EFFECTS",
+__all__ = ["CandidateFit", "fit_baseline", "fit_candidate", "fit_all", "fit_pair", "CANDIDATE_EFFECTS",
            "JointAttribution", "fit_joint"]
 
 #: Effects with a candidate, in the order they are tried.
@@ -87,6 +87,7 @@ class CandidateFit:
     gap_held_out: float
     block_sse: np.ndarray
     prediction: np.ndarray = field(repr=False)
+    structure: Any = field(default=None, repr=False, compare=False)
 
 
 def _soft_threshold(r: np.ndarray, level: np.ndarray | float) -> np.ndarray:
@@ -137,7 +138,14 @@ class _Structure:
 
 
 def _structures(effect: Effect, data: GapData) -> list[_Structure]:
-    """All grid points of one candidate."""
+    """All grid points of one candidate (built once per log and cached on ``data``)."""
+    key = ("structures", effect)
+    if key not in data.cache:
+        data.cache[key] = _build_structures(effect, data)
+    return data.cache[key]
+
+
+def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
     c = data.columns
     opts = data.options
     tb = data.experiment.design.testbed
@@ -234,7 +242,7 @@ def _structures(effect: Effect, data: GapData) -> list[_Structure]:
     return out
 
 
-def _solve(data: GapData, coefs: Sequence[_Coef], fit_rows: np.ndarray) -> np.ndarray:
+def _solve(data: GapData, coefs: Sequence[_Coef], fit_rows: np.ndarray, n_cal: int | None = None) -> np.ndarray:
     A = np.column_stack([c.column for c in coefs])
     y = data.stacked_target()
     Af, yf = A[fit_rows], y[fit_rows]
@@ -242,7 +250,17 @@ def _solve(data: GapData, coefs: Sequence[_Coef], fit_rows: np.ndarray) -> np.nd
     scale[scale == 0.0] = 1.0
     lo = np.array([c.lo for c in coefs]) * scale
     hi = np.array([c.hi for c in coefs]) * scale
-    res = lsq_linear(Af / scale, yf, bounds=(lo, hi), method="bvls" if A.shape[1] <= 20 else "trf",
+    As = Af / scale
+    n_cal = len(_calibration(data)) if n_cal is None else n_cal
+    if As.shape[1] > n_cal:
+        # A tiny ridge on the (standardised) effect coefficients: when features are nearly
+        # collinear (angle harmonics over a fraction of a revolution) it keeps the fitted
+        # parameters finite without changing well-posed fits (1e-6 of the data weight).
+        ridge = np.zeros((As.shape[1] - n_cal, As.shape[1]))
+        ridge[:, n_cal:] = np.sqrt(1e-6 * As.shape[0]) * np.eye(As.shape[1] - n_cal)
+        As = np.vstack([As, ridge])
+        yf = np.concatenate([yf, np.zeros(ridge.shape[0])])
+    res = lsq_linear(As, yf, bounds=(lo, hi), method="bvls" if A.shape[1] <= 20 else "trf",
                      lsmr_tol="auto")
     return res.x / scale
 
@@ -291,7 +309,7 @@ def _fit(data: GapData, effect: Effect, structure: _Structure | None) -> Candida
     params = structure.to_params(p[len(cal):]) if structure else {}
     return CandidateFit(effect=effect, params=params, calibration=calibration,
                         n_params=structure.n_params if structure else 0, residual=r, gap_fit=gap_fit,
-                        gap_held_out=gap_held, block_sse=sse, prediction=prediction)
+                        gap_held_out=gap_held, block_sse=sse, prediction=prediction, structure=structure)
 
 
 def fit_baseline(data: GapData) -> CandidateFit:
@@ -330,6 +348,52 @@ def fit_candidate(data: GapData, effect: Effect) -> CandidateFit | None:
     best: CandidateFit | None = None
     for structure in _structures(effect, data):
         fit = _fit(data, effect, structure)
+        if best is None or fit.gap_fit < best.gap_fit:
+            best = fit
+    return best
+
+
+def _merge(a: _Structure, b: _Structure) -> _Structure:
+    """Two candidates at once: coefficients side by side, each reads its own slice."""
+    na = len(a.coefs)
+    level = None
+    if a.level is not None:
+        level = lambda p: a.level(p[:na])  # noqa: E731
+    elif b.level is not None:
+        level = lambda p: b.level(p[na:])  # noqa: E731
+    return _Structure(a.coefs + b.coefs, lambda p: {**a.to_params(p[:na]), **b.to_params(p[na:])},
+                      level=level, n_params=a.n_params + b.n_params)
+
+
+def fit_pair(data: GapData, first: CandidateFit, effect: Effect) -> CandidateFit | None:
+    """A second effect on top of a fitted first one (forward selection, one step).
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    first : CandidateFit
+        The one-at-a-time winner; its grid point is kept.
+    effect : Effect
+        The second effect; its grid is searched on the fit blocks.
+
+    Returns
+    -------
+    CandidateFit or None
+        ``effect`` set to the *second* effect, ``params`` holding both effects'
+        parameters; ``None`` when the pair is not tried (two friction laws, which are
+        nested, or a candidate that does not apply).
+    """
+    if effect == first.effect or (effect in _FRICTION and first.effect in _FRICTION):
+        return None
+    s1 = _best_structure(data, first.effect, first)
+    if s1 is None:
+        return None
+    best: CandidateFit | None = None
+    for s2 in _structures(effect, data):
+        if s1.level is not None and s2.level is not None:
+            continue
+        fit = _fit(data, effect, _merge(s1, s2))
         if best is None or fit.gap_fit < best.gap_fit:
             best = fit
     return best
@@ -387,7 +451,9 @@ class JointAttribution:
 
 
 def _best_structure(data: GapData, effect: Effect, fit: CandidateFit) -> _Structure | None:
-    """The grid point of a fitted candidate (matched by its parameters)."""
+    """The grid point of a fitted candidate."""
+    if fit.structure is not None:
+        return fit.structure
     for s in _structures(effect, data):
         probe = s.to_params(np.zeros(len(s.coefs)))
         keys = [k for k in ("v_s", "delay_s", "width_rad") if k in probe]

@@ -10,7 +10,7 @@ from scipy import signal
 
 from .residuals import GapData
 
-__all__ = ["Location", "locate_gap", "empirical_response"]
+__all__ = ["Location", "locate_gap", "empirical_response", "tone_fraction"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -39,6 +39,10 @@ class Location:
         Share of the residual energy per equation [-].
     notes : tuple of str
         Discrimination limits of this log, in words.
+    tone_fraction : float
+        Share of the command variance in its strongest spectral line (1 for a pure sine) [-].
+    tone_hz : float
+        Frequency of that line [Hz].
     """
 
     time_windows_s: tuple[tuple[float, float], ...]
@@ -51,6 +55,13 @@ class Location:
     torque_fraction: float
     equation_share: dict
     notes: tuple[str, ...]
+    tone_fraction: float = 0.0
+    tone_hz: float = 0.0
+
+    @property
+    def single_tone(self) -> bool:
+        """True when the command is essentially one sine (>= 95 % of its variance in one line)."""
+        return self.tone_fraction >= 0.95
 
     @property
     def full_revolution(self) -> bool:
@@ -116,6 +127,34 @@ def _explained(y: np.ndarray, X: np.ndarray) -> float:
     return float(max(0.0, 1.0 - np.sum((y - X @ coef) ** 2) / np.sum((y - y.mean()) ** 2)))
 
 
+def tone_fraction(x: np.ndarray, rate_hz: float) -> tuple[float, float]:
+    """Share of a signal's variance in its strongest spectral line, and that line's frequency.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        A signal, e.g. the motor command (any unit).
+    rate_hz : float
+        Sample rate [Hz].
+
+    Returns
+    -------
+    fraction : float
+        Variance within +-3 Welch bins (Hann, segments of ~4 s) of the PSD peak over the
+        total variance [-]; near 1 for a single sine, small for broadband excitation.
+    frequency_hz : float
+        Frequency of the peak [Hz].
+    """
+    x = np.asarray(x, dtype=float) - float(np.mean(x))
+    n = int(min(x.size, max(256, 4.0 * rate_hz)))
+    f, p = signal.welch(x, fs=rate_hz, nperseg=n)
+    total = float(p.sum())
+    if total <= 0.0:
+        return 0.0, 0.0
+    i = int(np.argmax(p))
+    return float(p[max(0, i - 3):i + 4].sum() / total), float(f[i])
+
+
 def locate_gap(data: GapData, residual: np.ndarray) -> Location:
     """Localise a stacked residual in time, frequency and operating region.
 
@@ -171,10 +210,15 @@ def locate_gap(data: GapData, residual: np.ndarray) -> Location:
     if n_rev < 2:
         notes.append("The motor barely reverses direction: Coulomb-type friction cannot be told apart from a "
                      "torque offset or gain error.")
+    tone, tone_hz = tone_fraction(data.raw["tau_m"], data.experiment.rate_hz)
+    if tone >= 0.95:
+        notes.append(f"The command is essentially one sine ({100 * tone:.0f} % of its variance at {tone_hz:.2g} Hz): "
+                     "at a single frequency a delay is indistinguishable from extra motor damping (d_m is "
+                     "re-calibrated), and a gain error from a J_m/k rescaling; use broadband excitation.")
     return Location(time_windows_s=_windows(data.t, r2), frequency_band_hz=band, speed_band_rad_s=speed_band,
                     angle_span_rad=span, n_reversals=n_rev, angle_fraction=float(max(angle_fraction, 0.0)),
                     reversal_ratio=reversal_ratio, torque_fraction=torque_fraction, equation_share=share,
-                    notes=tuple(notes))
+                    notes=tuple(notes), tone_fraction=tone, tone_hz=tone_hz)
 
 
 def empirical_response(data: GapData, *, nperseg: int = 1024) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -8,14 +8,21 @@ torque [N m]) that is zero when the log obeys the nominal model::
     environment  r_e = tau_s - (J q'' + d q' + k_e q)          (not when locked)
     coupling     r_c = tau_s - k (theta - q)                   (only with a measured tau_s)
 
-``u`` is the motor torque command re-timed for its zero-order hold: a command
-held over ``[t_k, t_k+1)`` acts, in the band below the sample rate, like a
-smooth signal sampled half a period later, so ``u[k] = (tau_m[k-1] + tau_m[k]) / 2``.
+``u`` is the motor torque command held over ``[t_k, t_k+1)`` (the format's
+zero-order hold). The acceleration is the second difference over one period,
+which equals the true acceleration averaged under a hat kernel of half-width
+``T``; the same kernel turns the held command into ``u[k] = (tau_m[k-1] +
+tau_m[k]) / 2`` (:func:`delayed_input`). For a pure inertia that pairing is
+exact, so a log that obeys the nominal model leaves (almost) no residual even
+under broadband (square-wave, derivative-kick) commands; the gradient of the
+gradient, by contrast, carries a ``cos^2(w T / 2)`` magnitude error that
+looks like a small delay.
 
-Derivatives come from :mod:`forecast_design.friction.derivatives` (zero-phase
-Butterworth on the encoder positions, central differences) and every column,
-targets and regressors alike, goes through the same parallel decimation, which
-keeps models that are linear in their parameters unbiased.
+Every raw column (positions, command, spring torque, candidate features) goes
+through the same zero-phase Butterworth low-pass (``position_cutoff_hz``) and
+the same parallel decimation (:mod:`forecast_design.friction.derivatives`): a
+linear filter applied to targets and regressors alike keeps models that are
+linear in their parameters unbiased.
 
 Unmodelled effects enter these residuals additively (see
 :mod:`forecast_design.gap.candidates`): friction, cogging, delay and torque gain
@@ -30,11 +37,13 @@ from typing import Mapping
 
 import numpy as np
 
-from ..errors import ParameterError
+from ..errors import ExperimentFormatError, IdentifiabilityError, ParameterError
 from ..experiment import Experiment
-from ..friction.derivatives import FilterSettings, decimate_columns, default_filter_settings, differentiate
+from scipy import signal
 
-__all__ = ["GapOptions", "GapData", "prepare_gap_data", "zoh_input", "delayed_input"]
+from ..friction.derivatives import FilterSettings, decimate_columns, default_filter_settings
+
+__all__ = ["GapOptions", "GapData", "prepare_gap_data", "zoh_input", "delayed_input", "lowpass"]
 
 #: Equation names, in stacking order.
 EQUATIONS = ("motor", "environment", "coupling")
@@ -69,7 +78,7 @@ class GapOptions:
     """
 
     position_cutoff_hz: float | None = None
-    decimated_rate_hz: float = 200.0
+    decimated_rate_hz: float = 100.0
     n_blocks: int = 20
     calibration_tolerance: float = 0.1
     n_harmonics: int = 4
@@ -111,12 +120,20 @@ def zoh_input(tau_m: np.ndarray) -> np.ndarray:
 
 
 def delayed_input(tau_m: np.ndarray, delay_s: float, rate_hz: float) -> np.ndarray:
-    """Zero-order-held command delayed by ``delay_s``, sampled at the sample instants.
+    """Zero-order-held command delayed by ``delay_s``, as seen by the second difference.
+
+    The motor acceleration is taken as the second difference
+    ``(theta[k+1] - 2 theta[k] + theta[k-1]) / T^2``, which is the true acceleration
+    averaged under a triangular (hat) kernel of half-width ``T`` centred on ``t_k``.
+    For a pure inertia driven by a held command this is *exact*; the matching input
+    is the held, delayed command averaged under the same kernel: a sum of the
+    samples weighted by the quadratic B-spline (box convolved with hat). Without
+    delay it is ``(tau_m[k-1] + tau_m[k]) / 2``.
 
     Parameters
     ----------
     tau_m : ndarray, shape (n,)
-        Command held over each sample period [N m].
+        Command held over each sample period ``[t_k, t_k+1)`` [N m].
     delay_s : float
         Extra delay [s] (>= 0).
     rate_hz : float
@@ -125,12 +142,96 @@ def delayed_input(tau_m: np.ndarray, delay_s: float, rate_hz: float) -> np.ndarr
     Returns
     -------
     ndarray, shape (n,)
-        The held command delayed by half a period plus ``delay_s``, linearly
-        interpolated between samples; the first value is repeated before the start [N m].
+        The hat-averaged delayed held command at the sample instants; the first
+        value is repeated before the start [N m].
     """
     tau_m = np.asarray(tau_m, dtype=float)
-    idx = np.arange(tau_m.size) - 0.5 - delay_s * rate_hz
-    return np.interp(idx, np.arange(tau_m.size), tau_m)
+    n = tau_m.size
+    d = float(delay_s) * float(rate_hz)
+    whole = int(np.floor(d))
+    f = d - whole
+    # quadratic B-spline N(x) on [0, 3]: x^2/2, (-2x^2 + 6x - 3)/2, (3 - x)^2/2
+    def spline(x: float) -> float:
+        if 0.0 <= x < 1.0:
+            return 0.5 * x * x
+        if 1.0 <= x < 2.0:
+            return 0.5 * (-2.0 * x * x + 6.0 * x - 3.0)
+        if 2.0 <= x <= 3.0:
+            return 0.5 * (3.0 - x) ** 2
+        return 0.0
+    # weight of tau_m[k - whole - j] at t_k, j = -1..2: N(1 - f + j)
+    out = np.zeros(n)
+    pad = np.concatenate([np.full(whole + 3, tau_m[0] if n else 0.0), tau_m, np.full(2, tau_m[-1] if n else 0.0)])
+    base = whole + 3
+    for j in range(-1, 3):
+        w = spline(1.0 - f + j)
+        if w == 0.0:
+            continue
+        start = base - whole - j
+        out += w * pad[start:start + n]
+    return out
+
+
+def lowpass(x: np.ndarray, settings: FilterSettings) -> np.ndarray:
+    """Zero-phase Butterworth low-pass applied to every raw-rate column.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+        A raw-rate signal (any unit).
+    settings : FilterSettings
+        Cut-off ``position_cutoff_hz`` [Hz] and order.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The filtered signal (``scipy.signal.sosfiltfilt``), same unit.
+    """
+    sos = signal.butter(settings.filter_order, settings.position_cutoff_hz / (settings.rate_hz / 2.0), output="sos")
+    return signal.sosfiltfilt(sos, np.asarray(x, dtype=float))
+
+
+def _derivatives(position: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Central-difference velocity and second-difference acceleration [rad/s, rad/s^2].
+
+    The second difference over one period (not the gradient of the gradient, which
+    spans two) is the acceleration under a hat kernel of half-width ``T``; with the
+    held command averaged the same way (:func:`delayed_input`) a pure inertia obeys
+    the sampled equation exactly.
+    """
+    dt = 1.0 / rate_hz
+    v = np.gradient(position, dt)
+    a = np.empty_like(position)
+    a[1:-1] = (position[2:] - 2.0 * position[1:-1] + position[:-2]) / dt ** 2
+    a[0], a[-1] = a[1], a[-2]
+    return v, a
+
+
+def _check_log(experiment: Experiment, theta: np.ndarray, q: np.ndarray, tau_m: np.ndarray, tau_s: np.ndarray,
+               settings: FilterSettings, options: GapOptions) -> None:
+    """One-line errors for logs the diagnosis cannot use (non-finite, too short, no motion)."""
+    src = experiment.source.name if getattr(experiment, "source", None) is not None else "log"
+    for name, col in (("theta", theta), ("q", q), ("tau_m", tau_m), ("tau_s", tau_s)):
+        bad = np.flatnonzero(~np.isfinite(col))
+        if bad.size:
+            raise ExperimentFormatError(f"{src}: column {name} is not finite at row {int(bad[0])} "
+                                        f"({bad.size} rows); the gap diagnosis needs complete signals",
+                                        path=str(experiment.source) if experiment.source else None, key=name)
+    n = theta.size
+    need = max(2 * settings.edge_samples + 4 * options.n_blocks * settings.decimation_factor,
+               30 * settings.decimation_factor, 16)
+    if n < need:
+        raise ParameterError(
+            f"{src}: log too short for the gap diagnosis: {n} samples ({n / settings.rate_hz:.3g} s) at "
+            f"{settings.rate_hz:g} Hz; need >= {need} ({need / settings.rate_hz:.3g} s) for {options.n_blocks} "
+            "held-out blocks; record a longer run", name="n_blocks", value=options.n_blocks)
+    if np.ptp(tau_m) <= 0.0:
+        raise IdentifiabilityError(f"{src}: tau_m is constant ({tau_m[0]:g} N m): no excitation, nothing "
+                                   "to diagnose; record a run with a varying torque command")
+    # less than 20 encoder steps of 2e6 counts/rev in total motion: the motor did not move
+    if np.ptp(theta) < 20 * 2.0 * np.pi / 2_000_000:
+        raise IdentifiabilityError(f"{src}: the motor did not move (theta spans {np.ptp(theta):.3g} rad): "
+                                   "equation errors are encoder noise only; record a run with motion")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -173,6 +274,7 @@ class GapData:
     held_out: np.ndarray
     stuck: np.ndarray
     equations: tuple[str, ...] = field(default=())
+    cache: dict = field(default_factory=dict, repr=False)
 
     @property
     def locked(self) -> bool:
@@ -195,9 +297,11 @@ class GapData:
         Returns
         -------
         ndarray, shape (m,)
-            The signal at the decimated rate, same unit.
+            The signal low-passed like every other column (position Butterworth,
+            zero phase), then decimated to the decimated rate, same unit.
         """
-        return decimate_columns(np.asarray(raw_column, dtype=float)[:, None], self.settings)[:, 0]
+        col = lowpass(np.asarray(raw_column, dtype=float), self.settings)
+        return decimate_columns(col[:, None], self.settings)[:, 0]
 
     def stack(self, per_equation: Mapping[str, np.ndarray]) -> np.ndarray:
         """Stack per-equation columns in equation order, zeros where an equation is absent.
@@ -252,6 +356,10 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
     ------
     ParameterError
         If the log is too short for the filter, the decimation or the block split.
+    IdentifiabilityError
+        If the command is constant or the motor does not move.
+    ExperimentFormatError
+        If a signal is not finite.
     """
     options = GapOptions() if options is None else options
     rate = experiment.rate_hz
@@ -262,25 +370,31 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
     locked = env.locked
     theta = np.asarray(sig.theta, dtype=float)
     q = np.zeros_like(theta) if locked else np.asarray(sig.q, dtype=float)
-    km = differentiate(theta, settings)
-    kq = differentiate(q, settings)
-    u = zoh_input(sig.tau_m)
+    tau_m = np.asarray(sig.tau_m, dtype=float)
     tau_s = np.asarray(sig.tau_s, dtype=float)
-    x = km.position - kq.position
-    raw_cols = {"u": u, "tau_s": tau_s, "a": km.acceleration, "v": km.velocity, "theta": km.position,
-                "x": x, "qa": kq.acceleration, "qv": kq.velocity, "q": kq.position,
-                "spring": tb.k * (theta - q)}
+    _check_log(experiment, theta, q, tau_m, tau_s, settings, options)
+    # Every column, targets and regressors alike, goes through the same zero-phase
+    # low-pass (and later the same decimation): a linear filter then leaves a model
+    # that is linear in its parameters exact, so a nominal log has no residual.
+    thf, qf = lowpass(theta, settings), lowpass(q, settings)
+    th_v, th_a = _derivatives(thf, rate)
+    q_v, q_a = _derivatives(qf, rate)
+    u = lowpass(zoh_input(tau_m), settings)
+    x = thf - qf
+    raw_cols = {"u": u, "tau_s": lowpass(tau_s, settings), "a": th_a, "v": th_v, "theta": thf,
+                "x": x, "qa": q_a, "qv": q_v, "q": qf, "spring": tb.k * x}
     names = list(raw_cols)
     dec = decimate_columns(np.column_stack([raw_cols[n] for n in names]), settings)
     cols = {n: dec[:, i] for i, n in enumerate(names)}
+    km_velocity, km_position = th_v, thf
     e = settings.edge_samples
     n_raw = theta.size
     t = np.asarray(sig.t, dtype=float)[e:n_raw - e][::R]
     # Positions and speeds for masks and operating-region statistics are taken at the
     # decimated instants without the extra anti-alias pass (which would smear sign changes).
     sub = slice(e, n_raw - e)
-    cols["v_sub"] = km.velocity[sub][::R]
-    cols["theta_sub"] = km.position[sub][::R]
+    cols["v_sub"] = km_velocity[sub][::R]
+    cols["theta_sub"] = km_position[sub][::R]
     m = t.size
     if m < 4 * options.n_blocks:
         raise ParameterError(
@@ -299,7 +413,7 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
     block = np.minimum((np.arange(m) * options.n_blocks) // m, options.n_blocks - 1)
     held_out = (block % 2) == 1
     stuck = np.abs(cols["v_sub"]) < options.stick_velocity
-    raw = {"theta": km.position, "v": km.velocity, "x": x, "tau_m": np.asarray(sig.tau_m, dtype=float)}
+    raw = {"theta": thf, "v": th_v, "x": x, "tau_m": tau_m}
     return GapData(experiment=experiment, options=options, settings=settings, t=t, targets=targets,
                    columns=cols, raw=raw, block=block, held_out=held_out, stuck=stuck,
                    equations=tuple(equations))

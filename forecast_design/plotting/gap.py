@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["plot_residual_time", "plot_residual_spectrum", "plot_residual_operating", "plot_before_after"]
+__all__ = ["plot_residual_time", "plot_residual_spectrum", "plot_residual_operating", "plot_before_after",
+           "plot_replay"]
 
 
 def _plt():
@@ -194,6 +195,53 @@ def plot_before_after(diag: Any, path: str | Path, *, window_s: float = 2.0) -> 
     axes[0, 0].set_title(f"Held-out data: gap {diag.gap_before:.3g} -> {diag.gap_after:.3g} N m "
                          f"({100 * diag.reduction:.0f} % less)")
     axes[-1, 0].set_xlabel("t [s]")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_replay(diag: Any, path: str | Path, *, window_s: float = 0.5) -> Path:
+    """Output-error replay over the worst window: measured vs replayed ``tau_s`` and ``theta``.
+
+    Parameters
+    ----------
+    diag : Diagnosis
+        A diagnosis (with its ``replay``).
+    path : str or Path
+        PNG file to write.
+    window_s : float
+        Window length [s] (the replay check's).
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    from ..gap.replay import replay_trace
+
+    plt = _plt()
+    rc = diag.replay
+    start = rc.worst_windows_s[0][0] if rc is not None and rc.worst_windows_s else float(diag.data.t[0])
+    window_s = rc.window_s if rc is not None else window_s
+    tr = replay_trace(diag.data, _after(diag), start, window_s=window_s)
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
+    ax1.plot(tr["t"], tr["tau_s"], "k", lw=1.2, label="measured")
+    ax1.plot(tr["t"], tr["tau_s_before"], lw=1.0, label="nominal model replay")
+    ax2.plot(tr["t"], tr["theta"], "k", lw=1.2, label="measured")
+    ax2.plot(tr["t"], tr["theta_before"], lw=1.0, label="nominal model replay")
+    if _after(diag) is not None:
+        ax1.plot(tr["t"], tr["tau_s_after"], "--", lw=1.0, label=f"with {diag.effect}")
+        ax2.plot(tr["t"], tr["theta_after"], "--", lw=1.0, label=f"with {diag.effect}")
+    ax1.set_ylabel("tau_s [N m]")
+    ax2.set_ylabel("theta [rad]")
+    ax2.set_xlabel("t [s]")
+    for ax in (ax1, ax2):
+        ax.grid(True, alpha=0.3)
+    ax1.legend(fontsize=8, loc="upper right")
+    ax1.set_title("Output-error replay from the recorded tau_m, started from the measured state "
+                  "(worst window of the nominal model)", fontsize=9)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
