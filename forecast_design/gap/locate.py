@@ -238,9 +238,11 @@ def empirical_response(data: GapData, *, nperseg: int = 1024) -> tuple[np.ndarra
     measured : ndarray of complex
         ``S_us / S_uu`` [N m / N m].
     nominal : ndarray of complex
-        ``P(j 2 pi f) = k E / (M E + k E + k M)`` with ``M = J_m s^2 + d_m s`` and
-        ``E = J s^2 + d s + k_e`` (``k / (M + k)`` when locked) [N m / N m].
+        The nominal force plant P(j 2 pi f) of eq. (2) (the locked plant when locked),
+        from :func:`forecast_design.symbolic.force_plant_tf` [N m / N m].
     """
+    from ..symbolic import force_plant_tf
+
     exp = data.experiment
     fs = exp.rate_hz
     u = np.asarray(exp.signals.tau_m, dtype=float)
@@ -250,12 +252,6 @@ def empirical_response(data: GapData, *, nperseg: int = 1024) -> tuple[np.ndarra
     _, sus = signal.csd(u, ts, fs=fs, nperseg=n)
     with np.errstate(divide="ignore", invalid="ignore"):
         measured = np.where(suu > 0, sus / np.where(suu > 0, suu, 1.0), np.nan)
-    s = 2j * np.pi * f
-    tb, env = exp.design.testbed, exp.design.environment
-    M = tb.J_m * s ** 2 + tb.d_m * s
-    if env.locked:
-        nominal = tb.k / (M + tb.k)
-    else:
-        E = env.J * s ** 2 + env.d * s + env.k_e
-        nominal = tb.k * E / (M * E + tb.k * E + tb.k * M)
+    # One home for P(s): the free-output factor s is cancelled there, so f = 0 is finite.
+    nominal = force_plant_tf(exp.design).freqresp(2.0 * np.pi * f)
     return f, measured, nominal
