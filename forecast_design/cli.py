@@ -534,6 +534,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         v = mapping["verdict"]
         print(f"verdict: {v['effect']} (gap {v['gap_before']:.4g} -> {v['gap_after']:.4g}, "
               f"reduction {100 * v['reduction']:.1f} %)")
+        if getattr(diagnosis, "secondary", None) is not None:
+            print(f"second effect: {diagnosis.secondary.effect}")
         print(f"where: {mapping['location']['summary']}")
         for row in mapping["ranking"]:
             print(f"  {row['effect']:<22} reduction {100 * row['reduction']:6.1f} %")
@@ -547,6 +549,9 @@ def _configure_bench_gap(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--duration", type=_float_range, default=10.0, help="length of each generated log [s]")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    p.add_argument("--hard", type=int, default=0, metavar="N",
+                   help="also N logs per non-identifiable scenario (scored for honest caveats)")
+    p.add_argument("--pairs", type=int, default=0, metavar="N", help="also N logs per two-effect combination")
     p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write the result JSON to OUT (or stdout)")
 
 
@@ -558,7 +563,7 @@ def _cmd_bench_gap(args: argparse.Namespace) -> int:
     if args.per_effect < 1:
         raise ParameterError(f"--per-effect must be >= 1, got {args.per_effect}", name="per_effect")
     result = benchmark(per_effect=args.per_effect, seed=args.seed, workers=args.workers,
-                       duration_s=args.duration, progress=args.json != "-")
+                       duration_s=args.duration, hard=args.hard, pairs=args.pairs, progress=args.json != "-")
     if args.json:
         _write_json(args.json, result.to_mapping())
     if args.json != "-":
