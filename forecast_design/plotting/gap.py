@@ -7,6 +7,8 @@ from typing import Any
 
 import numpy as np
 
+from . import save_figure
+
 __all__ = ["plot_residual_time", "plot_residual_spectrum", "plot_residual_operating", "plot_before_after",
            "plot_replay"]
 
@@ -61,11 +63,7 @@ def plot_residual_time(diag: Any, path: str | Path) -> Path:
     axes[0, 0].legend(loc="upper right", fontsize=8)
     axes[0, 0].set_title("Equation error over time (shaded: windows with most residual energy)")
     axes[-1, 0].set_xlabel("t [s]")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_residual_spectrum(diag: Any, path: str | Path) -> Path:
@@ -111,11 +109,7 @@ def plot_residual_spectrum(diag: Any, path: str | Path) -> Path:
     ax2.set_ylabel("|tau_s / tau_m| [-]")
     ax2.legend(fontsize=8)
     ax2.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_residual_operating(diag: Any, path: str | Path) -> Path:
@@ -149,11 +143,7 @@ def plot_residual_operating(diag: Any, path: str | Path) -> Path:
     ax2.set_title(f"angle span {diag.location.angle_span_rad:.2f} rad")
     for ax in (ax1, ax2):
         ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_before_after(diag: Any, path: str | Path, *, window_s: float = 2.0) -> Path:
@@ -195,11 +185,7 @@ def plot_before_after(diag: Any, path: str | Path, *, window_s: float = 2.0) -> 
     axes[0, 0].set_title(f"Held-out data: gap {diag.gap_before:.3g} -> {diag.gap_after:.3g} N m "
                          f"({100 * diag.reduction:.0f} % less)")
     axes[-1, 0].set_xlabel("t [s]")
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_replay(diag: Any, path: str | Path, *, window_s: float = 0.5) -> Path:
@@ -242,8 +228,4 @@ def plot_replay(diag: Any, path: str | Path, *, window_s: float = 0.5) -> Path:
     ax1.legend(fontsize=8, loc="upper right")
     ax1.set_title("Output-error replay from the recorded tau_m, started from the measured state "
                   "(worst window of the nominal model)", fontsize=9)
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
