@@ -128,7 +128,7 @@ def _identify(out: Path) -> dict[str, Any]:
 
 def _diagnose(out: Path) -> dict[str, Any]:
     from .effects import Cogging
-    from .experiment import save_experiment
+    from .experiment import load_experiment, save_experiment
     from .gap import diagnose, write_report
     from .params import Design
     from .simulation import simulate
@@ -138,8 +138,8 @@ def _diagnose(out: Path) -> dict[str, Any]:
     run = simulate(Design.nominal("link-only"), effects=[Cogging(a=(0.08, 0.0, 0.03), b=(0.0, 0.04, 0.0))],
                    duration_s=20.0, closed_loop=False, seed=11,
                    reference=Multisine(amplitudes=(1.2, 0.3), frequencies_hz=(0.15, 2.5), offset=0.7))
-    log = run.to_experiment()
-    save_experiment(log, out / "diagnose_run.toml")
+    # Diagnose the file as a user would, so the report names it.
+    log = load_experiment(save_experiment(run.to_experiment(), out / "diagnose_run.toml"))
     diagnosis = diagnose(log)
     write_report(diagnosis, log, out / "diagnosis")
     verdict = diagnosis.to_mapping()["verdict"]
