@@ -95,17 +95,11 @@ class ReplayCheck:
 
 
 def _discrete(tb: Testbed, env: Environment, dt: float, spring_scale: float = 1.0):
-    k = tb.k * spring_scale
-    if env.locked:
-        A = np.array([[0.0, 1.0], [-k / tb.J_m, -tb.d_m / tb.J_m]])
-        B = np.array([[0.0], [1.0 / tb.J_m]])
-        B = np.hstack([B, np.zeros((2, 1))])
-    else:
-        A = np.array([[0.0, 1.0, 0.0, 0.0],
-                      [-k / tb.J_m, -tb.d_m / tb.J_m, k / tb.J_m, 0.0],
-                      [0.0, 0.0, 0.0, 1.0],
-                      [k / env.J, 0.0, -(k + env.k_e) / env.J, -env.d / env.J]])
-        B = np.array([[0.0, 0.0], [1.0 / tb.J_m, 0.0], [0.0, 0.0], [0.0, 1.0 / env.J]])
+    """ZOH discretisation of the nominal SEA (state space derived in symbolic.plant, the one home)."""
+    from ..params import Design
+    from ..symbolic.numeric import sea_state_space
+
+    A, B = sea_state_space(Design(testbed=tb, environment=env), spring_scale=spring_scale)
     n = A.shape[0]
     Ad, Bd, *_ = signal.cont2discrete((A, B, np.eye(n), np.zeros((n, 2))), dt, method="zoh")
     return Ad, Bd

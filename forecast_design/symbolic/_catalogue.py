@@ -9,6 +9,36 @@ import math  # noqa: F401 - used by generated coefficients (e.g. math.sqrt)
 MODELS = {}
 
 
+def _ss0_0(J, J_m, d, d_m, k, k_e):
+    return ((0, 1, 0, 0,), (-k/J_m, -d_m/J_m, k/J_m, 0,), (0, 0, 0, 1,), (k/J, 0, (-k - k_e)/J, -d/J,),)
+
+
+def _ss0_1(J, J_m, d, d_m, k, k_e):
+    return ((0, 0,), (1/J_m, 0,), (0, 0,), (0, 1/J,),)
+
+
+MODELS['sea_ss'] = {
+    'label': 'state space',
+    'symbols': ('J', 'J_m', 'd', 'd_m', 'k', 'k_e'),
+    'matrices': (_ss0_0, _ss0_1,),
+}
+
+
+def _ss1_0(J_m, d_m, k):
+    return ((0, 1,), (-k/J_m, -d_m/J_m,),)
+
+
+def _ss1_1(J_m, d_m, k):
+    return ((0, 0,), (1/J_m, 0,),)
+
+
+MODELS['sea_ss_locked'] = {
+    'label': 'state space',
+    'symbols': ('J_m', 'd_m', 'k'),
+    'matrices': (_ss1_0, _ss1_1,),
+}
+
+
 def _f0_0(J, J_m, d, d_m, k, k_e):
     return (J*k, d*k, k*k_e,)
 

@@ -86,6 +86,17 @@ def generate_source() -> str:
         "",
         "MODELS = {}",
     ]
+    for n, (key, (A, B)) in enumerate(((k, _plant.sea_state_space(locked=locked))
+                                       for k, locked in (("sea_ss", False), ("sea_ss_locked", True)))):
+        names = tuple(sorted(sym.name for sym in (A.free_symbols | B.free_symbols)))
+        funcs = []
+        for m, mat in enumerate((A, B)):
+            rows = ", ".join("(" + ", ".join(sp.pycode(v) for v in mat.row(i)) + ",)" for i in range(mat.rows))
+            fname = f"_ss{n}_{m}"
+            lines += ["", "", f"def {fname}({', '.join(names)}):", f"    return ({rows},)"]
+            funcs.append(fname)
+        lines += ["", "", f"MODELS[{key!r}] = {{", "    'label': 'state space',", f"    'symbols': {names!r},",
+                  f"    'matrices': ({', '.join(funcs)},),", "}"]
     for n, (key, label, expr, latex) in enumerate(catalogue_models()):
         polys = expr if isinstance(expr, tuple) else sp.fraction(expr)
         free = set().union(*(p.free_symbols for p in polys)) - {_plant.s}

@@ -27,6 +27,7 @@ __all__ = [
     "catalogue_latex",
     "force_plant_tf",
     "motor_angle_tf",
+    "sea_state_space",
     "nominal_plant_tf",
     "NOMINAL_KINDS",
     "NOMINAL_KEYS",
@@ -150,6 +151,30 @@ def catalogue_polynomials(key: str, params: Design | Mapping[str, float]) -> tup
     model = _model(key)
     values = ordered_values(model["symbols"], params, model["label"])
     return tuple(np.array(f(*values), dtype=float) for f in model["polynomials"])
+
+
+def sea_state_space(design: Design, *, spring_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Nominal SEA state space x' = A x + B u from the symbolic equations (plant.sea_state_space).
+
+    Parameters
+    ----------
+    design : Design
+        Testbed and (unless locked) environment; the environment needs J > 0.
+    spring_scale : float
+        Factor on the spring stiffness k [-] (a calibrated spring torque scale).
+
+    Returns
+    -------
+    (A, B) : tuple of ndarray
+        States (theta [rad], theta' [rad/s], q [rad], q' [rad/s]) (locked: the first two);
+        inputs (tau_m [N m], extra output torque tau_e [N m]).
+    """
+    key = "sea_ss_locked" if design.environment.locked else "sea_ss"
+    model = _model(key)
+    values = parameter_values(design)
+    values["k"] = values["k"] * spring_scale
+    args = ordered_values(model["symbols"], values, "state space")
+    return tuple(np.array(f(*args), dtype=float) for f in model["matrices"])
 
 
 def catalogue_tf(key: str, params: Design | Mapping[str, float]) -> RationalTF:

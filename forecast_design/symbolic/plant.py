@@ -23,6 +23,8 @@ import sympy as sp
 __all__ = [
     "s", "J_m", "d_m", "k", "J", "d", "k_e", "J_l", "d_l", "w_q",
     "environment_polynomial",
+    "sea_equations",
+    "sea_state_space",
     "solve_sea",
     "solve_locked_sea",
     "force_plant_expr",
@@ -73,6 +75,85 @@ def environment_polynomial() -> sp.Expr:
     return J * s**2 + d * s + k_e
 
 
+def sea_equations(theta: sp.Expr, q: sp.Expr, tau_s: sp.Expr, tau_m: sp.Expr, *,
+                  tau_e: sp.Expr = 0, locked: bool = False) -> list[sp.Eq]:
+    """The SEA equations (paper eq. 1 with E(s) q = tau_s), Laplace-transformed: the one home.
+
+    Parameters
+    ----------
+    theta, q, tau_s, tau_m : sympy.Expr
+        Motor angle [rad], joint angle [rad], spring torque [N m], motor torque [N m].
+    tau_e : sympy.Expr
+        Extra torque on the output (0 in the spec's model) [N m].
+    locked : bool
+        Output locked: q = 0 and no environment equation.
+
+    Returns
+    -------
+    list of sympy.Eq
+        J_m s^2 theta = tau_m - tau_s - d_m s theta; tau_s = k (theta - q); E(s) q = tau_s + tau_e.
+    """
+    equations = [
+        sp.Eq(J_m * s**2 * theta, tau_m - tau_s - d_m * s * theta),
+        sp.Eq(tau_s, k * (theta - (0 if locked else q))),
+    ]
+    if not locked:
+        equations.append(sp.Eq(environment_polynomial() * q, tau_s + tau_e))
+    return equations
+
+
+@lru_cache(maxsize=None)
+def sea_state_space(*, locked: bool = False) -> tuple[sp.Matrix, sp.Matrix]:
+    """State-space form x' = A x + B u of :func:`sea_equations`.
+
+    Parameters
+    ----------
+    locked : bool
+        Output locked.
+
+    Returns
+    -------
+    (A, B) : tuple of sympy.Matrix
+        States x = (theta, theta', q, q') (locked: (theta, theta')); inputs u = (tau_m, tau_e)
+        (locked: tau_e has no effect and its column is zero).
+
+    Notes
+    -----
+    Each equation is a polynomial in s times the unknowns; s^n x is read as the n-th
+    time derivative (zero initial conditions are irrelevant to the matrices), tau_s is
+    eliminated and the equations are solved for the accelerations.
+    """
+    theta, q, tau_s, tau_m, tau_e = sp.symbols("theta q tau_s tau_m tau_e")
+    x = sp.symbols("x0:4")       # theta, theta', q, q'
+    acc = sp.symbols("a_theta a_q")
+    derivatives = {theta: (x[0], x[1], acc[0]), q: (x[2], x[3], acc[1])}
+
+    def time_domain(expr):
+        out = 0
+        for term in sp.Add.make_args(sp.expand(expr)):
+            for var, (d0, d1, d2) in derivatives.items():
+                if term.has(var):
+                    power = sp.degree(term, s)
+                    out += (term / (s**power * var)) * (d0, d1, d2)[power]
+                    break
+            else:
+                out += term
+        return out
+
+    eqs = [sp.Eq(time_domain(e.lhs), time_domain(e.rhs))
+           for e in sea_equations(theta, q, tau_s, tau_m, tau_e=tau_e, locked=locked)]
+    spring = sp.solve(eqs[1], tau_s)[0]
+    motion = [e.subs(tau_s, spring) for e in (eqs[:1] + eqs[2:])]
+    unknowns = [acc[0]] if locked else list(acc)
+    solved = sp.solve(motion, unknowns, dict=True)[0]
+    states = [x[0], x[1]] if locked else list(x)
+    rates = [x[1], solved[acc[0]]] if locked else [x[1], solved[acc[0]], x[3], solved[acc[1]]]
+    rates = [sp.simplify(r) for r in rates]
+    A = sp.Matrix(rates).jacobian(states)
+    B = sp.Matrix(rates).jacobian([tau_m, tau_e])
+    return A, B
+
+
 @lru_cache(maxsize=None)
 def solve_sea() -> dict[str, sp.Expr]:
     """Solve the Laplace-transformed SEA equations for unit motor torque.
@@ -90,13 +171,7 @@ def solve_sea() -> dict[str, sp.Expr]:
     with :func:`sympy.linsolve` for (theta, q, tau_s) with tau_m = 1.
     """
     theta, q, tau_s, tau_m = sp.symbols("theta q tau_s tau_m")
-    E = environment_polynomial()
-    equations = [
-        sp.Eq(J_m * s**2 * theta, tau_m - tau_s - d_m * s * theta),
-        sp.Eq(tau_s, k * (theta - q)),
-        sp.Eq(E * q, tau_s),
-    ]
-    (solution,) = sp.linsolve(equations, [theta, q, tau_s])
+    (solution,) = sp.linsolve(sea_equations(theta, q, tau_s, tau_m), [theta, q, tau_s])
     return {name: sp.cancel(expr.subs(tau_m, 1))
             for name, expr in zip(("theta", "q", "tau_s"), solution)}
 
@@ -110,12 +185,8 @@ def solve_locked_sea() -> dict[str, sp.Expr]:
     dict of str to sympy.Expr
         ``{"tau_s": tau_s/tau_m, "theta": theta/tau_m}`` [N m/N m], [rad/(N m)].
     """
-    theta, tau_s, tau_m = sp.symbols("theta tau_s tau_m")
-    equations = [
-        sp.Eq(J_m * s**2 * theta, tau_m - tau_s - d_m * s * theta),
-        sp.Eq(tau_s, k * theta),
-    ]
-    (solution,) = sp.linsolve(equations, [theta, tau_s])
+    theta, q, tau_s, tau_m = sp.symbols("theta q tau_s tau_m")
+    (solution,) = sp.linsolve(sea_equations(theta, q, tau_s, tau_m, locked=True), [theta, tau_s])
     return {name: sp.cancel(expr.subs(tau_m, 1)) for name, expr in zip(("theta", "tau_s"), solution)}
 
 
