@@ -290,3 +290,20 @@ def test_export_bad_controller_string_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "pid:1:2:3" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "fd_controller.c").exists()
+
+
+@pytest.mark.parametrize("argv,fragment", [
+    (["reproduce", "fig9"], "invalid choice"),
+    (["tune-q", "--observer", "ea-fob", "--envs", "soft,mud"], "unknown environment 'mud'"),
+    (["tune-q", "--observer", "ea-fob", "--band", "5", "1"], "band"),
+    (["margins", "--env", "mud"], "unknown environment 'mud'"),
+    (["emulate", "--fault", "gremlin:1"], "gremlin"),
+    (["run", "--port", "loop://", "--reference", "triangle:1", "--out", "x.toml"], "triangle"),
+    (["pipeline", "--bogus"], "unrecognized arguments"),
+])
+def test_every_verb_rejects_bad_arguments_with_one_line(capsys, tmp_path, monkeypatch, argv, fragment):
+    monkeypatch.chdir(tmp_path)
+    assert _exit_code(argv) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and "Traceback" not in err
+    assert not (tmp_path / "x.toml").exists()
