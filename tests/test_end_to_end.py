@@ -98,6 +98,8 @@ def test_disconnect_mid_run_exits_2_and_keeps_what_arrived(tmp_path, capsys):
         _stop(proc, kill=True)
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1
-    assert out.exists(), "the partial run must be saved"
-    partial = load_experiment(out)
-    assert 0 < partial.n_samples <= 600
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["samples"] + summary["lost"] == 4000 and summary["samples"] <= 600
+    if summary["samples"]:          # bytes in flight die with the cable: a loaded host may get none
+        assert out.exists(), "the partial run must be saved"
+        assert load_experiment(out).n_samples <= 600

@@ -80,9 +80,13 @@ def test_disconnect_mid_run_saves_received_and_raises(emulator, tmp_path):
         run_on_port(path, out=tmp_path / "run.toml", duration=0.5, timeout=0.5)
     assert isinstance(info.value, ForecastError)
     summary = info.value.summary
-    # bytes still in the pty buffer die with the cable, so at most the 300 sent arrive
-    assert 0 < summary["samples"] <= 300 and summary["samples"] + summary["lost"] == 1000
+    # bytes still in the pty buffer die with the cable, so at most the 300 sent arrive (on a
+    # loaded host possibly none); every one of the 1000 is either received or counted lost
+    assert 0 <= summary["samples"] <= 300 and summary["samples"] + summary["lost"] == 1000
     assert summary["lost_ranges"][-1][1] == 1000
+    if summary["samples"] == 0:
+        assert info.value.saved is None and "nothing received" in str(info.value)
+        return
     received = load_experiment(info.value.saved).signals.columns()["received"]
     assert int(received.sum()) == summary["samples"] and received[-1] == 1.0
 

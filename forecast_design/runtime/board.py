@@ -108,6 +108,10 @@ def record_to_experiment(design: Design, rate_hz: float, samples: list[pr.Sample
                                   description=description)
 
 
+#: Least time a command's answer (ACK, PONG) is awaited [s], whatever the stream timeout.
+ACK_TIMEOUT_S = 2.0
+
+
 class Board:
     """A force-control board (or its emulator) behind a serial port.
 
@@ -118,7 +122,8 @@ class Board:
     baudrate : int
         UART rate [bit/s] (:data:`protocol.BAUD_RATE`).
     timeout : float
-        Silence after which a reply or the sample stream is declared lost [s].
+        Silence after which the sample stream is declared lost [s]; a command's reply is
+        awaited for at least ``ACK_TIMEOUT_S`` (2 s).
 
     Raises
     ------
@@ -161,7 +166,9 @@ class Board:
 
     def _await(self, want: int, seq: int | None = None) -> pr.Frame:
         """Next frame of type ``want`` (an ACK must acknowledge ``seq``); BoardError on NAK/timeout."""
-        deadline = time.monotonic() + self.timeout
+        # A command's answer may take longer than a gap in the 2 kHz stream (the board may be
+        # busy setting up, the host loaded): answers get at least ACK_TIMEOUT_S.
+        deadline = time.monotonic() + max(self.timeout, ACK_TIMEOUT_S)
         while time.monotonic() < deadline:
             frames = self._frames(0.02)
             for i, frame in enumerate(frames):
@@ -279,10 +286,12 @@ class Board:
         self._command(pr.MsgType.SET_REFERENCE, pr.encode_reference(reference))
         stats_before = (self.parser.stats.corrupt_frames, self.parser.stats.resyncs)
         tracker = pr.SampleTracker()
-        self._command(pr.MsgType.START, pr.encode_start(n))
         completed, error = False, None
-        last_data = time.monotonic()
         try:
+            # Inside the try: a board that streams and disconnects before its ACK is read
+            # (a loaded host) still has its samples saved and counted.
+            self._command(pr.MsgType.START, pr.encode_start(n))
+            last_data = time.monotonic()
             while not completed:
                 if self._pending:
                     frames, self._pending = self._pending, []
@@ -307,6 +316,10 @@ class Board:
                     completed = self._grace_for_done(tracker)
         except LinkError as exc:
             error = exc
+            for frame in self._pending:
+                if frame.type == pr.MsgType.SAMPLE:
+                    tracker.add(pr.decode_sample(frame.payload))
+            self._pending = []
             for frame in self.parser.close():
                 if frame.type == pr.MsgType.SAMPLE:
                     tracker.add(pr.decode_sample(frame.payload))
