@@ -24,7 +24,8 @@ def save_figure(fig, path, *, dpi: int = 110) -> Path:
 
     path = Path(path)
     try:
-        fig.tight_layout()
+        if fig.get_layout_engine() is None:   # keep a layout the plot chose (e.g. constrained)
+            fig.tight_layout()
         fig.savefig(path, dpi=dpi)
     finally:
         plt.close(fig)

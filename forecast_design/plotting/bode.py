@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..lti import RationalTF
+from . import save_figure
 
 __all__ = ["bode_data", "plot_bode"]
 
@@ -101,9 +102,7 @@ def plot_bode(tfs: Mapping[str, RationalTF] | Sequence[tuple[str, RationalTF]], 
         ax_mag.legend(loc="best", fontsize="small")
         if title:
             ax_mag.set_title(title)
-        fig.tight_layout()
-        path = Path(path)
-        fig.savefig(path, dpi=120)
+        path = save_figure(fig, path, dpi=120)
     finally:
         plt.close(fig)
     return path

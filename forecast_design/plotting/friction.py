@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..friction.identify import FrictionFit, IdentificationData, predict_data
+from . import save_figure
 
 __all__ = ["plot_friction_fit"]
 
@@ -59,7 +60,4 @@ def plot_friction_fit(fit: FrictionFit, data: IdentificationData, path: str | os
     ax_v.set_xlabel("velocity [rad/s]")
     ax_v.set_ylabel("friction [N m]")
     ax_v.legend(loc="best")
-    out = Path(path)
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=120)

@@ -10,6 +10,7 @@ import numpy as np
 
 from ..analysis import DiskMarginCurve, MarginRow, disk_center_radius
 from ..errors import ParameterError
+from . import save_figure
 
 __all__ = ["plot_fig6", "plot_disk_margin_curve", "disk_upper_boundary"]
 
@@ -158,9 +159,7 @@ def plot_fig6(rows: Sequence[MarginRow], path: str | Path, *, sigma: float = 0.0
             ax.legend(handles=handles, loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize="x-small")
         if title:
             fig.suptitle(title)
-        fig.tight_layout()
-        path = Path(path)
-        fig.savefig(path, dpi=120)
+        path = save_figure(fig, path, dpi=120)
     finally:
         plt.close(fig)
     return path
@@ -214,9 +213,7 @@ def plot_disk_margin_curve(curves: DiskMarginCurve | Mapping[str, DiskMarginCurv
             ax_a.legend(loc="best", fontsize="small")
         if title:
             ax_a.set_title(title)
-        fig.tight_layout()
-        path = Path(path)
-        fig.savefig(path, dpi=120)
+        path = save_figure(fig, path, dpi=120)
     finally:
         plt.close(fig)
     return path
