@@ -181,14 +181,25 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     exp = _log((fx.Coulomb(F_c=0.3),), duration_s=4.0)
     d = diagnose(exp)
     m = json.loads(json.dumps(d.to_mapping()))
-    assert set(m) == {"verdict", "metric", "location", "ranking"}
-    assert set(m["verdict"]) == {"effect", "gap_before", "gap_after", "reduction", "params"}
+    assert set(m) == {"verdict", "metric", "location", "ranking", "caveats", "isolability", "tau_s"}
+    assert set(m["verdict"]) == {"effect", "gap_before", "gap_after", "reduction", "params", "status",
+                                 "secondary", "calibration"}
     assert set(m["location"]) == {"time_windows_s", "frequency_band_hz", "speed_band_rad_s", "summary"}
     assert m["verdict"]["effect"] in VOCAB and 0.0 <= m["verdict"]["reduction"] <= 1.0
     assert m["verdict"]["gap_after"] <= m["verdict"]["gap_before"]
+    assert m["verdict"]["secondary"] is None or m["verdict"]["secondary"]["effect"] in VOCAB
+    # every parameter of the verdict carries a status; a verdict's parameters are plausible
+    assert set(m["verdict"]["status"]) >= set(m["verdict"]["params"])
+    assert all(v["status"] != "implausible" for v in m["verdict"]["status"].values())
+    assert set(m["verdict"]["calibration"]) == {"J_m", "spring_scale"}
+    assert m["tau_s"]["source"] == "absent"
+    words = m["isolability"]["words"]
+    assert words[-1] == "calibration" and len(m["isolability"]["separation"]) == len(words)
     for r in m["ranking"]:
-        assert set(r) == {"effect", "gap_after", "reduction", "params"}
+        assert {"effect", "gap_after", "reduction", "params", "p_value", "counts", "identified",
+                "not_identified", "status", "reasons"} == set(r)
         assert r["effect"] in VOCAB - {"none"} and 0.0 <= r["reduction"] <= 1.0
+        assert r["counts"] <= r["identified"]
     # locked output: no environment equation, so environment_mismatch is not tried
     tried = {r["effect"] for r in m["ranking"]}
     assert tried == VOCAB - {"none"}

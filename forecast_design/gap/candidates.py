@@ -88,6 +88,8 @@ class CandidateFit:
     block_sse: np.ndarray
     prediction: np.ndarray = field(repr=False)
     structure: Any = field(default=None, repr=False, compare=False)
+    coef: np.ndarray = field(default=None, repr=False, compare=False)  # type: ignore[assignment]
+    n_cal: int = 0
 
 
 def _soft_threshold(r: np.ndarray, level: np.ndarray | float) -> np.ndarray:
@@ -135,6 +137,10 @@ class _Structure:
     to_params: Callable[[np.ndarray], dict[str, Any]]
     level: Callable[[np.ndarray], np.ndarray | float] | None = None   # breakaway level on motor rows
     n_params: int = 0
+    # groups of effect-coefficient indices that must each differ from zero (Wald test) for the
+    # effect to count, and the grid parameters with their grid ends: (name, value, lo, hi)
+    tests: tuple[tuple[int, ...], ...] = ((0,),)
+    grid: tuple[tuple[str, float, float, float], ...] = ()
 
 
 def _structures(effect: Effect, data: GapData) -> list[_Structure]:
@@ -164,18 +170,21 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         # presliding displacement x_p, a Stribeck bump of width v_s and bristle damping.
         v = data.raw["v"]
         dt = 1.0 / data.experiment.rate_hz
-        for x_p in np.geomspace(1e-4, 1e-2, 5):
+        x_grid, v_grid = np.geomspace(1e-4, 1e-2, 5), np.geomspace(3e-3, 0.3, 5)
+        for x_p in x_grid:
             s = _dahl(v, dt, x_p)
             sgn = data.decimate(s)
             damp = data.decimate(np.gradient(s, dt) * x_p)
-            for v_s in np.geomspace(3e-3, 0.3, 5):
+            for v_s in v_grid:
                 bump = data.decimate(s * np.exp(-(v / v_s) ** 2))
                 out.append(_Structure(
                     [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
                      _Coef("sigma1", data.stack({"motor": damp}), 0.0)],
                     lambda p, v_s=v_s, x_p=x_p: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
                                                  "sigma0": float((p[0] + p[1]) / x_p), "sigma1": float(p[2])},
-                    level=lambda p: p[0] + p[1], n_params=5))
+                    level=lambda p: p[0] + p[1], n_params=5, tests=((0, 1),),
+                    grid=(("v_s", float(v_s), float(v_grid[0]), float(v_grid[-1])),
+                          ("x_p", float(x_p), float(x_grid[0]), float(x_grid[-1])))))
     elif effect in (Effect.COGGING, Effect.POSITION_FRICTION):
         th = data.raw["theta"]
         base = _sign(data) if effect is Effect.POSITION_FRICTION else np.ones_like(th)
@@ -191,7 +200,8 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
             return ([float(p[off + 2 * i]) for i in range(nh)], [float(p[off + 2 * i + 1]) for i in range(nh)])
 
         if effect is Effect.COGGING:
-            out.append(_Structure(coefs, lambda p: dict(zip(("a", "b"), harm(p, 0))), n_params=2 * nh))
+            out.append(_Structure(coefs, lambda p: dict(zip(("a", "b"), harm(p, 0))), n_params=2 * nh,
+                                  tests=(tuple(range(2 * nh)),)))
         else:
             def level(p: np.ndarray) -> np.ndarray:
                 lv = np.full(th_sub.shape, p[0])
@@ -200,28 +210,32 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
                 return lv
 
             out.append(_Structure(coefs, lambda p: {"F_c": float(p[0]), **dict(zip(("a", "b"), harm(p, 1)))},
-                                  level=level, n_params=2 * nh + 1))
+                                  level=level, n_params=2 * nh + 1, tests=((0,), tuple(range(1, 2 * nh + 1)))))
     elif effect is Effect.DELAY:
         u = c["u"]
         tau_m = data.raw["tau_m"]
         rate = data.experiment.rate_hz
-        for delay in np.geomspace(0.1e-3, opts.max_delay_s, 30):
+        d_grid = np.geomspace(0.1e-3, opts.max_delay_s, 30)
+        for delay in d_grid:
             col = u - data.decimate(delayed_input(tau_m, delay, rate))
             out.append(_Structure([_Coef("c", data.stack({"motor": col}), 0.0, 1.5)],
-                                  lambda p, d=delay: {"delay_s": float(d)}, n_params=2))
+                                  lambda p, d=delay: {"delay_s": float(d)}, n_params=2,
+                                  grid=(("delay_s", float(delay), float(d_grid[0]), float(d_grid[-1])),)))
     elif effect is Effect.BACKLASH:
         x = data.raw["x"]
         span = float(np.percentile(np.abs(x), 99))
         if span <= 0.0:
             return out
-        for half in np.geomspace(max(span * 1e-4, 1e-6), 0.8 * span, 30):
+        h_grid = np.geomspace(max(span * 1e-4, 1e-6), 0.8 * span, 30)
+        for half in h_grid:
             clip = tb.k * data.decimate(np.clip(x, -half, half))
             if data.tau_s_measured:
                 cols = {"coupling": -clip}
             else:
                 cols = {"motor": -clip, "environment": clip}
             out.append(_Structure([_Coef("c", data.stack(cols), 0.0, 2.0)],
-                                  lambda p, h=half: {"width_rad": float(2.0 * h)}, n_params=2))
+                                  lambda p, h=half: {"width_rad": float(2.0 * h)}, n_params=2,
+                                  grid=(("width_rad", float(2 * half), float(2 * h_grid[0]), float(2 * h_grid[-1])),)))
     elif effect is Effect.ENVIRONMENT_MISMATCH:
         if data.locked:
             return out
@@ -238,7 +252,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
                     out_p[name] = float((nom + dp) / nom)
             return out_p
 
-        out.append(_Structure(coefs, to_params, n_params=3))
+        out.append(_Structure(coefs, to_params, n_params=3, tests=((0, 1, 2),)))
     return out
 
 
@@ -309,7 +323,8 @@ def _fit(data: GapData, effect: Effect, structure: _Structure | None) -> Candida
     params = structure.to_params(p[len(cal):]) if structure else {}
     return CandidateFit(effect=effect, params=params, calibration=calibration,
                         n_params=structure.n_params if structure else 0, residual=r, gap_fit=gap_fit,
-                        gap_held_out=gap_held, block_sse=sse, prediction=prediction, structure=structure)
+                        gap_held_out=gap_held, block_sse=sse, prediction=prediction, structure=structure,
+                        coef=p, n_cal=len(cal))
 
 
 def fit_baseline(data: GapData) -> CandidateFit:
@@ -361,8 +376,9 @@ def _merge(a: _Structure, b: _Structure) -> _Structure:
         level = lambda p: a.level(p[:na])  # noqa: E731
     elif b.level is not None:
         level = lambda p: b.level(p[na:])  # noqa: E731
+    tests = a.tests + tuple(tuple(i + na for i in g) for g in b.tests)
     return _Structure(a.coefs + b.coefs, lambda p: {**a.to_params(p[:na]), **b.to_params(p[na:])},
-                      level=level, n_params=a.n_params + b.n_params)
+                      level=level, n_params=a.n_params + b.n_params, tests=tests, grid=a.grid + b.grid)
 
 
 def fit_pair(data: GapData, first: CandidateFit, effect: Effect) -> CandidateFit | None:

@@ -54,11 +54,13 @@ from .candidates import (
     fit_joint,
     fit_pair,
 )
+from .identifiability import CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, isolability
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
+from ..plausibility import ParameterStatus
 from .residuals import GapData, GapOptions, prepare_gap_data
 
-__all__ = ["Diagnosis", "RankedCandidate", "diagnose", "held_out_test"]
+__all__ = ["Diagnosis", "RankedCandidate", "diagnose", "held_out_test", "test_units", "correlation_length"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -80,7 +82,9 @@ class RankedCandidate:
     bic : float
         Held-out BIC used for ranking [-].
     significant : bool
-        True when the candidate passes the reduction threshold and the test.
+        True when the candidate passes the reduction threshold and the test, and is identified.
+    assessment : EffectAssessment or None
+        Parameter uncertainty, plausibility and whether the effect is identified on this log.
     """
 
     effect: Effect
@@ -90,11 +94,29 @@ class RankedCandidate:
     p_value: float
     bic: float
     significant: bool
+    assessment: EffectAssessment | None = None
+
+    @property
+    def identified(self) -> bool:
+        """True when the fitted effect is identified on this log (see :mod:`.identifiability`)."""
+        return self.assessment is not None and self.assessment.identified
 
     def to_mapping(self) -> dict[str, Any]:
-        """The ranking entry of the diagnosis JSON."""
-        return {"effect": str(self.effect), "gap_after": float(self.gap_after),
-                "reduction": float(self.reduction), "params": _jsonable(self.params)}
+        """The ranking entry of the diagnosis JSON.
+
+        Returns
+        -------
+        dict
+            ``effect``, ``gap_after`` [N m], ``reduction``, ``params``, ``p_value``, ``counts``
+            (passes every test), and ``identified``, ``not_identified``, ``status``, ``reasons``
+            from the assessment.
+        """
+        out = {"effect": str(self.effect), "gap_after": float(self.gap_after),
+               "reduction": float(self.reduction), "params": _jsonable(self.params),
+               "p_value": float(self.p_value), "counts": bool(self.significant)}
+        if self.assessment is not None:
+            out.update(self.assessment.to_mapping())
+        return out
 
 
 def _jsonable(value: Any) -> Any:
@@ -146,6 +168,10 @@ class Diagnosis:
         held-out gap with both effects, ``reduction`` relative to ``gap_before``).
     replay : ReplayCheck or None
         Output-error replay of the nominal model and of the verdict's model.
+    isolability : Isolability or None
+        Which pairs of effect words this log can tell apart.
+    calibration : Mapping[str, ParameterStatus]
+        The baseline's re-calibrated ``J_m``, ``spring_scale`` (and ``k``) with ``at_bound`` flags.
     """
 
     effect: Effect
@@ -163,6 +189,13 @@ class Diagnosis:
     data: GapData = field(repr=False, default=None)  # type: ignore[assignment]
     secondary: RankedCandidate | None = None
     replay: ReplayCheck | None = None
+    isolability: Isolability | None = None
+    calibration: Mapping[str, ParameterStatus] = field(default_factory=dict)
+
+    @property
+    def identified(self) -> bool:
+        """False when the verdict names an effect that is not identified (never for a returned verdict)."""
+        return self.effect is Effect.NONE or bool(self.ranking and self.ranking[0].identified)
 
     @property
     def summary(self) -> str:
@@ -182,48 +215,80 @@ class Diagnosis:
         Returns
         -------
         dict
-            ``{"verdict": {...}, "metric": str, "location": {...}, "ranking": [...]}``.
+            ``{"verdict": {...}, "metric": str, "location": {...}, "ranking": [...],
+            "isolability": {...}, "tau_s": {...}, "caveats": [...]}``. The verdict holds
+            ``effect``, ``gap_before``/``gap_after`` [N m], ``reduction``, ``params``, their
+            ``status`` (value, std, status), ``secondary`` (``effect``, ``params``,
+            ``gap_after`` with both effects [N m], ``reduction`` of both relative to
+            ``gap_before``; null when no second effect counts) and ``calibration`` (the
+            re-calibrated nominal values with ``at_bound`` flags).
         """
         loc = self.location.to_mapping()
         loc["summary"] = self.summary
-        return {
-            "verdict": {"effect": str(self.effect), "gap_before": float(self.gap_before),
-                        "gap_after": float(self.gap_after), "reduction": float(self.reduction),
-                        "params": _jsonable(self.params)},
+        verdict: dict[str, Any] = {"effect": str(self.effect), "gap_before": float(self.gap_before),
+                                   "gap_after": float(self.gap_after), "reduction": float(self.reduction),
+                                   "params": _jsonable(self.params)}
+        top = self.ranking[0] if self.ranking and self.effect is not Effect.NONE else None
+        verdict["status"] = ({k: v.to_mapping() for k, v in top.assessment.status.items()}
+                             if top is not None and top.assessment is not None else {})
+        verdict["secondary"] = None if self.secondary is None else {
+            "effect": str(self.secondary.effect), "params": _jsonable(self.secondary.params),
+            "gap_after": float(self.secondary.gap_after), "reduction": float(self.secondary.reduction)}
+        verdict["calibration"] = {k: {**v.to_mapping(), "at_bound": v.status == "at_bound"}
+                                  for k, v in self.calibration.items()}
+        out = {
+            "verdict": verdict,
             "metric": self.metric,
             "location": loc,
             "ranking": [r.to_mapping() for r in self.ranking],
+            "caveats": list(self.caveats),
         }
+        if self.isolability is not None:
+            out["isolability"] = self.isolability.to_mapping()
+        if self.data is not None:
+            out["tau_s"] = self.data.tau_s_source.to_mapping()
+        return out
 
 
-def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks: np.ndarray) -> float:
-    """One-sided paired t-test that ``candidate`` lowers the squared error of the held-out blocks.
+def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks: np.ndarray, *,
+                  units: np.ndarray | None = None) -> float:
+    """One-sided paired t-test that ``candidate`` lowers the squared error of the held-out data.
 
-    The test statistic is the per-block log ratio ``log(SSE_reference / SSE_candidate)``:
-    blocks differ widely in excitation, and the log ratio makes a consistent relative
-    improvement count equally in quiet and busy blocks. Block SSEs are floored at
-    ``1e-6`` times the reference's mean held-out block SSE (so a ratio saturates at
-    ``1e6`` instead of diverging on a block explained exactly).
+    The test statistic is the per-unit log ratio ``log(SSE_reference / SSE_candidate)``:
+    units differ widely in excitation, and the log ratio makes a consistent relative
+    improvement count equally in quiet and busy units. Unit SSEs are floored at
+    ``1e-6`` times the reference's mean held-out unit SSE (so a ratio saturates at
+    ``1e6`` instead of diverging on a unit explained exactly).
 
     Parameters
     ----------
     reference, candidate : CandidateFit
         Two fits on the same data.
     held_blocks : ndarray of int
-        Indices of the held-out blocks.
+        Indices of the held-out blocks (the units when ``units`` is not given).
+    units : ndarray of int, optional
+        Test unit of every stacked residual row (-1: not a held-out row); see
+        :func:`test_units`. Default: the held-out blocks.
 
     Returns
     -------
     float
         p-value of H0 "mean log ratio <= 0" against H1 "mean log ratio > 0" [-].
     """
-    a = reference.block_sse[held_blocks]
-    # A block explained to (numerically) zero, e.g. a stuck motor under a static-friction
+    if units is None:
+        a = reference.block_sse[held_blocks]
+        b = candidate.block_sse[held_blocks]
+    else:
+        use = units >= 0
+        n_units = int(units.max()) + 1 if np.any(use) else 0
+        a = np.bincount(units[use], weights=reference.residual[use] ** 2, minlength=n_units)
+        b = np.bincount(units[use], weights=candidate.residual[use] ** 2, minlength=n_units)
+    # A unit explained to (numerically) zero, e.g. a stuck motor under a static-friction
     # model, would give an infinite log ratio whose spread hides a consistent improvement:
-    # squared errors below 1e-6 of the reference's mean block are treated as equal.
+    # squared errors below 1e-6 of the reference's mean unit are treated as equal.
     floor = max(1e-6 * float(np.mean(a)), 1e-300)
     a = np.maximum(a, floor)
-    b = np.maximum(candidate.block_sse[held_blocks], floor)
+    b = np.maximum(b, floor)
     d = np.log(a / b)
     n = d.size
     sd = float(np.std(d, ddof=1)) if n > 1 else 0.0
@@ -231,6 +296,58 @@ def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks:
     if sd <= 1e-12 * max(1.0, abs(mean)):
         return 0.0 if mean > 1e-12 else 1.0
     return float(stats.t.sf(mean / (sd / math.sqrt(n)), n - 1))
+
+
+def correlation_length(residual: np.ndarray) -> int:
+    """First lag [samples] at which a residual's autocorrelation falls inside its white-noise band ``2/sqrt(n)``."""
+    e = np.asarray(residual, dtype=float)
+    e = e - e.mean()
+    n = e.size
+    if n < 8 or not np.any(e):
+        return 1
+    spec = np.fft.rfft(e, 2 * n)
+    acf = np.fft.irfft(spec * np.conj(spec))[:n]
+    acf = acf / acf[0]
+    inside = np.flatnonzero(np.abs(acf[1:]) < 2.0 / math.sqrt(n))
+    return int(inside[0]) + 1 if inside.size else n
+
+
+def test_units(data: GapData, candidate: CandidateFit, *, min_samples: int = 4) -> np.ndarray:
+    """Test units of the held-out rows, sized by the information in the log.
+
+    Each held-out block is cut into units of ``max(2 l, min_samples)`` decimated
+    samples (at most the block), where ``l`` is the correlation length of the
+    candidate's held-out motor-equation residual (:func:`correlation_length`): units
+    that far apart are nearly independent, so the number of units -- and the power
+    of :func:`held_out_test` -- grows with the log's length and shrinks with a
+    correlated (badly explained) residual.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    candidate : CandidateFit
+        The better-scoring model of the comparison.
+    min_samples : int
+        Smallest unit [decimated samples].
+
+    Returns
+    -------
+    ndarray of int, shape (m * n_equations,)
+        Unit index of every stacked row; -1 for rows on the fit blocks.
+    """
+    m = data.t.size
+    held = data.held_out
+    ell = correlation_length(candidate.residual[:m][held])
+    size = max(2 * ell, min_samples)
+    unit = np.full(m, -1, dtype=int)
+    nxt = 0
+    for b in np.unique(data.block[held]):
+        idx = np.flatnonzero(data.block == b)
+        n_units = max(1, idx.size // size)
+        unit[idx] = nxt + np.minimum(np.arange(idx.size) * n_units // idx.size, n_units - 1)
+        nxt += n_units
+    return data.stacked(unit)
 
 
 def _metric_text(data: GapData) -> str:
@@ -286,12 +403,15 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
     ranked = []
     for fit in fits:
         red = 1.0 - fit.gap_held_out / gap0 if gap0 > 0 else 0.0
-        p = held_out_test(base, fit, held_blocks)
+        p = held_out_test(base, fit, held_blocks, units=test_units(data, fit))
         sse = fit.gap_held_out ** 2 * n_held
         bic = n_held * math.log(max(sse / n_held, 1e-300)) + fit.n_params * math.log(n_held)
+        assessment = assess_fit(data, fit)
         ranked.append(RankedCandidate(effect=fit.effect, gap_after=fit.gap_held_out,
                                       reduction=float(min(max(red, 0.0), 1.0)), params=fit.params,
-                                      p_value=p, bic=bic, significant=bool(red >= opts.min_reduction and p < alpha)))
+                                      p_value=p, bic=bic, assessment=assessment,
+                                      significant=bool(red >= opts.min_reduction and p < alpha
+                                                       and assessment.identified)))
     ranked.sort(key=lambda r: (not r.significant, r.bic))
     by_effect = {str(f.effect): f for f in fits}
     winner = ranked[0] if ranked and ranked[0].significant else None
@@ -299,13 +419,15 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
         coul = next((r for r in ranked if r.effect is Effect.COULOMB), None)
         if coul is not None and coul.significant:
             f_w, f_c = by_effect[str(winner.effect)], by_effect[str(Effect.COULOMB)]
-            p = held_out_test(f_c, f_w, held_blocks)
+            # one planned comparison of nested laws: the family-wise level, not Bonferroni
+            p = held_out_test(f_c, f_w, held_blocks, units=test_units(data, f_w))
             extra = 1.0 - f_w.gap_held_out / f_c.gap_held_out if f_c.gap_held_out > 0 else 0.0
-            if not (p < alpha and extra >= 0.5 * opts.min_reduction):
+            if not (p < opts.alpha and extra >= 0.5 * opts.min_reduction):
                 winner = coul
                 ranked.remove(coul)
                 ranked.insert(0, coul)
     location = locate_gap(data, base.residual)
+    iso = isolability(data, fits)
     caveats = []
     if winner is not None:
         if winner.effect in (Effect.COGGING, Effect.POSITION_FRICTION) and not location.full_revolution:
@@ -324,10 +446,11 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
         secondary = _second_effect(data, by_effect[str(winner.effect)], fits, gap0, n_held, held_blocks, alpha)
     else:
         # Two effects of similar size: neither alone may remove min_reduction of the gap. Try the
-        # best significant candidate as a first step; the pair counts only if it removes
-        # min_reduction of the gap in total and the second step passes the test as well.
+        # best candidates as a first step; the pair counts only if it removes min_reduction of the
+        # gap in total, the second step passes the test as well, and both effects are identified.
         best_pair = None
-        for first in [r for r in ranked if r.reduction > 0.0][:3]:
+        for first in [r for r in ranked if r.reduction > 0.0 and r.assessment is not None
+                      and not any(st.status == "implausible" for st in r.assessment.status.values())][:3]:
             pair = _second_effect(data, by_effect[str(first.effect)], fits, gap0, n_held, held_blocks, alpha,
                                   min_extra=0.5 * opts.min_reduction, base=base)
             if pair is not None and pair.reduction >= opts.min_reduction and \
@@ -341,6 +464,7 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
         eff, gap_after, params = Effect.NONE, gap0, {}
     else:
         eff, gap_after, params = winner.effect, winner.gap_after, winner.params
+    caveats += _computed_caveats(data, eff, ranked, iso, base, opts)
     if location.single_tone:
         caveats.append(f"Caution: the command is essentially one sine at {location.tone_hz:.2g} Hz; there a delay "
                        "looks like extra motor damping and a torque_gain like a J_m/k rescaling, so delay, "
@@ -351,7 +475,34 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
     return Diagnosis(effect=eff, gap_before=gap0, gap_after=gap_after, reduction=reduction, params=params,
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
-                     replay=replay)
+                     replay=replay, isolability=iso, calibration=calibration_status(data, base))
+
+
+def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandidate], iso: Isolability,
+                      base: CandidateFit, opts: GapOptions) -> list[str]:
+    """Caveats computed from this log: isolability, unidentified candidates, a bounded re-calibration."""
+    out = []
+    if verdict is not Effect.NONE:
+        confused = iso.confusable_with(str(verdict))
+        words = [w for w in confused if w != CALIBRATION]
+        if words:
+            out.append(f"Caution: this log cannot tell '{verdict}' from {', '.join(repr(w) for w in words)} "
+                       f"(feature separation below {iso.threshold:g} on held-out data).")
+        if CALIBRATION in confused:
+            out.append(f"Caution: '{verdict}' acts in the same direction as a re-calibration of J_m, d_m and k; it "
+                       f"is named because that re-calibration is limited to the datasheet tolerance "
+                       f"(+-{100 * opts.calibration_tolerance:g} %): nominal values off by more would look the same.")
+    for r in ranked:
+        if r.effect is not verdict and r.assessment is not None and not r.assessment.identified \
+                and r.reduction >= opts.min_reduction:
+            out.append(f"Not identified: '{r.effect}' would remove {100 * r.reduction:.0f} % of the gap but "
+                       f"{'; '.join(r.assessment.reasons[:2])}.")
+    at_bound = [k for k, st in calibration_status(data, base).items() if st.status == "at_bound"]
+    if at_bound:
+        out.append(f"Caution: the nominal re-calibration of {', '.join(at_bound)} sits on its datasheet bound "
+                   f"(+-{100 * opts.calibration_tolerance:g} %): the nominal model is off by more than the tolerance, "
+                   "or an effect acting in the same direction (e.g. torque_gain) is being absorbed.")
+    return out
 
 
 def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit], gap0: float, n_held: int,
@@ -365,15 +516,19 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
         if pair is None:
             continue
         extra = 1.0 - pair.gap_held_out / first.gap_held_out if first.gap_held_out > 0 else 0.0
-        p = held_out_test(first, pair, held_blocks)
+        units = test_units(data, pair)
+        p = held_out_test(first, pair, held_blocks, units=units)
         sse = pair.gap_held_out ** 2 * n_held
         bic = n_held * math.log(max(sse / n_held, 1e-300)) + pair.n_params * math.log(n_held)
         need = opts.min_reduction if min_extra is None else min_extra
         # with no single winner, the pair must also beat the nominal model by the test
-        p_base = held_out_test(base, pair, held_blocks) if base is not None else 0.0
+        p_base = held_out_test(base, pair, held_blocks, units=units) if base is not None else 0.0
         if extra >= need and p < alpha and p_base < alpha and (best is None or bic < best.bic):
+            assessment = assess_fit(data, pair)
+            if not assessment.identified:
+                continue
             red = 1.0 - pair.gap_held_out / gap0 if gap0 > 0 else 0.0
             best = RankedCandidate(effect=fit.effect, gap_after=pair.gap_held_out,
                                    reduction=float(min(max(red, 0.0), 1.0)), params=pair.params, p_value=p,
-                                   bic=bic, significant=True)
+                                   bic=bic, significant=True, assessment=assessment)
     return best

@@ -32,6 +32,7 @@ in ``r_m``; environment mismatch in ``r_e``; backlash in ``r_m`` and ``r_e`` whe
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -39,11 +40,13 @@ import numpy as np
 
 from ..errors import ExperimentFormatError, IdentifiabilityError, ParameterError
 from ..experiment import Experiment
+from ..plausibility import DATASHEET_TOLERANCE
 from scipy import signal
 
 from ..friction.derivatives import FilterSettings, decimate_columns, default_filter_settings
 
-__all__ = ["GapOptions", "GapData", "prepare_gap_data", "zoh_input", "delayed_input", "lowpass"]
+__all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
+           "zoh_input", "delayed_input", "lowpass"]
 
 #: Equation names, in stacking order.
 EQUATIONS = ("motor", "environment", "coupling")
@@ -63,7 +66,10 @@ class GapOptions:
         Number of interleaved time blocks; even blocks fit, odd blocks are held out [-].
     calibration_tolerance : float
         Relative range within which ``J_m`` and the spring torque scale (``k``) may be
-        re-calibrated before anything is blamed on an unmodelled effect [-].
+        re-calibrated before anything is blamed on an unmodelled effect [-]; default the
+        testbed's datasheet tolerance (:data:`forecast_design.plausibility.DATASHEET_TOLERANCE`,
+        3 %). A wider range lets the re-calibration absorb a torque gain (a common
+        rescaling of ``J_m``, ``d_m`` and ``k``); a re-calibration at this bound is reported.
     n_harmonics : int
         Harmonics of the motor angle used by the ``cogging`` and ``position_friction``
         candidates [-].
@@ -80,7 +86,7 @@ class GapOptions:
     position_cutoff_hz: float | None = None
     decimated_rate_hz: float = 100.0
     n_blocks: int = 20
-    calibration_tolerance: float = 0.1
+    calibration_tolerance: float = DATASHEET_TOLERANCE["J_m"]
     n_harmonics: int = 4
     alpha: float = 0.01
     min_reduction: float = 0.4
@@ -274,6 +280,7 @@ class GapData:
     held_out: np.ndarray
     stuck: np.ndarray
     equations: tuple[str, ...] = field(default=())
+    tau_s_source: TauSSource = field(default_factory=lambda: TauSSource(source="absent"))
     cache: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -328,13 +335,116 @@ class GapData:
         return np.concatenate([mask] * len(self.equations))
 
 
-def _tau_s_measured(derived: bool, tau_s: np.ndarray, spring: np.ndarray) -> bool:
-    """True when the tau_s column carries information beyond k (theta - q) with the nominal k."""
+def significant_digits(values: np.ndarray, *, sample: int = 4000) -> int:
+    """Decimal significant digits a column was written with (the shortest round-trip repr).
+
+    Parameters
+    ----------
+    values : ndarray
+        Column as parsed (any unit).
+    sample : int
+        At most this many evenly spaced non-zero values are inspected [-].
+
+    Returns
+    -------
+    int
+        The largest number of significant digits any inspected value needs to
+        round-trip (17 for binary doubles that were never printed) [-].
+    """
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v != 0.0)]
+    if v.size == 0:
+        return 17
+    v = v[:: max(1, v.size // sample)]
+    best = 1
+    for x in v.tolist():
+        mant = repr(x).lower().split("e")[0].replace("-", "").replace(".", "").lstrip("0")
+        best = max(best, len(mant.rstrip("0")) or 1)
+        if best >= 17:
+            break
+    return best
+
+
+def _half_ulp(values: np.ndarray, digits: int) -> np.ndarray:
+    """Half a unit in the last written decimal place of each value [same unit]."""
+    a = np.abs(np.asarray(values, dtype=float))
+    exp10 = np.floor(np.log10(np.where(a > 0, a, 1.0)))
+    return np.where(a > 0, 0.5 * 10.0 ** (exp10 - digits + 1), 0.0) + 4.0 * np.finfo(float).eps * a
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TauSSource:
+    """Whether a log's ``tau_s`` column carries information beyond ``k (theta - q)``.
+
+    Parameters
+    ----------
+    source : str
+        ``absent`` (no column: derived by the reader), ``derived`` (the logger wrote
+        ``k (theta - q)`` itself: the column equals a fitted ``k_log (theta - q) + c`` to
+        within the rounding of the written digits), or ``measured`` (an independent torque
+        measurement).
+    digits : int or None
+        Significant digits the column was written with [-].
+    k_log : float or None
+        Stiffness the column is consistent with [N m/rad] (a logger may use another
+        ``k`` than the TOML's).
+    excess : float or None
+        RMS of ``tau_s - k_log (theta - q) - c`` divided by the RMS rounding error expected
+        from the digits of ``tau_s``, ``theta`` and ``q`` [-]; <= 2 means derived.
+    """
+
+    source: str
+    digits: int | None = None
+    k_log: float | None = None
+    excess: float | None = None
+
+    @property
+    def measured(self) -> bool:
+        """True for an independent torque measurement."""
+        return self.source == "measured"
+
+    def to_mapping(self) -> dict:
+        """JSON-ready mapping."""
+        return {"source": self.source, "digits": self.digits, "k_log": self.k_log, "excess": self.excess}
+
+
+def classify_tau_s(derived: bool, tau_s: np.ndarray, theta: np.ndarray, q: np.ndarray) -> TauSSource:
+    """Decide from the data, at the precision the file has, whether ``tau_s`` is a measurement.
+
+    The experiment format allows both readings: on the Forecast testbed the logger
+    computes ``tau_s = k (theta - q)`` itself and prints it with 6-10 significant
+    digits; a testbed with a torque sensor writes an independent measurement. Rule:
+    fit ``tau_s = k_log (theta - q) + c`` by least squares; the column is *derived*
+    when the RMS of what is left is at most twice the RMS rounding error implied by
+    the digits each of ``tau_s``, ``theta`` and ``q`` was written with (uniform
+    rounding: ``half_ulp / sqrt(3)``), *measured* otherwise.
+
+    Parameters
+    ----------
+    derived : bool
+        True when the reader derived the column (it was absent from the file).
+    tau_s, theta, q : ndarray, shape (n,)
+        Logged columns [N m, rad, rad].
+
+    Returns
+    -------
+    TauSSource
+        The decision with its evidence.
+    """
     if derived:
-        return False
-    # a logger that writes k (theta - q) itself (as our virtual testbed does) adds nothing
-    scale = float(np.sqrt(np.mean(tau_s ** 2))) or 1.0
-    return bool(np.max(np.abs(tau_s - spring)) > 1e-9 * scale)
+        return TauSSource(source="absent")
+    x = theta - q
+    A = np.column_stack([x, np.ones_like(x)])
+    coef, *_ = np.linalg.lstsq(A, tau_s, rcond=None)
+    left = tau_s - A @ coef
+    digits = significant_digits(tau_s)
+    rounding = np.sqrt(_half_ulp(tau_s, digits) ** 2 + (coef[0] * _half_ulp(theta, significant_digits(theta))) ** 2
+                       + (coef[0] * _half_ulp(q, significant_digits(q))) ** 2) / np.sqrt(3.0)
+    expected = float(np.sqrt(np.mean(rounding ** 2)))
+    actual = float(np.sqrt(np.mean(left ** 2)))
+    excess = actual / expected if expected > 0 else (0.0 if actual == 0 else math.inf)
+    return TauSSource(source="derived" if excess <= 2.0 else "measured", digits=digits, k_log=float(coef[0]),
+                      excess=float(excess))
 
 
 def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) -> GapData:
@@ -402,12 +512,19 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
             f"(need >= {4 * options.n_blocks}); record a longer run",
             name="n_blocks", value=options.n_blocks)
 
+    tau_s_source = classify_tau_s(sig.tau_s_derived, tau_s, theta, q)
+    if not tau_s_source.measured:
+        # a column the logger derived from the encoders carries nothing beyond k (theta - q):
+        # use the encoders (the TOML's k) so that backlash and spring errors act where they
+        # physically do, in the motor and environment equations
+        cols["tau_s"] = cols["spring"]
+        raw_cols["tau_s"] = raw_cols["spring"]
     targets = {"motor": cols["u"] - cols["tau_s"] - tb.J_m * cols["a"] - tb.d_m * cols["v"]}
     equations = ["motor"]
     if not locked:
         targets["environment"] = cols["tau_s"] - (env.J * cols["qa"] + env.d * cols["qv"] + env.k_e * cols["q"])
         equations.append("environment")
-    if _tau_s_measured(sig.tau_s_derived, tau_s, raw_cols["spring"]):
+    if tau_s_source.measured:
         targets["coupling"] = cols["tau_s"] - cols["spring"]
         equations.append("coupling")
     block = np.minimum((np.arange(m) * options.n_blocks) // m, options.n_blocks - 1)
@@ -416,4 +533,4 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
     raw = {"theta": thf, "v": th_v, "x": x, "tau_m": tau_m}
     return GapData(experiment=experiment, options=options, settings=settings, t=t, targets=targets,
                    columns=cols, raw=raw, block=block, held_out=held_out, stuck=stuck,
-                   equations=tuple(equations))
+                   equations=tuple(equations), tau_s_source=tau_s_source)

@@ -1,0 +1,405 @@
+"""What a log can tell: parameter uncertainty, plausibility and isolability of the gap candidates.
+
+Three questions are answered from the data of one log, never from rules
+written for one generator:
+
+* **Is a fitted effect identified?** Every effect parameter gets a standard
+  deviation from the least-squares fit, with the residual's autocorrelation
+  taken into account (:func:`hac_inflation`: filtered, decimated equation errors
+  are not white), and a status from :mod:`forecast_design.plausibility` (plausible
+  range from the log's own torque, speed and deflection; a coefficient on a box
+  bound or a grid parameter at a grid end is ``at_bound``). An effect counts only
+  when its defining coefficients differ from zero by a Wald test at 5 % (e.g. the
+  torque gain's ``1 - gain``, the harmonics of cogging jointly) and none of its
+  parameters is implausible.
+* **Does the re-calibration sit at its bound?** ``J_m`` and the spring scale may
+  move within the datasheet tolerance; a value on that bound means the nominal
+  model is off by more than the datasheet allows *or* an effect in the same
+  direction (a torque gain is a common rescaling of ``J_m``, ``d_m``, ``k``) is being
+  absorbed. Both are reported.
+* **Which effects can this log tell apart?** For two candidates A and B the
+  *separation* is the sine of the largest principal angle between the span of A's
+  feature columns and the span of B's features together with the calibration
+  columns, on held-out data, and the other way round; the pair's separation is the
+  larger of the two (one direction suffices: a nested law is told apart when its
+  extra features are). Feature directions carrying less than ``1e-6`` of a
+  candidate's variance are dropped first: the excitation does not carry them. A
+  pair is *isolable* when its separation is at least ``threshold`` (0.3: at least
+  a 17 degree angle). The pseudo-word ``calibration`` stands for the re-calibration
+  of ``J_m``, ``d_m`` and ``k``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from scipy import stats
+
+from ..effects import Effect
+from ..plausibility import ParameterStatus, assess, effect_bound, log_scales, LogScales
+from .candidates import CandidateFit, _calibration
+from .residuals import GapData
+
+__all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "hac_inflation",
+           "isolability", "gap_log_scales", "ISOLABILITY_THRESHOLD", "CALIBRATION"]
+
+#: Smallest separation (sine of the largest principal angle) at which two candidates count as isolable [-].
+ISOLABILITY_THRESHOLD = 0.3
+#: Pseudo-word of the isolability matrix for the nominal re-calibration.
+CALIBRATION = "calibration"
+#: Wald-test level of an effect's defining coefficients [-].
+WALD_ALPHA = 0.05
+
+
+def hac_inflation(residual: np.ndarray) -> float:
+    """Variance inflation of a mean or a regression coefficient from the residual's autocorrelation.
+
+    ``f = 1 + 2 sum_k w_k rho_k`` (Bartlett weights ``w_k = 1 - k / (L + 1)``), the ratio of
+    the long-run variance to the variance (Newey-West). The bandwidth ``L`` is twice the
+    first lag at which the autocorrelation falls inside its white-noise band
+    ``2 / sqrt(n)``, at most ``n / 4``.
+
+    Parameters
+    ----------
+    residual : ndarray, shape (n,)
+        Time-ordered residual (any unit).
+
+    Returns
+    -------
+    float
+        ``f >= 1`` [-]: the covariance of least-squares coefficients is ``f`` times the
+        white-noise formula.
+    """
+    e = np.asarray(residual, dtype=float)
+    e = e - e.mean()
+    n = e.size
+    if n < 8 or not np.any(e):
+        return 1.0
+    spec = np.fft.rfft(e, 2 * n)
+    acf = np.fft.irfft(spec * np.conj(spec))[:n]
+    acf = acf / acf[0]
+    band = 2.0 / math.sqrt(n)
+    inside = np.flatnonzero(np.abs(acf[1:]) < band)
+    first = int(inside[0]) + 1 if inside.size else n // 4
+    L = int(min(max(2 * first, 1), n // 4))
+    k = np.arange(1, L + 1)
+    f = 1.0 + 2.0 * float(np.sum((1.0 - k / (L + 1.0)) * acf[1:L + 1]))
+    return max(f, 1.0)
+
+
+def gap_log_scales(data: GapData) -> LogScales:
+    """The log's magnitudes for the plausibility ranges (cached on ``data``)."""
+    if "scales" not in data.cache:
+        exp = data.experiment
+        sig = exp.signals
+        theta = np.asarray(sig.theta, dtype=float)
+        q = np.zeros_like(theta) if data.locked else np.asarray(sig.q, dtype=float)
+        data.cache["scales"] = log_scales(torque=np.asarray(sig.tau_m, dtype=float), position=theta,
+                                          rate_hz=exp.rate_hz, deflection=theta - q, velocity=data.raw["v"],
+                                          J_m=exp.design.testbed.J_m)
+    return data.cache["scales"]
+
+
+def _fit_rows(data: GapData, fit: CandidateFit) -> np.ndarray:
+    rows = ~data.stacked(data.held_out)
+    if fit.structure is not None and fit.structure.level is not None:
+        stuck = np.zeros(rows.size, dtype=bool)
+        stuck[:data.t.size] = data.stuck
+        rows = rows & ~stuck
+    return rows
+
+
+def _flatten(params: Mapping[str, Any]) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for k, v in params.items():
+        if isinstance(v, (list, tuple, np.ndarray)):
+            for i, x in enumerate(v):
+                out[f"{k}{i + 1}"] = float(x)
+        else:
+            out[k] = float(v)
+    return out
+
+
+def _coefficient_covariance(data: GapData, fit: CandidateFit) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance of all coefficients (calibration first) and the mask of coefficients on a bound."""
+    coefs = _calibration(data) + list(fit.structure.coefs if fit.structure is not None else [])
+    A = np.column_stack([c.column for c in coefs])
+    rows = _fit_rows(data, fit)
+    p = np.asarray(fit.coef, dtype=float)
+    lo = np.array([c.lo for c in coefs])
+    hi = np.array([c.hi for c in coefs])
+    with np.errstate(invalid="ignore"):
+        tol = 1e-9 * np.maximum.reduce([np.abs(p), np.where(np.isfinite(lo), np.abs(lo), 0.0),
+                                        np.where(np.isfinite(hi), np.abs(hi), 0.0), np.full(p.size, 1e-12)])
+        bound = (np.isfinite(lo) & (np.abs(p - lo) <= tol)) | (np.isfinite(hi) & (np.abs(p - hi) <= tol))
+    y = data.stacked_target()
+    r = (y - A @ p)[rows]
+    free = ~bound
+    cov = np.zeros((p.size, p.size))
+    if np.any(free):
+        Af = A[rows][:, free]
+        dof = max(Af.shape[0] - Af.shape[1], 1)
+        sigma2 = float(r @ r) / dof
+        # the worst equation's autocorrelation (each equation is a time series of its own)
+        m = data.t.size
+        infl = 1.0
+        for i in range(len(data.equations)):
+            eq_rows = rows[i * m:(i + 1) * m]
+            seg = (y - A @ p)[i * m:(i + 1) * m][eq_rows]
+            if seg.size > 8 and np.any(seg):
+                infl = max(infl, hac_inflation(seg))
+        colscale = np.sqrt(np.mean(Af ** 2, axis=0))
+        colscale[colscale == 0] = 1.0
+        G = (Af / colscale).T @ (Af / colscale)
+        cov_f = np.linalg.pinv(G, rcond=1e-12) / np.outer(colscale, colscale) * sigma2 * infl
+        idx = np.flatnonzero(free)
+        cov[np.ix_(idx, idx)] = cov_f
+    return cov, bound
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class EffectAssessment:
+    """Whether one fitted candidate is identified on this log.
+
+    Parameters
+    ----------
+    identified : bool
+        True when every defining coefficient group differs from zero (Wald test at 5 %) and
+        no parameter is implausible or its defining coefficient on a bound.
+    status : Mapping[str, ParameterStatus]
+        Status of every effect parameter (flattened names: ``a1``, ``b1`` ...).
+    reasons : tuple of str
+        Why not identified (empty when identified).
+    """
+
+    identified: bool
+    status: Mapping[str, ParameterStatus]
+    reasons: tuple[str, ...] = ()
+
+    def to_mapping(self) -> dict[str, Any]:
+        """JSON-ready mapping: ``identified``, ``not_identified`` (names), ``status`` per parameter, ``reasons``."""
+        return {"identified": self.identified,
+                "not_identified": [k for k, v in self.status.items() if not v.identified],
+                "status": {k: v.to_mapping() for k, v in self.status.items()},
+                "reasons": list(self.reasons)}
+
+
+def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
+    """Uncertainty, plausibility and defining-coefficient tests of one candidate fit.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    fit : CandidateFit
+        A candidate fit (a single effect or a pair from ``fit_pair``).
+
+    Returns
+    -------
+    EffectAssessment
+        Parameter statuses and whether the effect counts as identified.
+    """
+    s = fit.structure
+    if s is None or fit.coef is None:
+        return EffectAssessment(identified=False, status={}, reasons=("no effect parameters",))
+    key = ("assessment", id(fit))
+    if key in data.cache:
+        return data.cache[key]
+    cov, bound = _coefficient_covariance(data, fit)
+    n_cal = fit.n_cal
+    p_eff = np.asarray(fit.coef[n_cal:], dtype=float)
+    cov_eff = cov[n_cal:, n_cal:]
+    bound_eff = bound[n_cal:]
+    base = _flatten(s.to_params(p_eff))
+    names = list(base)
+    # parameters are affine in the coefficients: an exact Jacobian by unit steps
+    J = np.zeros((len(names), p_eff.size))
+    for j in range(p_eff.size):
+        h = max(abs(p_eff[j]), 1e-3)
+        step = p_eff.copy()
+        step[j] += h
+        moved = _flatten(s.to_params(step))
+        J[:, j] = [(moved[nm] - base[nm]) / h for nm in names]
+    std = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", J, cov_eff, J), 0.0, None))
+    scales = gap_log_scales(data)
+    grid = {g[0]: g for g in s.grid}
+    status: dict[str, ParameterStatus] = {}
+    for i, nm in enumerate(names):
+        depends = np.abs(J[i]) > 0
+        if nm in grid:
+            _, value, lo, hi = grid[nm]
+            st = assess(nm, base[nm], bound=effect_bound(nm, scales), solver_bounds=(lo, hi))
+        elif np.any(depends & bound_eff):
+            c = s.coefs[int(np.flatnonzero(depends & bound_eff)[0])]
+            st = assess(nm, base[nm], bound=effect_bound(nm, scales))
+            if st.status != "implausible":
+                st = ParameterStatus(name=nm, value=base[nm], std=None, status="at_bound",
+                                     reason=f"coefficient {c.name} of {nm} sits on its bound [{c.lo:g}, {c.hi:g}]",
+                                     plausible=st.plausible)
+        else:
+            st = assess(nm, base[nm], std=float(std[i]), bound=effect_bound(nm, scales))
+            if st.status == "uncertain":
+                # a parameter whose zero is not "no effect" (gain 1, environment scale 1, sigma0)
+                # is judged by the Wald tests below, not by its distance from zero
+                st = ParameterStatus(name=nm, value=base[nm], std=float(std[i]), status="identified",
+                                     plausible=st.plausible) if not _zero_means_absent(nm) else st
+        status[nm] = st
+    reasons = [st.reason for st in status.values() if st.status == "implausible"]
+    for group in s.tests:
+        g = list(group)
+        if np.any(bound_eff[g]):
+            reasons.append(f"{', '.join(s.coefs[i].name for i in g)} at a bound of the fit")
+            continue
+        sub = cov_eff[np.ix_(g, g)]
+        try:
+            chi2 = float(p_eff[g] @ np.linalg.solve(sub, p_eff[g]))
+        except np.linalg.LinAlgError:
+            chi2 = 0.0
+        pv = float(stats.chi2.sf(chi2, len(g))) if np.isfinite(chi2) else 1.0
+        if not pv < WALD_ALPHA:
+            reasons.append(f"{', '.join(s.coefs[i].name for i in g)} not distinguishable from zero "
+                           f"(Wald p = {pv:.2g})")
+    for nm, g in grid.items():
+        if nm in status and status[nm].status == "at_bound" and nm in ("delay_s", "width_rad"):
+            reasons.append(status[nm].reason)
+    out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
+    data.cache[key] = out
+    return out
+
+
+def _zero_means_absent(name: str) -> bool:
+    return not (name in ("gain", "J", "d", "k_e", "sigma0", "v_s", "x_p", "delay_s", "width_rad")
+                or name.endswith("_scale"))
+
+
+def calibration_status(data: GapData, fit: CandidateFit) -> dict[str, ParameterStatus]:
+    """Whether the re-calibrated ``J_m``, spring scale (and ``k``) of a fit sit on their tolerance.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    fit : CandidateFit
+        Any fit (the baseline or a candidate).
+
+    Returns
+    -------
+    dict of str to ParameterStatus
+        ``J_m`` [kg m^2], ``spring_scale`` [-] (and ``k`` [N m/rad]); ``at_bound`` when on the tolerance.
+    """
+    tb = data.experiment.design.testbed
+    tol = data.options.calibration_tolerance
+    c = fit.calibration
+    out = {"J_m": assess("J_m", c["J_m"], solver_bounds=(tb.J_m * (1 - tol), tb.J_m * (1 + tol)), rel_tol=1e-5),
+           "spring_scale": assess("spring_scale", c["spring_scale"], solver_bounds=(1 - tol, 1 + tol), rel_tol=1e-5)}
+    if "k" in c:
+        out["k"] = assess("k", c["k"], solver_bounds=(tb.k * (1 - tol), tb.k * (1 + tol)), rel_tol=1e-5)
+    return out
+
+
+def _basis(M: np.ndarray, rel: float = 1e-3) -> np.ndarray:
+    """Orthonormal basis of the column space, dropping directions with < rel^2 of the largest variance."""
+    if M.size == 0:
+        return np.zeros((M.shape[0], 0))
+    norms = np.sqrt(np.sum(M ** 2, axis=0))
+    M = M[:, norms > 0] / norms[norms > 0]
+    if M.shape[1] == 0:
+        return np.zeros((M.shape[0], 0))
+    U, sv, _ = np.linalg.svd(M, full_matrices=False)
+    return U[:, sv > rel * sv[0]]
+
+
+def _separation(QA: np.ndarray, QB: np.ndarray) -> float:
+    """Sine of the largest principal angle of span(QA) to span(QB) [-]."""
+    if QA.shape[1] == 0:
+        return 0.0
+    if QB.shape[1] == 0:
+        return 1.0
+    Rm = QA - QB @ (QB.T @ QA)
+    sv = np.linalg.svd(Rm, compute_uv=False)
+    return float(min(sv[0], 1.0))
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Isolability:
+    """Which pairs of effect words one log can tell apart (see the module docstring).
+
+    Parameters
+    ----------
+    words : tuple of str
+        Effect words with a candidate on this log, then ``calibration``.
+    separation : ndarray, shape (n, n)
+        Pair separation in [0, 1], symmetric; the diagonal is 0 [-].
+    threshold : float
+        Separation at which a pair counts as isolable [-].
+    """
+
+    words: tuple[str, ...]
+    separation: np.ndarray
+    threshold: float = ISOLABILITY_THRESHOLD
+
+    def isolable(self, a: str, b: str) -> bool:
+        """True when this log can tell ``a`` from ``b``."""
+        i, j = self.words.index(str(a)), self.words.index(str(b))
+        return bool(self.separation[i, j] >= self.threshold)
+
+    def confusable_with(self, word: str) -> list[str]:
+        """Words this log cannot tell from ``word`` (``calibration`` included)."""
+        if str(word) not in self.words:
+            return []
+        i = self.words.index(str(word))
+        return [w for j, w in enumerate(self.words) if j != i and self.separation[i, j] < self.threshold]
+
+    def to_mapping(self) -> dict[str, Any]:
+        """JSON-ready mapping: ``words``, ``separation`` and ``isolable`` matrices, ``threshold``, ``not_isolable`` pairs."""
+        n = len(self.words)
+        pairs = [f"{self.words[i]}|{self.words[j]}" for i in range(n) for j in range(i + 1, n)
+                 if self.separation[i, j] < self.threshold]
+        return {"words": list(self.words), "threshold": self.threshold,
+                "separation": [[round(float(x), 4) for x in row] for row in self.separation],
+                "isolable": [[bool(i != j and self.separation[i, j] >= self.threshold) for j in range(n)]
+                             for i in range(n)],
+                "not_isolable": pairs}
+
+
+def isolability(data: GapData, fits: Sequence[CandidateFit], *, threshold: float = ISOLABILITY_THRESHOLD) -> Isolability:
+    """The per-log isolability matrix of the fitted candidates (and the re-calibration).
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    fits : sequence of CandidateFit
+        One fit per candidate (their grid optima fix the nonlinear parameters).
+    threshold : float
+        Separation at which a pair counts as isolable [-].
+
+    Returns
+    -------
+    Isolability
+        Words, separations and the threshold.
+    """
+    rows = data.stacked(data.held_out)
+    C = np.column_stack([c.column[rows] for c in _calibration(data)])
+    QC = _basis(C)
+    words: list[str] = []
+    bases: list[np.ndarray] = []
+    joint: list[np.ndarray] = []
+    for fit in fits:
+        if fit.structure is None or fit.effect is Effect.NONE:
+            continue
+        F = np.column_stack([c.column[rows] for c in fit.structure.coefs])
+        words.append(str(fit.effect))
+        bases.append(_basis(F))
+        joint.append(_basis(np.column_stack([F, C])))
+    n = len(words)
+    sep = np.zeros((n + 1, n + 1))
+    for i in range(n):
+        for j in range(i + 1, n):
+            sep[i, j] = sep[j, i] = max(_separation(bases[i], joint[j]), _separation(bases[j], joint[i]))
+        # against the re-calibration alone: how much of the effect's features lies outside it
+        sep[i, n] = sep[n, i] = _separation(bases[i], QC)
+    return Isolability(words=tuple(words) + (CALIBRATION,), separation=sep, threshold=threshold)

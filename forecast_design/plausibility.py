@@ -1,0 +1,430 @@
+"""Physical plausibility of fitted numbers: the one place that says when a number is *not identified*.
+
+Every fitted parameter of the friction identification and of the gap
+diagnosis passes through :func:`assess`, which gives it one of four statuses:
+
+``identified``
+    inside its plausible range, not on a bound of the solver or search grid,
+    and its 95 % interval is narrower than its distance from zero.
+``at_bound``
+    the estimate sits on a bound of the solver (a box constraint, the end of a
+    search grid, a datasheet tolerance): the data pushed it there, so the true
+    value may lie beyond and the number is not an estimate.
+``uncertain``
+    the 95 % interval is wider than the value (``1.96 std > |value|``): the
+    log does not carry the information to pin it down.
+``implausible``
+    outside the range the log and the testbed allow (below).
+
+Only ``identified`` numbers are reported as estimates; the others are flagged
+(JSON ``status``, a CLI warning, a report caveat).
+
+Plausible ranges are derived from the log (:class:`LogScales`) and the testbed:
+
+========================  ==============================================================
+quantity                  plausible range and why
+========================  ==============================================================
+friction levels           ``|F| <= 1.5 torque_max``: a friction torque larger than every
+(Coulomb, static, offset, torque applied would never have let the motor move; 1.5 leaves
+harmonic amplitudes)      room for inertial torques at reversals.
+viscous coefficient       ``0 <= d <= 1.5 torque_max / speed_p99``: at the log's typical
+                          top speed the viscous torque cannot exceed the torque range.
+Stribeck velocity         ``2 speed_resolution <= v_s <= speed_max``: below the encoder's
+                          speed resolution no curve can be resolved; above the largest
+                          speed the decay is not observed.
+bristle stiffness sigma0  ``static / sigma0`` (presliding displacement) between one encoder
+                          step and 0.1 rad.
+bristle damping sigma1    ``0 <= sigma1 <= 10 * 2 sqrt(sigma0 J_m)`` (ten times critical).
+torque gain               ``0.5 <= g <= 2``: a factor beyond that is a wrong torque
+                          constant, not an unmodelled effect.
+delay                     ``0 <= delay <= 0.05 s`` (100 samples at 2 kHz).
+backlash width            ``2 encoder steps <= width <= 2 deflection_max``.
+environment scales        ``0.1 <= scale <= 10`` of the declared value.
+========================  ==============================================================
+
+Datasheet tolerances of the nominal model (:data:`DATASHEET_TOLERANCE`) bound
+how far the gap diagnosis may re-calibrate ``J_m`` and the spring before it
+blames an effect; a re-calibration at that bound is itself reported.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable, Mapping
+
+import numpy as np
+
+__all__ = [
+    "STATUSES",
+    "DATASHEET_TOLERANCE",
+    "ENCODER_COUNTS",
+    "LogScales",
+    "Bound",
+    "ParameterStatus",
+    "log_scales",
+    "assess",
+    "assess_all",
+    "friction_bound",
+    "effect_bound",
+    "not_identified",
+]
+
+#: Statuses of a fitted number, best first.
+STATUSES = ("identified", "at_bound", "uncertain", "implausible")
+
+#: Relative tolerance of the nominal testbed values that a re-calibration may absorb [-].
+#: ``J_m``: the reflected inertia from the rotor's datasheet inertia and the gear ratio (3 %);
+#: ``k``: the series spring's bench calibration (3 %). ``d_m`` has no datasheet value (it is
+#: the paper's viscous linearisation) and is free (>= 0).
+DATASHEET_TOLERANCE: Mapping[str, float] = {"J_m": 0.03, "k": 0.03}
+
+#: Encoder counts per revolution of the Forecast testbed (DHO-05 encoders) [-].
+ENCODER_COUNTS = 2_000_000
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class LogScales:
+    """What one log can say: the magnitudes that bound plausible parameters.
+
+    Parameters
+    ----------
+    torque_max : float
+        99.9th percentile of ``|tau_m|`` (or of the force for a plain axis log) [N m].
+    speed_max : float
+        99.9th percentile of the motor speed ``|theta'|`` [rad/s].
+    speed_p99 : float
+        99th percentile of ``|theta'|`` [rad/s].
+    deflection_max : float
+        99.9th percentile of the spring deflection ``|theta - q|`` [rad] (0 without a spring).
+    angle_span : float
+        Motor travel ``max theta - min theta`` [rad].
+    rate_hz : float
+        Sample rate [Hz].
+    duration_s : float
+        Log length [s].
+    encoder_step : float
+        Position resolution [rad] (2 pi / 2,000,000 for the testbed).
+    J_m : float or None
+        Motor inertia when known [kg m^2].
+    """
+
+    torque_max: float
+    speed_max: float
+    speed_p99: float
+    deflection_max: float
+    angle_span: float
+    rate_hz: float
+    duration_s: float
+    encoder_step: float = 2.0 * math.pi / ENCODER_COUNTS
+    J_m: float | None = None
+
+    @property
+    def speed_resolution(self) -> float:
+        """Smallest speed the encoder resolves over the derivative filter's window of ~10 samples [rad/s].
+
+        One encoder step per ten samples: the position low-pass of the identification and the
+        diagnosis (cut-off at a tenth of the rate) averages over about that many samples.
+        """
+        return self.encoder_step * self.rate_hz / 10.0
+
+    def to_mapping(self) -> dict[str, Any]:
+        """JSON-ready mapping (units in the docstring)."""
+        return {"torque_max": self.torque_max, "speed_max": self.speed_max, "speed_p99": self.speed_p99,
+                "deflection_max": self.deflection_max, "angle_span": self.angle_span, "rate_hz": self.rate_hz,
+                "duration_s": self.duration_s, "encoder_step": self.encoder_step}
+
+
+def log_scales(*, torque: np.ndarray, position: np.ndarray, rate_hz: float, deflection: np.ndarray | None = None,
+               velocity: np.ndarray | None = None, encoder_step: float | None = None,
+               J_m: float | None = None) -> LogScales:
+    """Measure a log's scales.
+
+    Parameters
+    ----------
+    torque : ndarray, shape (n,)
+        Motor torque command (or axis force) [N m].
+    position : ndarray, shape (n,)
+        Motor angle (or axis position) [rad].
+    rate_hz : float
+        Sample rate [Hz].
+    deflection : ndarray, shape (n,), optional
+        Spring deflection ``theta - q`` [rad].
+    velocity : ndarray, shape (n,), optional
+        Motor speed [rad/s]; default the central difference of ``position``.
+    encoder_step : float, optional
+        Position resolution [rad]; default the smallest non-zero step seen in
+        ``position``, but not below the testbed's 2 pi / 2,000,000.
+    J_m : float, optional
+        Motor inertia [kg m^2].
+
+    Returns
+    -------
+    LogScales
+        The log's magnitudes.
+    """
+    torque = np.asarray(torque, dtype=float)
+    position = np.asarray(position, dtype=float)
+    if velocity is None:
+        velocity = np.gradient(position, 1.0 / rate_hz) if position.size > 1 else np.zeros_like(position)
+    speed = np.abs(np.asarray(velocity, dtype=float))
+    if encoder_step is None:
+        steps = np.abs(np.diff(position))
+        steps = steps[steps > 0]
+        seen = float(np.min(steps)) if steps.size else 2.0 * math.pi / ENCODER_COUNTS
+        encoder_step = max(seen, 2.0 * math.pi / ENCODER_COUNTS)
+    dmax = float(np.percentile(np.abs(deflection), 99.9)) if deflection is not None and np.size(deflection) else 0.0
+    return LogScales(torque_max=float(np.percentile(np.abs(torque), 99.9)) if torque.size else 0.0,
+                     speed_max=float(np.percentile(speed, 99.9)) if speed.size else 0.0,
+                     speed_p99=float(np.percentile(speed, 99.0)) if speed.size else 0.0,
+                     deflection_max=dmax, angle_span=float(np.ptp(position)) if position.size else 0.0,
+                     rate_hz=float(rate_hz), duration_s=position.size / float(rate_hz),
+                     encoder_step=float(encoder_step), J_m=J_m)
+
+
+@dataclass(frozen=True, slots=True)
+class Bound:
+    """A plausible range.
+
+    Parameters
+    ----------
+    lo, hi : float
+        Range (``-inf``/``inf`` when open), same unit as the parameter.
+    why : str
+        One line: where the range comes from.
+    magnitude : bool
+        Compare ``|value|`` (harmonic coefficients, offsets of either sign) instead of the value.
+    """
+
+    lo: float
+    hi: float
+    why: str
+    magnitude: bool = False
+
+    def contains(self, value: float) -> bool:
+        """True when ``value`` lies in the range (``|value|`` for a magnitude bound)."""
+        v = abs(value) if self.magnitude else value
+        return bool(self.lo <= v <= self.hi)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class ParameterStatus:
+    """One fitted number and whether it may be reported as an estimate.
+
+    Parameters
+    ----------
+    name : str
+        Parameter name.
+    value : float
+        Estimate (parameter's unit).
+    std : float or None
+        Standard deviation, same unit (None when the fit gives none).
+    status : str
+        One of :data:`STATUSES`.
+    reason : str
+        Empty when identified; otherwise one line saying why not.
+    plausible : (float, float) or None
+        The plausible range used.
+    """
+
+    name: str
+    value: float
+    std: float | None
+    status: str
+    reason: str = ""
+    plausible: tuple[float, float] | None = None
+
+    @property
+    def identified(self) -> bool:
+        """True when the number is an estimate (status ``identified``)."""
+        return self.status == "identified"
+
+    def to_mapping(self) -> dict[str, Any]:
+        """JSON-ready mapping."""
+        out: dict[str, Any] = {"value": _finite_or_none(self.value), "std": _finite_or_none(self.std),
+                               "status": self.status}
+        if self.reason:
+            out["reason"] = self.reason
+        if self.plausible is not None:
+            out["plausible"] = [_finite_or_none(self.plausible[0]), _finite_or_none(self.plausible[1])]
+        return out
+
+
+def _finite_or_none(x: float | None) -> float | None:
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def assess(name: str, value: float, *, std: float | None = None, bound: Bound | None = None,
+           solver_bounds: tuple[float, float] | None = None, rel_tol: float = 1e-6) -> ParameterStatus:
+    """Classify one fitted number.
+
+    Checks, in order (the first that fails decides): finite; inside the
+    plausible ``bound``; not on a ``solver_bounds`` end (within ``rel_tol`` of the
+    bound's scale); ``1.96 std < |value|`` when ``std`` is given.
+
+    Parameters
+    ----------
+    name : str
+        Parameter name (for the reason text).
+    value : float
+        Estimate.
+    std : float, optional
+        Its standard deviation; a zero or missing std is not taken as certainty
+        when the estimate is at a solver bound.
+    bound : Bound, optional
+        Plausible range.
+    solver_bounds : (float, float), optional
+        The box (or grid ends) the solver searched; ``-inf``/``inf`` for open ends.
+    rel_tol : float
+        Relative distance to a solver bound that counts as "at" it [-].
+
+    Returns
+    -------
+    ParameterStatus
+        The number with its status and reason.
+    """
+    value = float(value)
+    s = None if std is None else float(std)
+    rng = None if bound is None else (bound.lo, bound.hi)
+
+    def out(status: str, reason: str = "") -> ParameterStatus:
+        return ParameterStatus(name=name, value=value, std=s, status=status, reason=reason, plausible=rng)
+
+    if not math.isfinite(value):
+        return out("implausible", f"{name} is not finite")
+    if bound is not None and not bound.contains(value):
+        shown = "|" + name + "|" if bound.magnitude else name
+        return out("implausible", f"{shown} = {abs(value) if bound.magnitude else value:.4g} outside the plausible "
+                                  f"range [{bound.lo:.3g}, {bound.hi:.3g}] ({bound.why})")
+    if solver_bounds is not None:
+        lo, hi = (float(solver_bounds[0]), float(solver_bounds[1]))
+        scale = max(abs(lo) if math.isfinite(lo) else 0.0, abs(hi) if math.isfinite(hi) else 0.0, abs(value))
+        tol = rel_tol * scale if scale > 0 else rel_tol
+        for end, word in ((lo, "lower"), (hi, "upper")):
+            if math.isfinite(end) and abs(value - end) <= tol:
+                return out("at_bound", f"{name} = {value:.4g} sits on the {word} bound {end:.4g} of the search")
+    if s is not None:
+        if not math.isfinite(s):
+            return out("uncertain", f"{name} has no finite standard deviation")
+        if 1.96 * s >= abs(value):
+            return out("uncertain", f"the 95 % interval of {name} ({value:.3g} +- {1.96 * s:.2g}) includes zero")
+    return out("identified")
+
+
+def assess_all(values: Mapping[str, float], *, std: Mapping[str, float] | None = None,
+               bounds: Mapping[str, Bound] | None = None,
+               solver_bounds: Mapping[str, tuple[float, float]] | None = None) -> dict[str, ParameterStatus]:
+    """:func:`assess` over a mapping of estimates.
+
+    Parameters
+    ----------
+    values : Mapping[str, float]
+        Estimates by name.
+    std : Mapping[str, float], optional
+        Standard deviations by name.
+    bounds : Mapping[str, Bound], optional
+        Plausible ranges by name (missing: no range check).
+    solver_bounds : Mapping[str, (float, float)], optional
+        Search boxes by name.
+
+    Returns
+    -------
+    dict of str to ParameterStatus
+        In the order of ``values``.
+    """
+    std = std or {}
+    bounds = bounds or {}
+    solver_bounds = solver_bounds or {}
+    return {k: assess(k, v, std=std.get(k), bound=bounds.get(k), solver_bounds=solver_bounds.get(k))
+            for k, v in values.items()}
+
+
+def not_identified(statuses: Iterable[ParameterStatus]) -> list[ParameterStatus]:
+    """The statuses that are not ``identified``, in order."""
+    return [s for s in statuses if not s.identified]
+
+
+def _torque_bound(scales: LogScales, what: str) -> Bound:
+    return Bound(0.0, 1.5 * scales.torque_max,
+                 f"{what} cannot exceed 1.5 x the largest applied torque {scales.torque_max:.3g}", magnitude=True)
+
+
+def friction_bound(name: str, scales: LogScales) -> Bound | None:
+    """Plausible range of one friction-model parameter (names of :mod:`forecast_design.friction`).
+
+    Parameters
+    ----------
+    name : str
+        ``viscous``, ``coulomb``, ``static``, ``stribeck_velocity``, ``sigma0``,
+        ``sigma1``, ``sigma2``, ``offset``, ``sinN``/``cosN`` and their ``pos``/``neg``,
+        ``psinN``/``pcosN`` variants; ``inertia`` has no range.
+    scales : LogScales
+        The log's magnitudes.
+
+    Returns
+    -------
+    Bound or None
+        The range, or None for a parameter without one.
+    """
+    T = scales.torque_max
+    if name in ("viscous", "sigma2") or name.startswith("viscous"):
+        v = max(scales.speed_p99, scales.speed_resolution)
+        return Bound(0.0, 1.5 * T / v, f"viscous torque at the log's top speed {v:.3g} within 1.5 x the torque range")
+    if name.startswith("coulomb") or name == "static":
+        return Bound(0.0, 1.5 * T, f"friction level within 1.5 x the largest applied torque {T:.3g}")
+    if name == "offset" or name.startswith(("sin", "cos", "psin", "pcos")):
+        return _torque_bound(scales, "a harmonic or offset amplitude")
+    if name == "stribeck_velocity":
+        lo = 2.0 * scales.speed_resolution
+        return Bound(lo, max(scales.speed_max, lo),
+                     f"Stribeck velocity between 2 encoder speed steps ({lo:.2g}) and the largest speed")
+    if name == "sigma0":
+        # presliding displacement static / sigma0 between one encoder step and 0.1 rad
+        return Bound(T / 0.1 if T > 0 else 0.0, 1.5 * T / scales.encoder_step,
+                     "presliding displacement static/sigma0 between one encoder step and 0.1 rad")
+    if name == "sigma1":
+        if scales.J_m is None:
+            return Bound(0.0, math.inf, "bristle damping >= 0")
+        hi = 10.0 * 2.0 * math.sqrt(1.5 * T / scales.encoder_step * scales.J_m)
+        return Bound(0.0, hi, "bristle damping at most ten times critical")
+    return None
+
+
+def effect_bound(name: str, scales: LogScales) -> Bound | None:
+    """Plausible range of one unmodelled-effect parameter (field names of :mod:`forecast_design.effects`).
+
+    Parameters
+    ----------
+    name : str
+        ``F_c``, ``F_s``, ``a``/``b`` (harmonic amplitudes), ``gain``, ``delay_s``,
+        ``width_rad``, ``v_s``, ``sigma0``, ``sigma1``, ``J_scale``, ``d_scale``, ``k_e_scale``.
+    scales : LogScales
+        The log's magnitudes.
+
+    Returns
+    -------
+    Bound or None
+        The range, or None.
+    """
+    if name in ("F_c", "F_s"):
+        return friction_bound("coulomb", scales)
+    if name in ("a", "b") or name.startswith(("a", "b")) and name[1:].isdigit():
+        return _torque_bound(scales, "a harmonic amplitude")
+    if name == "gain":
+        return Bound(0.5, 2.0, "a torque factor beyond [0.5, 2] is a wrong torque constant, not an effect")
+    if name == "delay_s":
+        return Bound(0.0, 0.05, "delays beyond 50 ms are not a transmission delay of a 2 kHz loop")
+    if name == "width_rad":
+        lo = 2.0 * scales.encoder_step
+        return Bound(lo, max(2.0 * scales.deflection_max, lo),
+                     "dead band between two encoder steps and twice the largest spring deflection")
+    if name == "v_s":
+        return friction_bound("stribeck_velocity", scales)
+    if name in ("sigma0", "sigma1"):
+        return friction_bound(name, scales)
+    if name.endswith("_scale"):
+        return Bound(0.1, 10.0, "the real environment within a factor 10 of the declared one")
+    return None
