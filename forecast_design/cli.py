@@ -534,11 +534,20 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         v = mapping["verdict"]
         print(f"verdict: {v['effect']} (gap {v['gap_before']:.4g} -> {v['gap_after']:.4g}, "
               f"reduction {100 * v['reduction']:.1f} %)")
-        if getattr(diagnosis, "secondary", None) is not None:
-            print(f"second effect: {diagnosis.secondary.effect}")
+        if v["secondary"] is not None:
+            print(f"second effect: {v['secondary']['effect']} (gap with both {v['secondary']['gap_after']:.4g}, "
+                  f"reduction {100 * v['secondary']['reduction']:.1f} %)")
         print(f"where: {mapping['location']['summary']}")
         for row in mapping["ranking"]:
-            print(f"  {row['effect']:<22} reduction {100 * row['reduction']:6.1f} %")
+            flag = "" if row["identified"] else "  not identified: " + "; ".join(row["reasons"][:2])
+            print(f"  {row['effect']:<22} reduction {100 * row['reduction']:6.1f} %{flag}")
+        pairs = mapping.get("isolability", {}).get("not_isolable", [])
+        if pairs:
+            print(f"this log cannot tell apart: {', '.join(pairs)}")
+    for row in mapping["ranking"]:
+        if not row["identified"] and row["reduction"] >= diagnosis.data.options.min_reduction:
+            print(f"warning: {row['effect']} would remove {100 * row['reduction']:.0f} % of the gap but is not "
+                  f"identified on this log: {'; '.join(row['reasons'][:2])}", file=sys.stderr)
         if args.report:
             print(f"report: {args.report}")
     return 0

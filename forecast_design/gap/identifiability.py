@@ -26,7 +26,10 @@ written for one generator:
   candidate's variance are dropped first: the excitation does not carry them. A
   pair is *isolable* when its separation is at least ``threshold`` (0.3: at least
   a 17 degree angle). The pseudo-word ``calibration`` stands for the re-calibration
-  of ``J_m``, ``d_m`` and ``k``.
+  of ``J_m``, ``d_m`` and ``k``. A torque gain scales everything the motor does, so its
+  signature is the nominal model's own motor torque, which lies in the span of the
+  re-calibration: a torque gain is told from the re-calibration only by the latter's
+  datasheet bound, and the matrix says so.
 """
 
 from __future__ import annotations
@@ -249,16 +252,19 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         status[nm] = st
     reasons = [st.reason for st in status.values() if st.status == "implausible"]
     for group in s.tests:
-        g = list(group)
-        if np.any(bound_eff[g]):
-            reasons.append(f"{', '.join(s.coefs[i].name for i in g)} at a bound of the fit")
+        g = [i for i in group if not bound_eff[i]]
+        if not g:
+            reasons.append(f"{', '.join(s.coefs[i].name for i in group)} at a bound of the fit")
             continue
+        # joint Wald test of the free coefficients of the group; collinear columns (harmonics
+        # over part of a revolution) leave a lower-rank test of the contribution they share
         sub = cov_eff[np.ix_(g, g)]
-        try:
-            chi2 = float(p_eff[g] @ np.linalg.solve(sub, p_eff[g]))
-        except np.linalg.LinAlgError:
-            chi2 = 0.0
-        pv = float(stats.chi2.sf(chi2, len(g))) if np.isfinite(chi2) else 1.0
+        d = np.sqrt(np.clip(np.diag(sub), 1e-300, None))
+        w, V = np.linalg.eigh(sub / np.outer(d, d))
+        keep = w > 1e-10 * max(float(w.max()), 1e-300)
+        z = V[:, keep].T @ (p_eff[g] / d)
+        chi2 = float(np.sum(z ** 2 / w[keep]))
+        pv = float(stats.chi2.sf(chi2, int(np.count_nonzero(keep)))) if np.isfinite(chi2) and np.any(keep) else 1.0
         if not pv < WALD_ALPHA:
             reasons.append(f"{', '.join(s.coefs[i].name for i in g)} not distinguishable from zero "
                            f"(Wald p = {pv:.2g})")
@@ -391,7 +397,14 @@ def isolability(data: GapData, fits: Sequence[CandidateFit], *, threshold: float
     for fit in fits:
         if fit.structure is None or fit.effect is Effect.NONE:
             continue
-        F = np.column_stack([c.column[rows] for c in fit.structure.coefs])
+        if fit.effect is Effect.TORQUE_GAIN:
+            # a gain scales everything the motor does: its signature is the nominal model's own
+            # motor torque (J_m theta'' + d_m theta' + tau_s), not the raw command, which also
+            # holds whichever effect is present
+            explained = data.columns["u"] - data.targets["motor"]
+            F = data.stack({"motor": explained})[rows][:, None]
+        else:
+            F = np.column_stack([c.column[rows] for c in fit.structure.coefs])
         words.append(str(fit.effect))
         bases.append(_basis(F))
         joint.append(_basis(np.column_stack([F, C])))

@@ -85,9 +85,17 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
     ]
     if d.params:
         lines.append("- Fitted parameters: " + ", ".join(f"`{k}` = {_fmt(v)}" for k, v in d.params.items()))
+    top = d.ranking[0] if d.ranking and str(d.effect) != "none" else None
+    if top is not None and top.assessment is not None:
+        lines.append("- Parameter status (value, standard deviation from the residual's autocorrelation, "
+                     "status): " + ", ".join(
+                         f"`{k}` = {_fmt(st.value)}" + (f" +- {st.std:.2g}" if st.std is not None else "")
+                         + f" ({st.status})" for k, st in top.assessment.status.items()))
     cal = d.baseline.calibration
+    bound = {k for k, st in d.calibration.items() if st.status == "at_bound"}
     lines.append("- Re-calibrated nominal values (not blamed on any effect): "
-                 + ", ".join(f"`{k}` = {v:.4g}" for k, v in cal.items()))
+                 + ", ".join(f"`{k}` = {v:.4g}" + (" **(at its datasheet bound)**" if k in bound else "")
+                             for k, v in cal.items()))
     for c in d.caveats:
         lines.append(f"- **{c}**")
     if d.secondary is not None:
@@ -127,12 +135,24 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
               "![residual against speed and angle](residual_speed_angle.png)", "",
               "## Which effect: every candidate", "",
               "Each candidate was fitted on the fit blocks and scored on the held-out blocks.", "",
-              "| rank | effect | gap after [N m] | reduction | p-value | counts | parameters |",
-              "|---|---|---|---|---|---|---|"]
+              "| rank | effect | gap after [N m] | reduction | p-value | identified | counts | parameters |",
+              "|---|---|---|---|---|---|---|---|"]
     for i, r in enumerate(d.ranking, 1):
         params = ", ".join(f"{k}={_fmt(v)}" for k, v in r.params.items())
+        ident = "yes" if r.identified else "no: " + "; ".join(r.assessment.reasons[:2]) if r.assessment else "-"
         lines.append(f"| {i} | {r.effect} | {r.gap_after:.4g} | {100 * r.reduction:.1f} % | {r.p_value:.2g} | "
-                     f"{'yes' if r.significant else 'no'} | {params} |")
+                     f"{ident} | {'yes' if r.significant else 'no'} | {params} |")
+    if d.isolability is not None:
+        iso = d.isolability
+        lines += ["", "## What this log can tell apart", "",
+                  "Separation of each pair of candidates (sine of the largest principal angle between their "
+                  f"feature spaces on held-out data; below {iso.threshold:g} this log cannot tell them apart; "
+                  "`calibration` is the re-calibration of J_m, d_m and k):", "",
+                  "| | " + " | ".join(iso.words) + " |", "|---" * (len(iso.words) + 1) + "|"]
+        for i, w in enumerate(iso.words):
+            cells = ["-" if i == j else (f"{iso.separation[i, j]:.2f}" if iso.separation[i, j] >= iso.threshold
+                                         else f"**{iso.separation[i, j]:.2f}**") for j in range(len(iso.words))]
+            lines.append(f"| {w} | " + " | ".join(cells) + " |")
     if d.joint is not None:
         j = d.joint
         names = ", ".join(f"{e} ({j.contributions[str(e)]:.3g} N m)" for e in j.effects) or "none"
