@@ -561,6 +561,10 @@ def _configure_bench_gap(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hard", type=int, default=0, metavar="N",
                    help="also N logs per non-identifiable scenario (scored for honest caveats)")
     p.add_argument("--pairs", type=int, default=0, metavar="N", help="also N logs per two-effect combination")
+    p.add_argument("--generator", choices=("testbed", "independent"), default="testbed",
+                   help="log generator: the virtual testbed or the independent one (default testbed)")
+    p.add_argument("--scale", type=float, default=1.0, metavar="S",
+                   help="effect magnitudes as a fraction of the typical ones, in (0, 1] (independent generator)")
     p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write the result JSON to OUT (or stdout)")
 
 
@@ -572,7 +576,8 @@ def _cmd_bench_gap(args: argparse.Namespace) -> int:
     if args.per_effect < 1:
         raise ParameterError(f"--per-effect must be >= 1, got {args.per_effect}", name="per_effect")
     result = benchmark(per_effect=args.per_effect, seed=args.seed, workers=args.workers,
-                       duration_s=args.duration, hard=args.hard, pairs=args.pairs, progress=args.json != "-")
+                       duration_s=args.duration, hard=args.hard, pairs=args.pairs, progress=args.json != "-",
+                       generator=args.generator, magnitude_scale=args.scale)
     if args.json:
         _write_json(args.json, result.to_mapping())
     if args.json != "-":

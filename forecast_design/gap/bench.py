@@ -200,6 +200,10 @@ class BenchResult:
         Wall time of the whole benchmark [s].
     workers : int
         Worker processes used [-].
+    generator : str
+        ``testbed`` or ``independent``.
+    magnitude_scale : float
+        Fraction of the typical effect magnitudes (independent generator) [-].
     """
 
     cases: tuple[BenchCase, ...]
@@ -207,6 +211,8 @@ class BenchResult:
     seed: int
     elapsed_s: float
     workers: int = 1
+    generator: str = "testbed"
+    magnitude_scale: float = 1.0
 
     def suite(self, name: str) -> tuple[BenchCase, ...]:
         """The cases of one suite (``main``, ``hard``, ``pairs``)."""
@@ -280,7 +286,8 @@ class BenchResult:
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready summary with the confusion matrix and every case."""
         secs = [c.seconds for c in self.cases]
-        return {"per_effect": self.per_effect, "seed": self.seed, "n_logs": len(self.main),
+        return {"generator": self.generator, "magnitude_scale": self.magnitude_scale,
+                "per_effect": self.per_effect, "seed": self.seed, "n_logs": len(self.main),
                 "accuracy": self.accuracy, "joint_accuracy": self.joint_accuracy,
                 "false_alarms": self.false_alarms, "min_true_reduction": self.min_true_reduction,
                 "confusion": self.confusion(), "elapsed_s": self.elapsed_s, "workers": self.workers,
@@ -531,13 +538,58 @@ def make_log(word: Effect | Sequence[Effect], index: int, seed: int, *, duration
                          name="word", value=word)
 
 
+def _independent_case(job: tuple) -> BenchCase:
+    """One log of the independent generator (:mod:`forecast_design.independent`), diagnosed blind.
+
+    A word for which no identifiable log is drawn within the generator's attempts (e.g. a
+    torque gain within the datasheet tolerance at a quarter of the typical magnitude) is
+    diagnosed on its first draw and scored in the ``hard`` suite (an honest caveat counts).
+    """
+    from ..errors import IdentifiabilityError
+    from .. import independent as ind
+    from .diagnose import diagnose
+
+    words, index, seed, _, _, _, scale = job
+    word = words[0] if words else Effect.NONE
+    suite = "main"
+    try:
+        log = ind.make_independent_log(word, index, seed, magnitude_scale=scale)
+        case, exp, attempts = log.case, log.experiment, log.case.attempt + 1
+    except IdentifiabilityError:
+        case = ind.draw_independent_case(word, index, seed, magnitude_scale=scale)
+        exp, _ = ind.simulate_independent(case)
+        suite, attempts = "hard", ind.MAX_ATTEMPTS
+    t0 = time.perf_counter()
+    diag = diagnose(exp, joint=False)
+    seconds = time.perf_counter() - t0
+    true_red = next((r.reduction for r in diag.ranking if r.effect == word), float("nan"))
+    loop = "cl" if case.closed_loop else "ol"
+    return BenchCase(truth=word, verdict=diag.effect, joint=(), reduction=diag.reduction, true_reduction=true_red,
+                     environment=case.environment_name, excitation=f"{loop}-{case.excitation.kind}",
+                     effect_params=_jsonable_params(case.effect_params), seconds=seconds, suite=suite,
+                     truths=(word,), secondary=diag.secondary.effect if diag.secondary else Effect.NONE,
+                     caveats=diag.caveats, attempts=attempts)
+
+
+def _jsonable_params(params: Any) -> dict:
+    out = {}
+    for k, v in dict(params).items():
+        if isinstance(v, (tuple, list, np.ndarray)):
+            out[str(k)] = [float(x) for x in v]
+        elif isinstance(v, (int, float, np.floating)) and not isinstance(v, bool):
+            out[str(k)] = float(v)
+        else:
+            out[str(k)] = str(v)
+    return out
+
+
 def run_case(job: tuple) -> BenchCase:
     """Simulate one case and diagnose it blind.
 
     Parameters
     ----------
     job : tuple
-        ``(words, index, seed, duration_s, suite)``.
+        ``(words, index, seed, duration_s, suite, generator, magnitude_scale)``.
 
     Returns
     -------
@@ -546,7 +598,9 @@ def run_case(job: tuple) -> BenchCase:
     """
     from .diagnose import diagnose
 
-    words, index, seed, duration_s, suite = job
+    words, index, seed, duration_s, suite, generator, _ = job
+    if generator == "independent":
+        return _independent_case(job)
     spec, exp, _ = make_log(words, index, seed, duration_s=duration_s, suite=suite)
     t0 = time.perf_counter()
     diag = diagnose(exp)
@@ -573,7 +627,7 @@ def available_workers() -> int:
 
 def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *, duration_s: float = 10.0,
               words: Sequence[Effect] = BENCH_WORDS, hard: int = 0, pairs: int = 0,
-              progress: bool = True) -> BenchResult:
+              progress: bool = True, generator: str = "testbed", magnitude_scale: float = 1.0) -> BenchResult:
     """Run the withheld-effect benchmark.
 
     Parameters
@@ -594,6 +648,13 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
         Logs per two-effect combination of ``PAIRS`` [-].
     progress : bool
         Show a tqdm progress bar (on stderr).
+    generator : str
+        ``testbed`` (the project's virtual testbed, :mod:`forecast_design.simulation`) or
+        ``independent`` (:mod:`forecast_design.independent`, written separately from the physics:
+        scipy event-located integration, its own loggers, excitations and magnitudes; its logs
+        last 5-20 s, so ``duration_s`` does not apply; the hard and pairs suites are the testbed's).
+    magnitude_scale : float
+        Fraction of the typical effect magnitudes (independent generator only) [-].
 
     Returns
     -------
@@ -605,9 +666,19 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
     for name, value, lo in (("per_effect", per_effect, 0), ("hard", hard, 0), ("pairs", pairs, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < lo:
             raise ParameterError(f"{name} must be an integer >= {lo}, got {value!r}", name=name, value=value)
-    jobs = [((Effect(w),), i, seed, duration_s, "main") for w in words for i in range(per_effect)]
-    jobs += [((h[0],), i, seed, duration_s, "hard") for h in HARD for i in range(hard)]
-    jobs += [(pair, i, seed, duration_s, "pairs") for pair in PAIRS for i in range(pairs)]
+    if generator not in ("testbed", "independent"):
+        raise ParameterError(f"generator must be 'testbed' or 'independent', got {generator!r}", name="generator",
+                             value=generator)
+    if not (isinstance(magnitude_scale, (int, float)) and 0.0 < magnitude_scale <= 1.0):
+        raise ParameterError(f"magnitude_scale must lie in (0, 1], got {magnitude_scale!r}", name="magnitude_scale",
+                             value=magnitude_scale)
+    if generator == "testbed" and magnitude_scale != 1.0:
+        raise ParameterError("magnitude_scale applies to the independent generator only", name="magnitude_scale",
+                             value=magnitude_scale)
+    g = (generator, float(magnitude_scale))
+    jobs = [((Effect(w),), i, seed, duration_s, "main", *g) for w in words for i in range(per_effect)]
+    jobs += [((h[0],), i, seed, duration_s, "hard", "testbed", 1.0) for h in HARD for i in range(hard)]
+    jobs += [(pair, i, seed, duration_s, "pairs", "testbed", 1.0) for pair in PAIRS for i in range(pairs)]
     if not jobs:
         raise ParameterError("the benchmark has no logs: per_effect, hard and pairs are all 0", name="per_effect",
                              value=per_effect)
@@ -626,4 +697,5 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
                 bar.update()
     bar.close()
     return BenchResult(cases=tuple(cases), per_effect=per_effect, seed=seed,
-                       elapsed_s=time.perf_counter() - t0, workers=n_workers)
+                       elapsed_s=time.perf_counter() - t0, workers=n_workers, generator=generator,
+                       magnitude_scale=float(magnitude_scale))
