@@ -185,6 +185,19 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
                     level=lambda p: p[0] + p[1], n_params=5, tests=((0, 1),),
                     grid=(("v_s", float(v_s), float(v_grid[0]), float(v_grid[-1])),
                           ("x_p", float(x_p), float(x_grid[0]), float(x_grid[-1])))))
+        # Static (switched) Stribeck friction without presliding, x_p -> 0: the Coulomb candidate's
+        # sign feature plus a Stribeck bump, the breakaway level F_s holding the motor at rest.
+        # It nests coulomb (dF = 0), so stiction is never worse than coulomb on the fit blocks,
+        # whatever the hardware's sticking mechanism (bristles or a true stick-slip switch).
+        sign = _sign(data)
+        sgn = data.decimate(sign)
+        for v_s in v_grid:
+            bump = data.decimate(sign * np.exp(-(v / v_s) ** 2))
+            out.append(_Structure(
+                [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0)],
+                lambda p, v_s=v_s: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s)},
+                level=lambda p: p[0] + p[1], n_params=3, tests=((0, 1),),
+                grid=(("v_s", float(v_s), float(v_grid[0]), float(v_grid[-1])),)))
     elif effect in (Effect.COGGING, Effect.POSITION_FRICTION):
         th = data.raw["theta"]
         base = _sign(data) if effect is Effect.POSITION_FRICTION else np.ones_like(th)

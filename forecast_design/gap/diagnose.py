@@ -417,15 +417,11 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
     winner = ranked[0] if ranked and ranked[0].significant else None
     if winner is not None and winner.effect in (Effect.STICTION, Effect.POSITION_FRICTION):
         coul = next((r for r in ranked if r.effect is Effect.COULOMB), None)
-        if coul is not None and coul.significant:
-            f_w, f_c = by_effect[str(winner.effect)], by_effect[str(Effect.COULOMB)]
-            # one planned comparison of nested laws: the family-wise level, not Bonferroni
-            p = held_out_test(f_c, f_w, held_blocks, units=test_units(data, f_w))
-            extra = 1.0 - f_w.gap_held_out / f_c.gap_held_out if f_c.gap_held_out > 0 else 0.0
-            if not (p < opts.alpha and extra >= 0.5 * opts.min_reduction):
-                winner = coul
-                ranked.remove(coul)
-                ranked.insert(0, coul)
+        if coul is not None and coul.significant and not _richer_law_justified(
+                data, by_effect[str(winner.effect)], by_effect[str(Effect.COULOMB)], held_blocks):
+            winner = coul
+            ranked.remove(coul)
+            ranked.insert(0, coul)
     location = locate_gap(data, base.residual)
     iso = isolability(data, fits)
     caveats = []
@@ -456,6 +452,17 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
             if pair is not None and pair.reduction >= opts.min_reduction and \
                     (best_pair is None or pair.bic < best_pair[1].bic):
                 best_pair = (first, pair)
+        if best_pair is not None and best_pair[0].effect in (Effect.STICTION, Effect.POSITION_FRICTION):
+            # the same parsimony between nested friction laws as for a single effect
+            coul = next((r for r in ranked if r.effect is Effect.COULOMB), None)
+            if coul is not None:
+                f_w = fit_pair(data, by_effect[str(best_pair[0].effect)], best_pair[1].effect)
+                f_c = fit_pair(data, by_effect[str(Effect.COULOMB)], best_pair[1].effect)
+                if f_w is not None and f_c is not None and not _richer_law_justified(data, f_w, f_c, held_blocks):
+                    alt = _second_effect(data, by_effect[str(Effect.COULOMB)], fits, gap0, n_held, held_blocks,
+                                         alpha, min_extra=0.5 * opts.min_reduction, base=base)
+                    if alt is not None and alt.reduction >= opts.min_reduction:
+                        best_pair = (coul, alt)
         if best_pair is not None:
             winner, secondary = best_pair
             ranked.remove(winner)
@@ -476,6 +483,19 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
                      replay=replay, isolability=iso, calibration=calibration_status(data, base))
+
+
+def _richer_law_justified(data: GapData, richer: CandidateFit, coulomb: CandidateFit, held_blocks: np.ndarray) -> bool:
+    """Parsimony between nested friction laws: stiction or position_friction over plain coulomb.
+
+    The richer law must beat coulomb by the held-out test at the family-wise level (one
+    planned comparison, no Bonferroni) and remove at least ``min_reduction / 2`` of
+    coulomb's remaining held-out gap.
+    """
+    opts = data.options
+    p = held_out_test(coulomb, richer, held_blocks, units=test_units(data, richer))
+    extra = 1.0 - richer.gap_held_out / coulomb.gap_held_out if coulomb.gap_held_out > 0 else 0.0
+    return bool(p < opts.alpha and extra >= 0.5 * opts.min_reduction)
 
 
 def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandidate], iso: Isolability,
@@ -511,6 +531,7 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
     """Forward selection, one step: the best effect fitted together with the winner, if it counts."""
     opts = data.options
     best: RankedCandidate | None = None
+    passing: dict[str, tuple[RankedCandidate, CandidateFit]] = {}
     for fit in fits:
         pair = fit_pair(data, first, fit.effect)
         if pair is None:
@@ -531,4 +552,18 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
             best = RankedCandidate(effect=fit.effect, gap_after=pair.gap_held_out,
                                    reduction=float(min(max(red, 0.0), 1.0)), params=pair.params, p_value=p,
                                    bic=bic, significant=True, assessment=assessment)
+            passing[str(fit.effect)] = (best, pair)
+    if best is not None and best.effect in (Effect.STICTION, Effect.POSITION_FRICTION):
+        coul = passing.get(str(Effect.COULOMB))
+        if coul is None:
+            pair_c = fit_pair(data, first, Effect.COULOMB)
+            if pair_c is not None and held_out_test(first, pair_c, held_blocks, units=test_units(data, pair_c)) < alpha:
+                red = 1.0 - pair_c.gap_held_out / gap0 if gap0 > 0 else 0.0
+                coul = (RankedCandidate(effect=Effect.COULOMB, gap_after=pair_c.gap_held_out,
+                                        reduction=float(min(max(red, 0.0), 1.0)), params=pair_c.params,
+                                        p_value=0.0, bic=best.bic, significant=True,
+                                        assessment=assess_fit(data, pair_c)), pair_c)
+        if coul is not None and coul[0].identified and \
+                not _richer_law_justified(data, passing[str(best.effect)][1], coul[1], held_blocks):
+            best = coul[0]
     return best
