@@ -279,8 +279,9 @@ def _solve(data: GapData, coefs: Sequence[_Coef], fit_rows: np.ndarray, n_cal: i
     hi = np.array([c.hi for c in coefs]) * scale
     As = Af / scale
     n_cal = len(_calibration(data)) if n_cal is None else n_cal
-    if As.shape[1] > n_cal:
-        # A tiny ridge on the (standardised) effect coefficients: when features are nearly
+    if As.shape[1] > n_cal + 1:
+        # A tiny ridge on the (standardised) effect coefficients of a multi-coefficient effect
+        # (a single coefficient, e.g. a torque gain, must not be pushed into the calibration): when features are nearly
         # collinear (angle harmonics over a fraction of a revolution) it keeps the fitted
         # parameters finite without changing well-posed fits (1e-6 of the data weight).
         ridge = np.zeros((As.shape[1] - n_cal, As.shape[1]))
@@ -327,9 +328,9 @@ def _fit(data: GapData, effect: Effect, structure: _Structure | None) -> Candida
         stuck[:data.t.size] = data.stuck
         fit_rows = fit_rows & ~stuck
     p = _solve(data, coefs, fit_rows)
+    tb = data.experiment.design.testbed
     r, prediction = _evaluate(data, effect, coefs, p, len(cal), level)
     gap_fit, gap_held, sse = _summaries(data, r)
-    tb = data.experiment.design.testbed
     calibration = {"J_m": float(tb.J_m + p[0]), "d_m": float(tb.d_m + p[1]), "spring_scale": float(1.0 + p[2])}
     if data.tau_s_measured:
         calibration["k"] = float(tb.k + p[3])

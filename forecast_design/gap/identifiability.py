@@ -227,6 +227,12 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         moved = _flatten(s.to_params(step))
         J[:, j] = [(moved[nm] - base[nm]) / h for nm in names]
     std = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", J, cov_eff, J), 0.0, None))
+    if "gain" in names:
+        # a torque gain and a common rescaling of J_m, d_m and k are one direction that only the
+        # re-calibration's bound separates: the gain is known up to a bounded bias of the datasheet
+        # tolerance, added so that the 95 % interval (1.96 std) spans it whole
+        i = names.index("gain")
+        std[i] = std[i] + abs(base["gain"]) * data.options.calibration_tolerance / 1.96
     scales = gap_log_scales(data)
     grid = {g[0]: g for g in s.grid}
     status: dict[str, ParameterStatus] = {}

@@ -1,0 +1,187 @@
+"""The diagnosis on logs of the independent generator: one test per failure class of issue 11.
+
+Every log here comes from :mod:`forecast_design.independent` (scipy event-located
+integration, its own loggers and excitations, nominal errors of up to 2 %), never
+from the virtual testbed the diagnosis was developed on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from forecast_design import independent as ind
+from forecast_design.effects import Effect
+from forecast_design.gap import diagnose
+from forecast_design.gap.residuals import classify_tau_s, significant_digits
+from forecast_design.params import environment_preset
+
+
+def _log(word, index=0, seed=5, scale=1.0, **changes):
+    case = ind.draw_independent_case(word, index, seed, magnitude_scale=scale)
+    if "effect_params" in changes:
+        changes["effect_params"] = {**case.effect_params, **changes["effect_params"]}
+    exp, truth = ind.simulate_independent(dataclasses.replace(case, **changes))
+    return exp, truth
+
+
+def _draw_where(word, seed, **want):
+    """The first draw (index 0, 1, ...) of ``word`` whose case has the wanted fields (no simulation)."""
+    for index in range(400):
+        case = ind.draw_independent_case(word, index, seed)
+        if all(getattr(case, k) == v for k, v in want.items()):
+            return case
+    pytest.skip(f"no {word} draw with {want} in 400 draws")
+
+
+def _first_identifiable(word, seed, scale=1.0, **want):
+    """The first identifiable independent log (index 0, 1, ...) whose case has the wanted fields."""
+    for index in range(40):
+        log = ind.make_independent_log(word, index, seed, magnitude_scale=scale)
+        if all(getattr(log.case, k) == v for k, v in want.items()):
+            return log
+    pytest.skip(f"no {word} log with {want} in 40 draws")
+
+
+# --- 1. a tau_s column the logger derived from the encoders --------------------------------
+
+
+@settings(max_examples=60, deadline=None)
+@given(digits=st.integers(6, 10), k=st.floats(5.0, 500.0), scale=st.floats(1e-4, 0.1), seed=st.integers(0, 10_000))
+def test_tau_s_printed_from_the_encoders_is_judged_derived_at_any_precision(digits, k, scale, seed):
+    rng = np.random.default_rng(seed)
+    step = 2 * np.pi / 2_000_000
+    theta = np.round(np.cumsum(rng.normal(0, scale, 4000)) / step) * step
+    q = np.round(0.3 * theta / step) * step
+    tau_s = np.array([float(f"{v:.{digits}g}") for v in k * (theta - q)])
+    src = classify_tau_s(False, tau_s, theta, q)
+    assert src.source == "derived" and src.digits <= digits
+    assert src.k_log == pytest.approx(k, rel=1e-5)
+    # an independent sensor (noise far above the printed precision) is a measurement
+    noisy = tau_s + rng.normal(0, 1e-4 * max(np.std(tau_s), 1e-3), tau_s.size)
+    assert classify_tau_s(False, noisy, theta, q).source == "measured"
+
+
+def test_significant_digits_reads_the_printed_precision():
+    assert significant_digits(np.array([1.25, -3.5e-7, 12345.0])) == 5
+    assert significant_digits(np.array([np.pi])) == 16
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("logging", ["derived:9", "derived:6", "omitted"])
+@pytest.mark.parametrize("env", ["locked", "exp-soft"])
+def test_backlash_is_named_whatever_the_tau_s_column(env, logging):
+    exp, _ = _log("backlash", 1, 7, environment=environment_preset(env), environment_name=env, tau_s_logging=logging,
+                  effect_params={"width": 3e-3})
+    d = diagnose(exp, joint=False)
+    assert d.data.tau_s_source.source == ("absent" if logging == "omitted" else "derived")
+    assert d.effect is Effect.BACKLASH and d.reduction >= 0.5
+
+
+# --- 2. a torque gain the re-calibration must not absorb ------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("gain", [0.9, 0.95, 1.05, 1.1])
+def test_small_torque_gains_are_named_not_absorbed(gain):
+    case = _draw_where("torque_gain", 3, closed_loop=False, environment_name="link-only")
+    exp, _ = ind.simulate_independent(dataclasses.replace(case, effect_params={"gain": gain}))
+    d = diagnose(exp, joint=False)
+    assert d.effect is Effect.TORQUE_GAIN
+    # the gain and a re-calibration within the datasheet tolerance are one direction: the reported
+    # interval carries that tolerance; with the generator's own nominal errors (up to 2 %) it covers the truth
+    st_ = d.ranking[0].assessment.status["gain"]
+    assert st_.status == "identified"
+    assert abs(st_.value - gain) <= 1.96 * st_.std + 0.02 * gain and st_.std <= 0.03
+    assert (st_.value - 1.0) * (gain - 1.0) > 0
+    # the re-calibration stays inside the datasheet tolerance it is allowed
+    tb = exp.design.testbed
+    assert abs(d.baseline.calibration["J_m"] / tb.J_m - 1) <= d.data.options.calibration_tolerance + 1e-9
+
+
+# --- 3. stiction against coulomb in an open loop, k_e = 5 -----------------------------------
+
+
+@pytest.mark.slow
+def test_open_loop_stiction_in_a_soft_environment_is_stiction():
+    hits = 0
+    for seed in (21, 22, 23):
+        case = _draw_where("stiction", seed, closed_loop=False, environment_name="exp-soft")
+        exp, truth = ind.simulate_independent(case)
+        assert ind.identifiability(case, truth) is None
+        d = diagnose(exp, joint=False)
+        hits += d.effect is Effect.STICTION
+    assert hits == 3
+
+
+# --- 4. a short closed-loop log with a delay -------------------------------------------------
+
+
+@pytest.mark.slow
+def test_five_second_closed_loop_log_with_a_short_delay_is_named():
+    log = _first_identifiable("delay", 4, closed_loop=True)
+    exp, _ = ind.simulate_independent(dataclasses.replace(
+        log.case, duration_s=5.0, effect_params={"delay_s": 1.5e-3}))
+    d = diagnose(exp, joint=False)
+    assert d.effect is Effect.DELAY
+    assert d.params["delay_s"] == pytest.approx(1.5e-3, rel=0.35)
+
+
+# --- 5. absurd parameters are never a verdict ------------------------------------------------
+
+
+@pytest.mark.slow
+def test_locked_output_turning_a_few_hundredths_of_a_radian_gets_no_absurd_verdict():
+    case = _draw_where("coulomb", 11, closed_loop=True, environment_name="locked")
+    cog = ind.draw_independent_case("cogging", 0, 11)
+    exp, truth = ind.simulate_independent(dataclasses.replace(case, words=(Effect.COGGING,),
+                                                              effect_params=cog.effect_params))
+    assert np.ptp(truth.theta) < 0.2
+    d = diagnose(exp, joint=False)
+    m = d.to_mapping()
+    torque_max = float(np.max(np.abs(exp.signals.tau_m)))
+    for name, st_ in m["verdict"]["status"].items():
+        assert st_["status"] != "implausible", name
+    for r in m["ranking"]:
+        if r["counts"]:
+            for name, value in r["params"].items():
+                values = value if isinstance(value, list) else [value]
+                if name in ("a", "b", "F_c", "F_s"):
+                    assert all(abs(v) <= 1.5 * torque_max for v in values)
+    # a harmonic fit over a few hundredths of a radian is reported as not identified, or is plausible
+    cog = next(r for r in m["ranking"] if r["effect"] == "cogging")
+    assert not cog["counts"] or all(v["status"] != "implausible" for v in cog["status"].values())
+
+
+# --- 6. the second effect is machine-readable --------------------------------------------------
+
+
+@pytest.mark.slow
+def test_second_effect_is_in_the_json():
+    log = _first_identifiable("coulomb", 8, closed_loop=False)
+    case = dataclasses.replace(log.case, words=(Effect.COULOMB, Effect.TORQUE_GAIN),
+                               effect_params={**log.case.effect_params, "gain": 0.7})
+    exp, _ = ind.simulate_independent(case)
+    m = json.loads(json.dumps(diagnose(exp, joint=False).to_mapping()))
+    named = {m["verdict"]["effect"], (m["verdict"]["secondary"] or {}).get("effect")}
+    assert named == {"coulomb", "torque_gain"}
+    sec = m["verdict"]["secondary"]
+    assert set(sec) == {"effect", "params", "gap_after", "reduction"}
+    assert sec["gap_after"] <= m["verdict"]["gap_after"] and sec["reduction"] >= m["verdict"]["reduction"]
+
+
+# --- isolability: computed from the log ---------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_isolability_follows_the_excitation():
+    # a slow sweep through revolutions: angle effects are told from coulomb
+    sweep = _first_identifiable("cogging", 0)
+    iso = diagnose(sweep.experiment, joint=False).isolability
+    assert iso.isolable("cogging", "coulomb") and iso.isolable("position_friction", "coulomb")
+    # the torque gain is told from a re-calibration of J_m, d_m, k only by the latter's bound
+    assert not iso.isolable("torque_gain", "calibration")
