@@ -183,6 +183,38 @@ d_locked = diagnose(make_log(fx.PositionFriction(F_c=0.35, a=(0.15,), b=(0.05,))
 show(d_locked)
 
 # %% [markdown]
+# ## Not identifiable: a harmonic fit over a hundredth of a radian
+#
+# A log from the *independent* generator (`forecast_design.independent`, written separately
+# from the virtual testbed): closed-loop force control against a locked output, with a cogging
+# torque. The motor turns about a hundredth of a radian, so the angle harmonics are nearly
+# collinear. The cogging torque's *contribution* is clear (the joint test of its harmonics
+# passes and it removes most of the gap), but no single harmonic coefficient can be pinned
+# down: each is reported with its standard deviation (from the residual's autocorrelation) and
+# the status `uncertain`, not as a confident number. Every fitted number passes through
+# `forecast_design.plausibility`; a candidate whose parameters are implausible, at a bound or
+# not distinguishable from zero is *not identified* and never the verdict.
+
+# %%
+import dataclasses
+
+from forecast_design import independent as ind
+from forecast_design.effects import Effect
+
+locked_case = next(c for c in (ind.draw_independent_case("coulomb", i, 11) for i in range(400))
+                   if c.closed_loop and c.environment_name == "locked")
+cogging = ind.draw_independent_case("cogging", 0, 11)
+exp_small, truth_small = ind.simulate_independent(dataclasses.replace(
+    locked_case, words=(Effect.COGGING,), effect_params=cogging.effect_params))
+d_small = diagnose(exp_small, joint=False)
+print(f"motor travel {np.ptp(truth_small.theta):.3f} rad; verdict: {d_small.effect}")
+for name, st in d_small.to_mapping()["verdict"]["status"].items():
+    print(f"  {name:<4} {st['value']:+.3g} +- {st['std']:.2g} N m  {st['status']}")
+for r in d_small.ranking[1:4]:
+    print(f"  {str(r.effect):<20} not identified: {'; '.join(r.assessment.reasons[:1])}")
+print("cannot tell apart:", d_small.isolability.to_mapping()["not_isolable"])
+
+# %% [markdown]
 # ## The full report
 #
 # `write_report` writes a Markdown report with all plots and the JSON of the output
