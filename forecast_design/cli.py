@@ -365,6 +365,9 @@ def _configure_identify(p: argparse.ArgumentParser) -> None:
     p.add_argument("--estimate-inertia", action="store_true", help="fit the inertia instead of the nominal J_m")
     p.add_argument("--offset", action="store_true", help="add a constant offset term")
     p.add_argument("--holdout", type=_float_range, default=0.3, help="fraction held out for fit %% (default 0.3)")
+    p.add_argument("--select-samples", choices=("auto", "on", "off"), default="auto",
+                   help="leave stops and reversals out of static fits: auto (when the log stops, default), "
+                        "on, off (plain IDIM on every sample)")
     p.add_argument("--validate", metavar="FILE", help="second log (same kind and column mapping) to cross-test")
     p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write the fit as JSON to OUT (or stdout)")
     p.add_argument("--plot", metavar="OUT.png", help="measured vs estimated friction (like the paper's Fig. 9)")
@@ -396,7 +399,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     log = _load_log(args.csv or args.log, args)
     validation = _load_log(args.validate, args) if args.validate else None
     fit = identify(log, args.model, harmonics=args.harmonics, offset=args.offset,
-                   estimate_inertia=args.estimate_inertia, holdout=args.holdout, validation_log=validation)
+                   estimate_inertia=args.estimate_inertia, holdout=args.holdout, validation_log=validation,
+                   selection=args.select_samples)
     if args.plot:
         from .friction import fit_data, log_arrays
         from .plotting.friction import plot_friction_fit
@@ -407,13 +411,26 @@ def _cmd_identify(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, mapping)
     if args.json != "-":
+        sel = mapping["selection"]
+        used = (f", {mapping['n_samples_used']} of {mapping['n_samples']} samples (stops and reversals left out)"
+                if sel and sel["applied"] else "")
         print(f"model {mapping['model']}: fit {mapping['fit_percent']['estimation']:.2f} % (estimation), "
               f"{mapping['fit_percent']['holdout']:.2f} % (hold-out), condition number "
-              f"{mapping['condition_number']:.4g}")
+              f"{mapping['condition_number']:.4g}{used}")
         for name, value in mapping["params"].items():
-            print(f"  {name:<20} {value: .6g}  +- {mapping['std'].get(name, float('nan')):.3g}")
+            std = mapping["std"].get(name)
+            shown = f"+- {std:.3g}" if std is not None else "(no interval)"
+            status = mapping["status"][name]["status"]
+            print(f"  {name:<20} {value: .6g}  {shown}" + ("" if status == "identified" else f"  [{status}]"))
         if "validation" in mapping:
             print(f"validation: relative error {mapping['validation']['relative_error_percent']:.3f} %")
+        if mapping["identifiability"] != "identified":
+            print(mapping["identifiability"])
+    # An honest answer, not an error: one warning per number that is not an estimate (exit code stays 0).
+    for name in mapping["not_identified"]:
+        st = mapping["status"][name]
+        print(f"forecast-design: warning: {name} not identified ({st['status']}): {st.get('reason', '')}",
+              file=sys.stderr)
     return 0
 
 

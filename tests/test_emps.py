@@ -37,14 +37,36 @@ def symmetric_fit(train):
                         friction_model("sfm", offset=True, estimate_inertia=True), holdout=0.3)
 
 
-def test_emps_symmetric_idim_matches_published_within_1_percent(symmetric_fit):
+def test_emps_symmetric_idim_matches_published_within_0_2_percent(symmetric_fit):
     for name, (value, _) in PUBLISHED.items():
-        assert symmetric_fit.params[name] == pytest.approx(value, rel=0.01), name
+        assert symmetric_fit.params[name] == pytest.approx(value, rel=0.002), name
+    # The default sample selection ("auto") leaves EMPS whole: the axis hardly stops (0.08 % of the
+    # samples below two encoder counts per sample), so the fit is plain IDIM, as published.
+    sel = symmetric_fit.selection
+    assert not sel.applied and sel.slow_fraction < sel.rule.stop_fraction
+    assert symmetric_fit.n_samples_used == symmetric_fit.n_samples
+
+
+def test_emps_with_forced_sample_selection_moves_away_from_published(train):
+    # With selection="on" the reversal windows are dropped: the fit then describes the sliding regime,
+    # where EMPS's friction is not the SFM's (Coulomb up, viscous down by a few %). That is why the
+    # rule only switches itself on for logs that stop.
+    fit = fit_friction(train.t, train.position, train.force,
+                       friction_model("sfm", offset=True, estimate_inertia=True), selection="on")
+    assert fit.selection.applied and fit.n_samples_used < fit.n_samples
+    assert fit.params["coulomb"] > 1.01 * PUBLISHED["coulomb"][0]
+    assert fit.params["viscous"] < 0.99 * PUBLISHED["viscous"][0]
 
 
 def test_emps_standard_deviations_and_conditioning_match_published(symmetric_fit):
+    # The published standard deviations are the classical IDIM ones (white residuals): std_iid.
     for name, (_, std) in PUBLISHED.items():
-        assert symmetric_fit.std[name] == pytest.approx(std, rel=0.05), name
+        assert symmetric_fit.std_iid[name] == pytest.approx(std, rel=0.05), name
+    # The reported std follows the residuals' autocorrelation (Newey-West): EMPS's filtered, decimated
+    # residuals are correlated, so it is wider than the published figure.
+    for name in PUBLISHED:
+        assert 1.5 < symmetric_fit.std[name] / symmetric_fit.std_iid[name] < 4.0, name
+    assert symmetric_fit.identified
     assert symmetric_fit.condition_number_unscaled == pytest.approx(25.9883, rel=0.01)
     assert symmetric_fit.relative_error_percent == pytest.approx(4.0834, abs=0.2)
     assert symmetric_fit.fit_percent_holdout > 90.0

@@ -22,11 +22,15 @@ def angle_friction_log():
 def test_position_friction_recovered_from_a_20s_2khz_log(angle_friction_log):
     truth, log = angle_friction_log
     assert log.signals.theta.max() - log.signals.theta.min() > 4 * 3.1416   # two revolutions at least
-    params = identify(log, "position-friction", harmonics=2).to_mapping()["params"]
-    assert params["viscous"] == pytest.approx(log.design.testbed.d_m, rel=0.05)
-    assert params["coulomb"] == pytest.approx(truth.F_c, rel=0.05)
+    doc = identify(log, "position-friction", harmonics=2).to_mapping()
+    params = doc["params"]
+    # Stops left out and the held tau_m lined up with the acceleration: within 1 % (was 5 %).
+    assert params["viscous"] == pytest.approx(log.design.testbed.d_m, rel=0.01)
+    assert params["coulomb"] == pytest.approx(truth.F_c, rel=0.01)
     for name, value in {"coulomb_sin1": 0.05, "coulomb_cos1": 0.03, "coulomb_sin2": 0.02, "coulomb_cos2": 0.0}.items():
-        assert params[name] == pytest.approx(value, abs=0.01), name
+        assert params[name] == pytest.approx(value, abs=0.002), name
+    # The one true zero is not reported as an estimate.
+    assert doc["not_identified"] == ["coulomb_cos2"] and doc["status"]["coulomb_cos2"]["status"] == "uncertain"
 
 
 def test_sfm_explains_less_than_the_model_with_the_right_structure(angle_friction_log):
@@ -42,5 +46,5 @@ def test_closed_loop_coulomb_log_gives_coulomb_level():
                    reference=Multisine(amplitudes=(0.6, 0.3), frequencies_hz=(0.3, 2.0)), duration_s=20.0,
                    effects=[Coulomb(F_c=0.3)], seed=2)
     params = identify(run.to_experiment(), "sfm").to_mapping()["params"]
-    assert params["coulomb"] == pytest.approx(0.3, rel=0.05)
-    assert params["viscous"] == pytest.approx(0.3, rel=0.1)
+    assert params["coulomb"] == pytest.approx(0.3, rel=0.01)
+    assert params["viscous"] == pytest.approx(0.3, rel=0.02)

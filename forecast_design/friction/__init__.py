@@ -6,6 +6,7 @@ from .identify import (
     FrictionValidation,
     IdentificationData,
     IllConditionedWarning,
+    experiment_scales,
     fit_data,
     fit_friction,
     fit_friction_experiment,
@@ -16,8 +17,10 @@ from .identify import (
     prepare_identification_data,
     validate,
     validate_experiment,
+    zoh_align,
 )
 from .logs import AxisLog, load_axis_csv
+from .selection import SampleSelection, SelectionResult
 from .terms import (
     MODEL_NAMES,
     AsymmetricCoulomb,
@@ -55,6 +58,8 @@ __all__ = [
     "MODEL_NAMES",
     "Offset",
     "PositionFriction",
+    "SampleSelection",
+    "SelectionResult",
     "Stribeck",
     "Term",
     "Viscous",
@@ -63,6 +68,7 @@ __all__ = [
     "log_arrays",
     "default_filter_settings",
     "differentiate",
+    "experiment_scales",
     "fit_data",
     "fit_friction",
     "fit_friction_experiment",
@@ -75,4 +81,5 @@ __all__ = [
     "stribeck_force",
     "validate",
     "validate_experiment",
+    "zoh_align",
 ]

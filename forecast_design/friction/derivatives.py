@@ -24,13 +24,15 @@ force noise above the band of the rigid-body dynamics.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy import signal
 
 from ..errors import ParameterError
 
-__all__ = ["FilterSettings", "Kinematics", "default_filter_settings", "differentiate", "decimate_columns"]
+__all__ = ["FilterSettings", "Kinematics", "default_filter_settings", "differentiate", "decimate_columns",
+           "settling_samples", "lowpass"]
 
 DECIMATION_MODES = ("parallel", "subsample")
 
@@ -178,6 +180,24 @@ def _lowpass(x: np.ndarray, settings: FilterSettings) -> np.ndarray:
     return signal.filtfilt(b, a, x, axis=0)
 
 
+def lowpass(x: np.ndarray, settings: FilterSettings) -> np.ndarray:
+    """The position filter (zero-phase Butterworth) applied along axis 0 of `x`.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,) or (n, k)
+        Signals at ``settings.rate_hz``.
+    settings : FilterSettings
+        Cut-off and order.
+
+    Returns
+    -------
+    ndarray
+        Filtered signals, same shape.
+    """
+    return _lowpass(np.asarray(x, dtype=float), settings)
+
+
 def differentiate(position: np.ndarray, settings: FilterSettings, *,
                   velocity: np.ndarray | None = None) -> Kinematics:
     """Zero-phase low-pass the position and take central differences.
@@ -252,3 +272,49 @@ def decimate_columns(columns: np.ndarray, settings: FilterSettings, *, axis: int
         raise ParameterError(f"log too short to decimate by {R}: {X.shape[axis]} samples",
                              name="decimation_factor", value=R)
     return signal.decimate(X, R, ftype="iir", axis=axis, zero_phase=True)
+
+
+#: Fraction of its peak below which an impulse response counts as settled [-].
+SETTLED = 0.01
+
+
+@lru_cache(maxsize=64)
+def _halfwidth(b: tuple[float, ...], a: tuple[float, ...]) -> int:
+    """Half-width in samples of the zero-phase (filtfilt) impulse response of b/a, at 1 % of its peak."""
+    n = 4096
+    x = np.zeros(2 * n + 1)
+    x[n] = 1.0
+    h = np.abs(signal.filtfilt(np.asarray(b), np.asarray(a), x, padtype=None))
+    return int(np.flatnonzero(h > SETTLED * h.max()).max() - n)
+
+
+def settling_samples(settings: FilterSettings) -> tuple[int, int]:
+    """How far (in raw samples) a jump in the log is smeared by the identification filters.
+
+    Parameters
+    ----------
+    settings : FilterSettings
+        The filters.
+
+    Returns
+    -------
+    derivative : int
+        Half-width of the zero-phase Butterworth's impulse response on the
+        position (where it stays above 1 % of its peak) plus 2 samples for the
+        two central differences: the acceleration ``theta''`` that is
+        subtracted from the force feels a friction jump this far on either
+        side (about ``0.9 rate_hz / position_cutoff_hz``, 20 samples at the
+        default ``rate/10`` cut-off).
+    decimation : int
+        Half-width of the zero-phase Chebyshev decimation low-pass (1 %), 0
+        without parallel decimation (148 samples for R = 10): the parallel
+        decimation spreads whatever mismatch the first window holds this much
+        further.
+    """
+    wn = settings.position_cutoff_hz / (settings.rate_hz / 2.0)
+    b, a = signal.butter(settings.filter_order, wn)
+    der = _halfwidth(tuple(b), tuple(a)) + 2
+    if not np.isfinite(settings.decimation_cutoff_hz):
+        return der, 0
+    bd, ad = signal.cheby1(8, 0.05, 0.8 / settings.decimation_factor)
+    return der, _halfwidth(tuple(bd), tuple(ad))

@@ -1,12 +1,23 @@
-"""Stribeck and LuGre fits as casadi/ipopt nonlinear programs.
+"""Stribeck and LuGre fits: variable projection, and a bounded Gauss-Newton on casadi sensitivities.
 
 Stribeck
-    Output is static in the velocity, so the fit is a nonlinear least-squares
-    problem in (linear terms, F_s, F_c, log v_s, viscous). Given v_s the model is
-    linear, so the start is the best linear fit over a log-spaced grid of v_s
-    (variable projection), refined by ipopt. If the optimum is unphysical
-    (F_c < 0, F_s < F_c, viscous < 0) the problem at the found v_s is re-solved as
-    a convex QP with cvxpy under those constraints and flagged.
+    Output is static in the velocity, and for a fixed Stribeck velocity v_s
+    the model ``(F_c + (F_s - F_c) exp(-(v/v_s)^2)) sign v + viscous v`` (+ the
+    linear terms) is linear in the rest. The fit is a *variable projection*:
+    the residual of the best (bounded: F_c, F_s - F_c, viscous >= 0 when
+    constrained) linear fit is profiled over 48 log-spaced v_s between the
+    plausibility bounds (:func:`forecast_design.plausibility.friction_bound`:
+    two encoder speed steps to the largest speed), and the best grid cell is
+    refined by a bounded 1-D Brent search. The optimum is exact in the linear
+    parameters and needs no start; a v_s on a grid end is returned *on* the
+    end and reported ``at_bound`` (the data push it beyond the range the log
+    can resolve). With ``F_s = F_c`` the profile is flat and v_s undefined
+    (``uncertain``); a 95 % profile interval that runs to an end of the range
+    makes v_s ``uncertain`` too. The friction levels are bounded by their
+    plausible range. Standard deviations come from the full Jacobian at the
+    optimum (v_s included) with a Newey-West sandwich
+    (:func:`forecast_design.friction._lsq.hac_covariance`); v_s's interval is
+    computed on log v_s.
 LuGre
     Output-error fit: the bristle state is simulated along the measured
     velocity and the simulated force is matched to the measured one. The state
@@ -19,12 +30,23 @@ LuGre
     with g(v) = F_c + (F_s - F_c) exp(-(v/v_s)^2), on the decimated grid
     (h = decimation_factor / rate_hz); the step is stable for any h, which
     matters because the bristle time constant g / (sigma0 |v|) is often below a
-    millisecond. The recursion is a casadi ``mapaccum`` (single shooting) and
-    ipopt optimises (log sigma0, sigma1, F_c, F_s - F_c, log v_s, sigma2) with
-    the physical bounds (sigma1, F_c, F_s - F_c, sigma2 >= 0) always imposed,
-    since g(v) must stay positive for the bristle equation to exist. The start
-    is the Stribeck fit plus a grid over sigma0. The initial state is the
-    steady state of the first sample.
+    millisecond. The recursion, with its parameter sensitivities, is a casadi
+    ``mapaccum`` (single shooting). The measured friction reaches the fit
+    through the acceleration of the low-passed position, i.e. low-passed
+    itself, so the simulated force is low-passed by the same zero-phase
+    Butterworth before the two are compared (a *filtered* output error; the
+    unfiltered comparison biases the curve towards a smooth one at
+    reversals). scipy's ``least_squares`` (trf, Gauss-Newton with the
+    sensitivity Jacobian) optimises (log sigma0, sigma1, F_c, F_s - F_c,
+    log v_s, sigma2) with the physical bounds (sigma1, F_c, F_s - F_c,
+    sigma2 >= 0) always imposed, since g(v) must stay positive for the bristle
+    equation to exist; sigma0 and v_s search their plausible ranges. The
+    start is the best of a (v_s, sigma0) grid, each v_s with its Stribeck
+    curve fitted away from the stops. The initial state is the steady state
+    of the first sample, and the residual counts from the first gross sliding
+    on (the bristle state before it is unknown). A converged solver is not a
+    verdict on the numbers: :func:`~forecast_design.friction.fit_friction`
+    grades every parameter with :mod:`forecast_design.plausibility`.
 """
 
 from __future__ import annotations
@@ -34,16 +56,20 @@ from typing import Any, Mapping
 
 import casadi as ca
 import numpy as np
+from scipy.optimize import least_squares, lsq_linear, minimize_scalar
 
 from ..errors import ParameterError, SolverError
 from . import _lsq
-from .terms import FrictionModel, LuGre, Stribeck, lugre_force
+from .derivatives import lowpass
+from .terms import FrictionModel, LuGre, Stribeck
 
 __all__ = ["NonlinearResult", "fit_nonlinear", "IPOPT_OPTIONS"]
 
-#: Quiet ipopt (the project's convention).
+#: Quiet ipopt (the project's convention; kept for callers, the friction fits no longer use ipopt).
 IPOPT_OPTIONS = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes"}
 _KNOWN_OPTIONS = ("max_iter", "sigma0_init")
+#: Iterations of the Stribeck start of a LuGre fit (not the user's limit).
+_START_ITER = 500
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,26 +83,17 @@ class NonlinearResult:
     constrained: bool
     active: tuple[str, ...]
     solver: Mapping[str, Any] = field(default_factory=dict)
-
-
-def _solve_nlp(x: ca.MX, f: ca.MX, x0: np.ndarray, lbx: np.ndarray, ubx: np.ndarray, what: str,
-               max_iter: int, *, hess_lag: ca.Function | None = None,
-               grad_f: ca.Function | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-    opts = dict(IPOPT_OPTIONS)
-    if hess_lag is not None:
-        opts["hess_lag"] = hess_lag
-    if grad_f is not None:
-        opts["grad_f"] = grad_f
-    opts["ipopt.max_iter"] = int(max_iter)
-    solver = ca.nlpsol(f"friction_{what}", "ipopt", {"x": x, "f": f}, opts)
-    sol = solver(x0=x0, lbx=lbx, ubx=ubx)
-    st = solver.stats()
-    summary = {"method": f"ipopt ({what})", "return_status": str(st.get("return_status")),
-               "iter_count": int(st.get("iter_count", -1)), "success": bool(st.get("success"))}
-    if not st.get("success"):
-        raise SolverError(f"{what} friction fit: ipopt did not converge ({st.get('return_status')}, "
-                          f"{st.get('iter_count')} iterations)", stats=summary)
-    return np.asarray(sol["x"], dtype=float).ravel(), summary
+    #: i.i.d. covariance sigma^2 (J^T J)^-1 of the same fit (the classical figure)
+    covariance_iid: np.ndarray | None = None
+    #: parameters held on a bound of the search, with that search range (lo, hi)
+    held: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    #: Newey-West bandwidth [samples] and median std inflation over i.i.d. [-]
+    lags: int = 0
+    inflation: float = 1.0
+    #: statuses decided by the fit itself: name -> (status, reason)
+    overrides: Mapping[str, tuple[str, str]] = field(default_factory=dict)
+    #: parameters whose 95 % interval is computed on the log scale (strictly positive)
+    log_scale: tuple[str, ...] = ()
 
 
 def _scales(W: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -98,91 +115,212 @@ def _jacobian_stats(J: np.ndarray, r: np.ndarray, free: np.ndarray | None = None
 
 # --- Stribeck ---------------------------------------------------------------------------
 
+#: Points of the log-spaced v_s grid the Stribeck profile is evaluated on [-].
+STRIBECK_GRID = 48
+
+
+def _decay(v: np.ndarray, vs: float) -> np.ndarray:
+    """exp(-(v/v_s)^2), flushed to zero beyond 7 v_s (avoids slow subnormal exponentials)."""
+    x = np.minimum((v / vs) ** 2, 50.0)
+    return np.where(x < 50.0, np.exp(-x), 0.0)
+
 
 def _stribeck_basis(v: np.ndarray, vs: float) -> tuple[np.ndarray, np.ndarray]:
     sgn = np.sign(v)
-    return sgn, np.exp(-((v / vs) ** 2)) * sgn
+    return sgn, _decay(v, vs) * sgn
 
 
-def _grid_vs(data, Phi: np.ndarray) -> tuple[float, np.ndarray]:
-    """Best v_s on a log grid with the rest linear; returns v_s and [lin, F_c, F_s - F_c, viscous]."""
-    v, y = data.velocity, data.force
-    vmax = float(np.max(np.abs(v)))
-    best = (np.inf, None, None)
-    for vs in np.geomspace(1e-3 * vmax, 0.5 * vmax, 40):
-        sgn, e = _stribeck_basis(v, vs)
-        W = np.column_stack([Phi, sgn, e, v])
-        s = np.linalg.norm(W, axis=0)
-        s[s == 0] = 1
-        p = np.linalg.lstsq(W / s, y, rcond=None)[0] / s
-        sse = float(np.sum((y - W @ p) ** 2))
-        if sse < best[0]:
-            best = (sse, vs, p)
-    return float(best[1]), best[2]
+class _StribeckProfile:
+    """Residual of the best linear fit at fixed v_s (variable projection).
+
+    Columns ``[lin..., sign v, exp(-(v/v_s)^2) sign v, v]`` with parameters
+    ``[lin..., F_c, F_s - F_c, viscous]``. Only the third column depends on
+    v_s, so the normal equations of the other columns are formed once and
+    each v_s costs one pass over the samples (O(m p)).
+    """
+
+    def __init__(self, Phi: np.ndarray, y: np.ndarray, v: np.ndarray, bounds: np.ndarray | None):
+        self.v, self.y = v, y
+        self.sgn = np.sign(v)
+        self.F = np.column_stack([Phi, self.sgn, v])  # fixed columns
+        self.L = Phi.shape[1]
+        self.FtF = self.F.T @ self.F
+        self.Fty = self.F.T @ y
+        self.yty = float(y @ y)
+        self.bounds = bounds  # (lb, ub) in [lin..., F_c, delta, viscous] order, or None
+        self.evaluations = 0
+
+    def normal(self, vs: float) -> tuple[np.ndarray, np.ndarray]:
+        c = _decay(self.v, vs) * self.sgn
+        L = self.L
+        p = L + 3
+        A = np.empty((p, p))
+        b = np.empty(p)
+        idx = np.r_[np.arange(L + 1), L + 2]  # fixed columns in the full order
+        A[np.ix_(idx, idx)] = self.FtF
+        Fc = self.F.T @ c
+        A[idx, L + 1] = A[L + 1, idx] = Fc
+        A[L + 1, L + 1] = float(c @ c)
+        b[idx] = self.Fty
+        b[L + 1] = float(c @ self.y)
+        return A, b
+
+    def solve(self, vs: float) -> tuple[float, np.ndarray, np.ndarray]:
+        """SSE, parameters [lin, F_c, delta, viscous] and active-bound flags at this v_s."""
+        self.evaluations += 1
+        A, b = self.normal(vs)
+        s = np.sqrt(np.clip(np.diag(A), 0.0, None))
+        s[s == 0] = 1.0
+        As = A / np.outer(s, s)
+        bs = b / s
+        x = np.linalg.lstsq(As, bs, rcond=None)[0]
+        active = np.zeros(x.size, dtype=bool)
+        if self.bounds is not None:
+            lb, ub = self.bounds[0] * s, self.bounds[1] * s
+            if np.any(x < lb) or np.any(x > ub):
+                lam, vec = np.linalg.eigh(As)
+                R = (vec * np.sqrt(np.clip(lam, 0.0, None))).T
+                d = np.linalg.lstsq(R.T, bs, rcond=None)[0]
+                res = lsq_linear(R, d, bounds=(lb, ub), method="bvls", tol=1e-12)
+                x = res.x
+                active = res.active_mask != 0
+                x = np.where(active, np.where(res.active_mask < 0, lb, ub), x)
+        sse = self.yty - 2.0 * float(bs @ x) + float(x @ As @ x)
+        return max(sse, 0.0), x / s, active
 
 
-def _fit_stribeck(model: FrictionModel, data, *, constrain: bool, max_iter: int) -> NonlinearResult:
-    Phi, y, v = data.regressor, data.force, data.velocity
+def _fit_stribeck(model: FrictionModel, data, *, constrain: bool, max_iter: int,
+                  vs_bounds: tuple[float, float] | None = None, keep: np.ndarray | None = None,
+                  level_max: float | None = None) -> NonlinearResult:
+    """Stribeck fit by variable projection over v_s (see the module docstring)."""
+    keep = np.ones(data.force.size, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+    Phi_all, y_all, v_all = data.regressor, data.force, data.velocity
+    Phi, y, v = Phi_all[keep], y_all[keep], v_all[keep]
     L = Phi.shape[1]
-    vs0, p0 = _grid_vs(data, Phi)
-    sgn, e0 = _stribeck_basis(v, vs0)
-    # natural parameters: [lin..., static, coulomb, stribeck_velocity, viscous]
-    W0 = np.column_stack([Phi, e0, sgn * (1 - np.exp(-((v / vs0) ** 2))), v])
-    sc = _scales(W0, y)
-    x = ca.MX.sym("x", L + 4)
-    p_lin = x[:L] * sc[:L]
-    Fs, Fc, visc = x[L] * sc[L], x[L + 1] * sc[L + 1], x[L + 3] * sc[L + 2]
-    vs = vs0 * ca.exp(x[L + 2])
-    vd, sd = ca.DM(v), ca.DM(sgn)
-    F = (Fc + (Fs - Fc) * ca.exp(-(vd / vs) ** 2)) * sd + visc * vd
-    if L:
-        F = F + ca.mtimes(ca.DM(Phi), p_lin)
-    ny2 = max(float(y @ y), 1e-300)
-    f = 0.5 * ca.sumsqr(F - ca.DM(y)) / ny2
-    lin0, c0, d0, visc0 = p0[:L], p0[L], p0[L + 1], p0[L + 2]
-    x0 = np.concatenate([lin0 / sc[:L], [(c0 + d0) / sc[L], c0 / sc[L + 1], 0.0, visc0 / sc[L + 2]]])
-    lim = np.log(1e3)
-    lbx = np.full(L + 4, -np.inf)
-    ubx = np.full(L + 4, np.inf)
-    lbx[L + 2], ubx[L + 2] = -lim, lim
-    xo, summary = _solve_nlp(x, f, x0, lbx, ubx, "stribeck", max_iter)
-    p_nat = np.concatenate([xo[:L] * sc[:L], [xo[L] * sc[L], xo[L + 1] * sc[L + 1],
-                                               vs0 * np.exp(xo[L + 2]), xo[L + 3] * sc[L + 2]]])
-    if abs(xo[L + 2]) > lim - 1e-6:
-        summary["note"] = "stribeck_velocity reached its search bound (1e3 x the grid start)"
-    J = _stribeck_jacobian(p_nat, Phi, v)
-    r = y - _stribeck_predict(p_nat, Phi, v)
+    vmax = float(np.max(np.abs(v))) if v.size else 0.0
+    lo, hi = (1e-3 * vmax, vmax) if vs_bounds is None else (float(vs_bounds[0]), float(vs_bounds[1]))
+    if not (0 < lo < hi and np.isfinite(hi)):
+        raise ParameterError(f"Stribeck velocity search range [{lo:.3g}, {hi:.3g}] is empty: the log hardly "
+                             "moves", name="stribeck_velocity", value=(lo, hi))
     lin_nonneg = _lin_nonneg(model)
-    Fs_, Fc_, vs_, visc_ = p_nat[L:]
-    violated = (Fc_ < 0) or (Fs_ < Fc_) or (visc_ < 0) or bool(np.any(lin_nonneg & (p_nat[:L] < 0)))
-    if not (constrain and violated):
-        cov, cond, cond_raw = _jacobian_stats(J, r)
-        return NonlinearResult(p_nat, cov, cond, cond_raw, False, (), summary)
-    # Convex re-solve at the found v_s: columns [lin, F_c, F_s - F_c, viscous], all >= 0 but lin.
-    sgn, e = _stribeck_basis(v, vs_)
-    W = np.column_stack([Phi, sgn, e, v])
-    mask = np.concatenate([lin_nonneg, [True, True, True]])
-    q, act = _lsq.solve_nonneg_lstsq(W, y, mask)
+    bounds = None
+    if constrain:
+        lb = np.concatenate([np.where(lin_nonneg, 0.0, -np.inf), [0.0, 0.0, 0.0]])
+        ub = np.full(L + 3, np.inf)
+        if level_max is not None and np.isfinite(level_max) and level_max > 0:
+            # the friction levels stay in their plausible range: a decay column that only a few
+            # samples feel cannot run off to 1e12
+            ub[L] = ub[L + 1] = level_max
+        bounds = np.vstack([lb, ub])
+    prof = _StribeckProfile(Phi, y, v, bounds)
+    grid = np.geomspace(lo, hi, STRIBECK_GRID)
+    sse = np.array([prof.solve(g)[0] for g in grid])
+    i = int(np.argmin(sse))
+    a, b = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, grid.size - 1)])
+    res = minimize_scalar(lambda u: prof.solve(float(np.exp(u)))[0], bounds=(a, b), method="bounded",
+                          options={"xatol": 1e-7, "maxiter": int(max_iter)})
+    summary: dict[str, Any] = {
+        "method": f"variable projection: profile over {STRIBECK_GRID} log-spaced v_s in [{lo:.3g}, {hi:.3g}] "
+                  "+ bounded Brent refinement (scipy minimize_scalar)",
+        "success": bool(res.success), "return_status": str(res.message), "iter_count": int(res.nfev),
+        "evaluations": prof.evaluations}
+    if not res.success:
+        raise SolverError(f"stribeck friction fit: the v_s refinement did not converge ({res.message}, "
+                          f"{res.nfev} evaluations)", stats=summary)
+    vs = float(np.exp(res.x)) if res.fun <= sse[i] else float(grid[i])
+    held: dict[str, tuple[float, float]] = {}
+    notes: list[str] = []
+    u_tol = 1e-4  # on log v_s: closer than this to a grid end counts as on it
+    if i == 0 and np.log(vs) - np.log(lo) < u_tol:
+        vs = lo
+    elif i == grid.size - 1 and np.log(hi) - np.log(vs) < u_tol:
+        vs = hi
+    _, q, act = prof.solve(vs)
+    overrides: dict[str, tuple[str, str]] = {}
+    if q[L + 1] <= 0.0:
+        # no decay: the profile is flat in v_s, which is then undefined
+        vs = float(np.sqrt(lo * hi))
+        overrides["stribeck_velocity"] = (
+            "uncertain", "static = coulomb: the log shows no Stribeck decay, so stribeck_velocity is undefined")
+    if vs in (lo, hi):
+        held["stribeck_velocity"] = (lo, hi)
+    p_nat = np.concatenate([q[:L], [q[L] + q[L + 1], q[L], vs, q[L + 2]]])
     labels = [f"{n} >= 0" for n in model.linear_names] + ["coulomb >= 0", "static >= coulomb", "viscous >= 0"]
-    active = tuple(lbl for lbl, a in zip(labels, act) if a) + ("stribeck_velocity fixed",)
-    p_nat = np.concatenate([q[:L], [q[L] + q[L + 1], q[L], vs_, q[L + 2]]])
-    r = y - W @ q
-    cov_q = _lsq.ls_covariance(W, r, ~act)
-    T = np.zeros((L + 4, L + 3))  # natural = T @ [lin, Fc, delta, visc]
-    T[:L, :L] = np.eye(L)
-    T[L, L] = T[L, L + 1] = 1.0
-    T[L + 1, L] = 1.0
-    T[L + 3, L + 2] = 1.0
-    cov = T @ cov_q @ T.T
-    _, cond, cond_raw = _jacobian_stats(W, r)
-    summary = dict(summary, method=summary["method"] + " + cvxpy constrained least squares at fixed v_s")
-    return NonlinearResult(p_nat, cov, cond, cond_raw, True, active, summary)
+    if bounds is not None:
+        for j, name in ((L, "coulomb"), (L + 1, "static - coulomb")):
+            if act[j] and q[j] >= bounds[1][j]:
+                labels[j] = f"{name} <= {bounds[1][j]:.3g} (plausible friction level)"
+    active = tuple(lbl for lbl, a_ in zip(labels, act) if a_)
+    nat_names = list(model.linear_names) + ["static", "coulomb", "stribeck_velocity", "viscous"]
+    for j in np.flatnonzero(act):
+        upper = bounds is not None and q[j] >= bounds[1][j] and np.isfinite(bounds[1][j])
+        if j < L:
+            held[nat_names[j]] = (0.0, np.inf)
+        elif j == L:
+            held["coulomb"] = (0.0, float(bounds[1][j])) if upper else (0.0, np.inf)
+        elif j == L + 1:
+            held["static"] = (float(q[L]), float(q[L] + q[L + 1])) if upper else (float(q[L]), np.inf)
+        else:
+            held["viscous"] = (0.0, np.inf)
+    # Covariance: the full Jacobian at the optimum (v_s included), sandwiched with the residual's autocorrelation.
+    J = _stribeck_jacobian(p_nat, Phi_all, v_all)
+    r = y_all - _stribeck_predict(p_nat, Phi_all, v_all)
+    free = np.array([n not in held for n in nat_names])
+    if "stribeck_velocity" in overrides:
+        free[L + 2] = False
+    if "static" in held:  # static = coulomb: one free level, carried by the coulomb column
+        J = J.copy()
+        J[:, L + 1] = J[:, L] + J[:, L + 1]
+        free[L] = False
+        free[L + 1] = "coulomb" not in held
+    hac = _lsq.hac_covariance(J, r, free, keep)
+    cov = hac.covariance
+    cov_iid = hac.iid_covariance
+    if "static" in held and free[L + 1]:
+        for C in (cov, cov_iid):  # static = coulomb moves with it
+            C[L, :] = C[L + 1, :]
+            C[:, L] = C[:, L + 1]
+    _, cond, cond_raw = _jacobian_stats(J[keep][:, free] if free.any() else J[keep], r[keep])
+    # Profile interval of v_s: the grid points whose residual is within chi2(1, 0.95) of the optimum, the
+    # residual variance scaled by the sandwich / i.i.d. ratio (correlated residuals). Local Jacobian
+    # intervals are too narrow when the profile is flat; a profile interval that runs to an end of the
+    # plausible range means v_s is not pinned down by the log.
+    sse_opt = prof.solve(vs)[0]
+    ratio = hac.inflation ** 2
+    if free[L + 2] and cov_iid[L + 2, L + 2] > 0:
+        ratio = max(cov[L + 2, L + 2] / cov_iid[L + 2, L + 2], 1.0)
+    thr = sse_opt + 3.841 * sse_opt / max(int(keep.sum()) - (L + 4), 1) * ratio
+    inside = np.flatnonzero(sse <= thr)
+    i_opt = int(np.argmin(np.abs(np.log(grid) - np.log(vs))))
+    lo_i, hi_i = i_opt, i_opt
+    while lo_i > 0 and sse[lo_i - 1] <= thr:
+        lo_i -= 1
+    while hi_i < grid.size - 1 and sse[hi_i + 1] <= thr:
+        hi_i += 1
+    profile_interval = (float(grid[max(lo_i - 1, 0)]) if lo_i > 0 else float(lo),
+                        float(grid[min(hi_i + 1, grid.size - 1)]) if hi_i < grid.size - 1 else float(hi))
+    if inside.size and (lo_i == 0 or hi_i == grid.size - 1) and "stribeck_velocity" not in overrides \
+            and "stribeck_velocity" not in held:
+        end = "lower" if lo_i == 0 else "upper"
+        overrides["stribeck_velocity"] = (
+            "uncertain", f"the residual profile over stribeck_velocity is flat to the {end} end of its plausible "
+                         f"range [{lo:.3g}, {hi:.3g}] (95 % profile interval {profile_interval[0]:.3g} .. "
+                         f"{profile_interval[1]:.3g})")
+    if active:
+        summary["method"] += " under bounds (scipy lsq_linear, bvls)"
+    summary["profile"] = {"v_s_grid": [float(grid[0]), float(grid[-1])], "sse_min": float(sse.min()),
+                          "sse_max": float(sse.max()), "interval95": list(profile_interval)}
+    if notes:
+        summary["notes"] = notes
+    return NonlinearResult(p_nat, cov, cond, cond_raw, bool(active), active, summary,
+                           covariance_iid=cov_iid, held=held, lags=hac.lags, inflation=hac.inflation,
+                           overrides=overrides, log_scale=("stribeck_velocity",))
 
 
 def _stribeck_predict(p: np.ndarray, Phi: np.ndarray, v: np.ndarray) -> np.ndarray:
     L = Phi.shape[1]
     Fs, Fc, vs, visc = p[L:]
-    out = (Fc + (Fs - Fc) * np.exp(-((v / vs) ** 2))) * np.sign(v) + visc * v
+    out = (Fc + (Fs - Fc) * _decay(v, vs)) * np.sign(v) + visc * v
     return out + Phi @ p[:L] if L else out
 
 
@@ -191,7 +329,7 @@ def _stribeck_jacobian(p: np.ndarray, Phi: np.ndarray, v: np.ndarray) -> np.ndar
     L = Phi.shape[1]
     Fs, Fc, vs, _ = p[L:]
     sgn = np.sign(v)
-    e = np.exp(-((v / vs) ** 2))
+    e = _decay(v, vs)
     d_vs = (Fs - Fc) * sgn * e * 2.0 * v**2 / vs**3
     return np.column_stack([Phi, e * sgn, (1.0 - e) * sgn, d_vs, v])
 
@@ -243,96 +381,200 @@ def _lugre_simulator(h: float, v: np.ndarray) -> ca.Function:
     return ca.Function("lugre_force", [pm], [allout[0, :].T, allout[1:, :].T])
 
 
-def _fit_lugre(model: FrictionModel, data, *, max_iter: int, sigma0_init: float | None) -> NonlinearResult:
+def _lugre_force_sets(v: np.ndarray, h: float, s0: np.ndarray, Fs: np.ndarray, Fc: np.ndarray,
+                      vs: np.ndarray, visc: np.ndarray) -> np.ndarray:
+    """LuGre force (sigma1 = 0) for C parameter sets at once, shape (C, m) (backward Euler, vectorised)."""
+    g = Fc[:, None] + (Fs - Fc)[:, None] * np.exp(-np.minimum((v[None, :] / vs[:, None]) ** 2, 50.0))
+    g = np.maximum(g, 1e-12)
+    A = 1.0 / (1.0 + h * s0[:, None] * np.abs(v)[None, :] / g)
+    z = g[:, 0] * np.sign(v[0]) / s0
+    Z = np.empty_like(A)
+    Z[:, 0] = z
+    b = h * v
+    for k in range(1, v.size):
+        z = A[:, k] * (z + b[k])
+        Z[:, k] = z
+    return s0[:, None] * Z + visc[:, None] * v[None, :]
+
+
+def _lugre_starts(model: FrictionModel, data, strib: NonlinearResult, vs_bounds, keep, sigma0_init, lp, yf,
+                  Phif, core):
+    """Best (linear params, (F_s, F_c, v_s, viscous), sigma0) on a (v_s, sigma0) grid."""
     Phi, y, v, h = data.regressor, data.force, data.velocity, data.dt
-    L, m = Phi.shape[1], y.size
-    # Start: Stribeck fit on the same data, then a grid over sigma0.
+    L = Phi.shape[1]
+    keep = np.ones(y.size, dtype=bool) if keep is None else keep
+    lin_nonneg = _lin_nonneg(model)
+    lb = np.concatenate([np.where(lin_nonneg, 0.0, -np.inf), [0.0, 0.0, 0.0]])
+    prof = _StribeckProfile(Phi[keep], y[keep], v[keep], np.vstack([lb, np.full(L + 3, np.inf)]))
+    vmax = float(np.max(np.abs(v))) if v.size else 1.0
+    lo, hi = (1e-3 * vmax, vmax) if vs_bounds is None else vs_bounds
+    cands = [(strib.params[:L], strib.params[L:])]
+    for vs in np.geomspace(lo, hi, 12):
+        _, q, _ = prof.solve(float(vs))
+        cands.append((q[:L], np.array([q[L] + q[L + 1], q[L], vs, q[L + 2]])))
+    v_typ = float(np.median(np.abs(v[np.abs(v) > 0]))) if np.any(v != 0) else 1.0
+    best = (np.inf, None, None, None)
+    for lin, (Fs, Fc, vs, visc) in cands:
+        Fc = max(Fc, 1e-3 * max(Fs, 1e-12))
+        Fs = max(Fs, Fc)
+        if sigma0_init is None:
+            s0 = Fc / (h * np.geomspace(0.1, 100.0, 10) * v_typ)
+        else:
+            s0 = np.array([float(sigma0_init)])
+        C = s0.size
+        F = _lugre_force_sets(v, h, s0, np.full(C, Fs), np.full(C, Fc), np.full(C, vs), np.full(C, visc))
+        target = yf - (Phif @ lin if L else 0.0)
+        r = (lp(F.T) - target[:, None])[core]
+        sse = np.einsum("ij,ij->j", r, r)
+        j = int(np.argmin(sse))
+        if sse[j] < best[0]:
+            best = (float(sse[j]), lin, (Fs, Fc, vs, visc), float(s0[j]))
+    return best[1], best[2], best[3]
+
+
+def _fit_lugre(model: FrictionModel, data, *, max_iter: int, sigma0_init: float | None,
+               vs_bounds: tuple[float, float] | None = None, sigma0_bounds: tuple[float, float] | None = None,
+               start_keep: np.ndarray | None = None) -> NonlinearResult:
+    Phi, v, h = data.regressor, data.velocity, data.dt
+    # Filtered output error: the measured friction is low-passed by the position filter (through the
+    # acceleration), so the simulated friction is low-passed alike before it is compared.
+    yf = data.force_filtered if data.force_filtered is not None else data.force
+    Phif = data.regressor_filtered if data.regressor_filtered is not None else Phi
+    L, m = Phi.shape[1], yf.size
+    settings = data.settings
+    e = min(settings.edge_samples, max(m // 10, 0))
+    core = np.zeros(m, dtype=bool)
+    core[e:m - e] = True  # the model's own filter edges are left out
+    # The bristle state at the start of the log is unknown (the simulation assumes steady sliding): the
+    # residual counts from the first gross sliding on (20 encoder speed steps, then 10 ms to settle).
+    moving = np.flatnonzero(np.abs(v) > 20.0 * data.encoder_step * settings.rate_hz)
+    if moving.size and moving[0] > 0:
+        core[:min(m, moving[0] + int(round(0.01 / h)))] = False
+
+    def lp(X: np.ndarray) -> np.ndarray:
+        return lowpass(X, settings) if data.force_filtered is not None else X
+
+    # Start: the best of a grid over (v_s, sigma0), each v_s with the Stribeck curve's linear parameters
+    # fitted away from the stops (variable projection), each simulated with sigma1 = 0. (A single
+    # Stribeck start is not enough: with fast reversals a Stribeck curve with v_s near the top speed
+    # fits the static part as well as the true hump.)
     strib = _fit_stribeck(FrictionModel(terms=model.linear_terms + (Stribeck(),)), data,
-                          constrain=True, max_iter=max_iter)
-    lin0 = strib.params[:L]
-    Fs0, Fc0, vs0, visc0 = strib.params[L:]
-    Fc0 = max(Fc0, 1e-3 * max(Fs0, 1e-12))
-    Fs0 = max(Fs0, Fc0)
-    P = L + 6
-    sim = _lugre_simulator(h, v)
-
-    def force_and_jacobian(p_):
-        Fb, Jb = sim(p_[L:])
-        if L:
-            return Fb + ca.mtimes(ca.DM(Phi), p_[:L]), ca.horzcat(ca.DM(Phi), Jb)
-        return Fb, Jb
-
+                          constrain=True, max_iter=_START_ITER, vs_bounds=vs_bounds, keep=start_keep)
+    lin0, (Fs0, Fc0, vs0, visc0), s0_best = _lugre_starts(model, data, strib, vs_bounds, start_keep,
+                                                          sigma0_init, lp, yf, Phif, core)
     if sigma0_init is None:
-        v_typ = float(np.median(np.abs(v[np.abs(v) > 0]))) if np.any(v != 0) else 1.0
-        best = (np.inf, None)
-        for tau in h * np.geomspace(0.1, 100.0, 10):
-            s0 = Fc0 / (tau * v_typ)
-            F = lugre_force(v, h, sigma0=s0, sigma1=0.0, static=Fs0, coulomb=Fc0,
-                            stribeck_velocity=vs0, viscous=visc0) + (Phi @ lin0 if L else 0.0)
-            sse = float(np.sum((y - F) ** 2))
-            if sse < best[0]:
-                best = (sse, s0)
-        sigma0_init = best[1]
+        sigma0_init = s0_best
     elif not sigma0_init > 0:
         raise ParameterError(f"sigma0_init must be > 0 [N m/rad], got {sigma0_init!r}", name="sigma0_init",
                              value=sigma0_init)
     s0i = float(sigma0_init)
+    if sigma0_bounds is not None:
+        s0i = float(np.clip(s0i, *sigma0_bounds))
     sF = max(Fs0, 1e-12)
     sv = max(visc0, 1e-3 * sF / max(float(np.max(np.abs(v))), 1e-12))
-    s1i = 0.0
+    sc_lin = _scales(Phif, yf) if L else np.zeros(0)
+    sim = _lugre_simulator(h, v)
     # decision x = [lin/sc, log(s0/s0i), s1/sv, Fc/sF, (Fs-Fc)/sF, log(vs/vs0), visc/sv]
-    sc_lin = _scales(Phi, y) if L else np.zeros(0)
-    x = ca.MX.sym("x", P)
-    nat = ca.vertcat(x[:L] * sc_lin if L else ca.MX(0, 1),
-                     s0i * ca.exp(x[L]), x[L + 1] * sv, (x[L + 2] + x[L + 3]) * sF, x[L + 2] * sF,
-                     vs0 * ca.exp(x[L + 4]), x[L + 5] * sv)
-    ny2 = max(float(y @ y), 1e-300)
-    Fx, Jx = force_and_jacobian(nat)
-    r = Fx - ca.DM(y)
-    Jr = ca.mtimes(Jx, ca.jacobian(nat, x))
-    f = 0.5 * ca.sumsqr(r) / ny2
-    # Gauss-Newton: gradient J^T r and Hessian J^T J from the sensitivity recursion.
-    p_empty, lam_f, lam_g = ca.MX.sym("p", 0), ca.MX.sym("lam_f"), ca.MX.sym("lam_g", 0)
-    grad = ca.Function("nlp_grad_f", [x, p_empty], [f, ca.mtimes(Jr.T, r) / ny2],
-                       ["x", "p"], ["f", "grad_f_x"])
-    hess = ca.Function("nlp_hess_l", [x, p_empty, lam_f, lam_g],
-                       [ca.triu(lam_f * ca.mtimes(Jr.T, Jr) / ny2)],
-                       ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+    P = L + 6
+
+    def natural(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Natural parameters [lin, s0, s1, Fs, Fc, vs, visc] and their Jacobian d nat / d x."""
+        nat = np.concatenate([x[:L] * sc_lin, [s0i * np.exp(x[L]), x[L + 1] * sv, (x[L + 2] + x[L + 3]) * sF,
+                                               x[L + 2] * sF, vs0 * np.exp(x[L + 4]), x[L + 5] * sv]])
+        T = np.zeros((P, P))
+        T[:L, :L] = np.diag(sc_lin)
+        T[L, L] = nat[L]
+        T[L + 1, L + 1] = sv
+        T[L + 2, L + 2] = T[L + 2, L + 3] = sF
+        T[L + 3, L + 2] = sF
+        T[L + 4, L + 4] = nat[L + 4]
+        T[L + 5, L + 5] = sv
+        return nat, T
+
+    cache: dict[str, Any] = {}
+
+    def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = x.tobytes()
+        if cache.get("key") != key:
+            nat, T = natural(x)
+            Fb, Jb = sim(nat[L:])
+            F = lp(np.asarray(Fb, dtype=float).ravel())
+            Jf = lp(np.asarray(Jb, dtype=float))
+            if L:
+                F = F + Phif @ nat[:L]
+                Jf = np.column_stack([Phif, Jf])
+            cache.update(key=key, r=(F - yf)[core], J=(Jf @ T)[core])
+        return cache["r"], cache["J"]
+
     x0 = np.concatenate([lin0 / np.where(sc_lin > 0, sc_lin, 1.0) if L else np.zeros(0),
-                         [0.0, s1i / sv, Fc0 / sF, (Fs0 - Fc0) / sF, 0.0, visc0 / sv]])
-    lim = np.log(1e4)
-    lbx = np.full(L + 6, -np.inf)
-    ubx = np.full(L + 6, np.inf)
+                         [0.0, 0.0, Fc0 / sF, (Fs0 - Fc0) / sF, 0.0, visc0 / sv]])
+    # sigma0 and v_s search their plausible ranges (forecast_design.plausibility) when given,
+    # else within 1e4 (sigma0) and 1e3 (v_s) of their starts.
+    s0_lo, s0_hi = (s0i / 1e4, s0i * 1e4) if sigma0_bounds is None else sigma0_bounds
+    vs_lo, vs_hi = (vs0 / 1e3, vs0 * 1e3) if vs_bounds is None else vs_bounds
+    lbx = np.full(P, -np.inf)
+    ubx = np.full(P, np.inf)
     lin_nonneg = _lin_nonneg(model)
     lbx[:L][lin_nonneg] = 0.0
-    lbx[L], ubx[L] = -lim, lim
+    lbx[L], ubx[L] = np.log(s0_lo / s0i), np.log(s0_hi / s0i)
     lbx[L + 1] = 0.0
     lbx[L + 2] = 1e-6
     lbx[L + 3] = 0.0
-    lbx[L + 4], ubx[L + 4] = -np.log(1e3), np.log(1e3)
+    lbx[L + 4], ubx[L + 4] = np.log(vs_lo / vs0), np.log(vs_hi / vs0)
     lbx[L + 5] = 0.0
-    xo, summary = _solve_nlp(x, f, x0, lbx, ubx, "lugre", max_iter, hess_lag=hess, grad_f=grad)
-    summary["simulation"] = (f"backward Euler single shooting (casadi mapaccum), h = {h:g} s, "
-                             "Gauss-Newton Hessian")
-    summary["sigma0_init"] = s0i
-    p_nat = np.asarray(ca.Function("nat", [x], [nat])(xo), dtype=float).ravel()
+    x0 = np.clip(x0, lbx + 1e-9, ubx - 1e-9)
+    res = least_squares(lambda x: evaluate(x)[0], x0, jac=lambda x: evaluate(x)[1], bounds=(lbx, ubx),
+                        method="trf", x_scale="jac", ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=int(max_iter))
+    summary: dict[str, Any] = {
+        "method": "bounded Gauss-Newton (scipy least_squares, trf) on the filtered output error",
+        "return_status": str(res.message), "iter_count": int(res.nfev), "success": bool(res.status > 0),
+        "simulation": f"backward Euler along the measured velocity (casadi mapaccum with sensitivities), "
+                      f"h = {h:g} s", "sigma0_init": s0i}
+    if res.status <= 0:
+        raise SolverError(f"lugre friction fit did not converge ({res.message}, {res.nfev} evaluations)",
+                          stats=summary)
+    xo = res.x
+    p_nat, _ = natural(xo)
     labels = ([f"{n} >= 0" for n in model.linear_names]
-              + ["sigma0 within 1e4 of its start", "sigma1 >= 0", "coulomb > 0", "static >= coulomb",
-                 "stribeck_velocity within 1e3 of its start", "viscous >= 0"])
-    tol = 1e-4  # scaled units; ipopt's interior point stops just inside a bound
-    at_bound = (np.isfinite(lbx) & (xo <= lbx + tol)) | (np.isfinite(ubx) & (xo >= ubx - tol))
+              + [f"sigma0 in [{s0_lo:.3g}, {s0_hi:.3g}]", "sigma1 >= 0", "coulomb > 0", "static >= coulomb",
+                 f"stribeck_velocity in [{vs_lo:.3g}, {vs_hi:.3g}]", "viscous >= 0"])
+    at_bound = res.active_mask != 0
     active = tuple(lbl for lbl, a in zip(labels, at_bound) if a)
-    F_opt, J_opt = force_and_jacobian(ca.DM(p_nat))
-    J = np.asarray(J_opt, dtype=float)
-    r = y - np.asarray(F_opt, dtype=float).ravel()
-    free = ~at_bound
-    free[L + 3] = True  # static >= coulomb: static itself stays free
-    cov, cond, cond_raw = _jacobian_stats(J, r, free)
-    # report in model.names order: lin..., sigma0, sigma1, static, coulomb, stribeck_velocity, viscous
-    return NonlinearResult(p_nat, cov, cond, cond_raw, bool(active), active, summary)
+    r, Jx = evaluate(xo)
+    _, T = natural(xo)
+    J = Jx @ np.linalg.inv(T)  # Jacobian in natural units
+    # decision order [lin, sigma0, sigma1, coulomb, static - coulomb, v_s, viscous];
+    # natural (model.names) order [lin, sigma0, sigma1, static, coulomb, v_s, viscous]
+    names = list(model.linear_names) + ["sigma0", "sigma1", "static", "coulomb", "stribeck_velocity", "viscous"]
+    ranges = [(0.0, np.inf)] * L + [(s0_lo, s0_hi), (0.0, np.inf), (None, None), (1e-6 * sF, np.inf),
+                                     (vs_lo, vs_hi), (0.0, np.inf)]
+    held: dict[str, tuple[float, float]] = {}
+    for j in np.flatnonzero(at_bound):
+        if j == L + 3:
+            held["static"] = (float(p_nat[L + 3]), np.inf)
+        else:
+            nat_j = L + 3 if j == L + 2 else j
+            held[names[nat_j]] = ranges[nat_j]
+    free = np.array([n not in held for n in names])
+    if "static" in held:  # static = coulomb: one free level, carried by the coulomb column
+        J = J.copy()
+        J[:, L + 3] = J[:, L + 3] + J[:, L + 2]
+    hac = _lsq.hac_covariance(J, -r, free)
+    cov, cov_iid = hac.covariance, hac.iid_covariance
+    if "static" in held and free[L + 3]:
+        for C in (cov, cov_iid):
+            C[L + 2, :] = C[L + 3, :]
+            C[:, L + 2] = C[:, L + 3]
+    _, cond, cond_raw = _jacobian_stats(J[:, free] if free.any() else J, r)
+    return NonlinearResult(p_nat, cov, cond, cond_raw, bool(active), active, summary, covariance_iid=cov_iid,
+                           held=held, lags=hac.lags, inflation=hac.inflation,
+                           log_scale=("sigma0", "stribeck_velocity"))
 
 
-def fit_nonlinear(model: FrictionModel, data, *, constrain: bool = True, **options: Any) -> NonlinearResult:
+def fit_nonlinear(model: FrictionModel, data, *, constrain: bool = True,
+                  vs_bounds: tuple[float, float] | None = None, sigma0_bounds: tuple[float, float] | None = None,
+                  keep: np.ndarray | None = None, level_max: float | None = None,
+                  **options: Any) -> NonlinearResult:
     """Fit a model with a Stribeck or LuGre term (see the module docstring).
 
     Parameters
@@ -342,10 +584,20 @@ def fit_nonlinear(model: FrictionModel, data, *, constrain: bool = True, **optio
     data : IdentificationData
         Decimated data (:func:`~forecast_design.friction.identify.prepare_identification_data`).
     constrain : bool
-        Re-solve an unphysical Stribeck optimum under constraints (LuGre is
-        always bounded).
+        Bound the Stribeck fit to a physical curve (LuGre is always bounded).
+    vs_bounds : (float, float), optional
+        Search range of the Stribeck velocity [rad/s] (the plausible range);
+        default ``[1e-3, 1] x`` the largest speed.
+    sigma0_bounds : (float, float), optional
+        Search range of the LuGre bristle stiffness [N m/rad].
+    keep : ndarray of bool, optional
+        Samples the Stribeck fit (and the Stribeck start of LuGre) uses.
+    level_max : float, optional
+        Upper bound of the Stribeck fit's Coulomb level and static excess [N m]
+        (the plausible friction level).
     **options
-        ``max_iter`` (ipopt iterations, default 500), ``sigma0_init`` (LuGre start
+        ``max_iter`` (Stribeck: Brent iterations; LuGre: function evaluations of
+        ``least_squares``; default 500), ``sigma0_init`` (LuGre start
         [N m/rad], default from a grid).
 
     Returns
@@ -360,7 +612,9 @@ def fit_nonlinear(model: FrictionModel, data, *, constrain: bool = True, **optio
     max_iter = int(options.get("max_iter", 500))
     term = model.nonlinear_term
     if isinstance(term, Stribeck):
-        return _fit_stribeck(model, data, constrain=constrain, max_iter=max_iter)
+        return _fit_stribeck(model, data, constrain=constrain, max_iter=max_iter, vs_bounds=vs_bounds, keep=keep,
+                             level_max=level_max)
     if isinstance(term, LuGre):
-        return _fit_lugre(model, data, max_iter=max_iter, sigma0_init=options.get("sigma0_init"))
+        return _fit_lugre(model, data, max_iter=max_iter, sigma0_init=options.get("sigma0_init"),
+                          vs_bounds=vs_bounds, sigma0_bounds=sigma0_bounds, start_keep=keep)
     raise ParameterError(f"no nonlinear fit for term {type(term).__name__}", name="model")

@@ -274,7 +274,7 @@ def stribeck_force(velocity: np.ndarray, static: float, coulomb: float, stribeck
         F(v) = (F_c + (F_s - F_c) exp(-(v/v_s)^2)) sign(v) + viscous v [N m].
     """
     v = np.asarray(velocity, dtype=float)
-    g = coulomb + (static - coulomb) * np.exp(-((v / stribeck_velocity) ** 2))
+    g = coulomb + (static - coulomb) * np.exp(-np.minimum((v / stribeck_velocity) ** 2, 50.0))
     return g * np.sign(v) + viscous * v
 
 
@@ -312,7 +312,7 @@ def lugre_force(velocity: np.ndarray, dt: float, *, sigma0: float, sigma1: float
     same recursion is what :func:`fit_friction` optimises.
     """
     v = np.asarray(velocity, dtype=float)
-    g = coulomb + (static - coulomb) * np.exp(-((v / stribeck_velocity) ** 2))
+    g = coulomb + (static - coulomb) * np.exp(-np.minimum((v / stribeck_velocity) ** 2, 50.0))
     # z_k = a_k z_{k-1} + b_k; plain-float loop (numpy scalars are ~10x slower per step).
     a = (1.0 / (1.0 + dt * sigma0 * np.abs(v) / g)).tolist()
     b = (dt * v).tolist()
