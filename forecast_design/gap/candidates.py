@@ -30,7 +30,7 @@ from scipy.optimize import lsq_linear
 from ..effects import Effect
 from .residuals import GapData, delayed_input
 
-__all__ = ["CandidateFit", "fit_baseline", "fit_candidate", "fit_all", "fit_pair", "CANDIDATE_EFFECTS",
+__all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_all", "fit_pair", "CANDIDATE_EFFECTS",
            "JointAttribution", "fit_joint"]
 
 #: Effects with a candidate, in the order they are tried.
@@ -339,6 +339,35 @@ def _fit(data: GapData, effect: Effect, structure: _Structure | None) -> Candida
                         n_params=structure.n_params if structure else 0, residual=r, gap_fit=gap_fit,
                         gap_held_out=gap_held, block_sse=sse, prediction=prediction, structure=structure,
                         coef=p, n_cal=len(cal))
+
+
+def effect_rows(data: GapData, fit: CandidateFit) -> np.ndarray:
+    """The stacked rows of the equations where a candidate's physics acts.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    fit : CandidateFit
+        A candidate (or pair) fit; the baseline acts everywhere.
+
+    Returns
+    -------
+    ndarray of bool, shape (m * n_equations,)
+        True on every row of an equation in which one of the candidate's feature columns is
+        non-zero (friction, cogging, delay and torque gain: the motor equation; environment
+        mismatch: the environment equation; backlash: where the spring torque is used).
+    """
+    m = data.t.size
+    n_eq = len(data.equations)
+    if fit.structure is None:
+        return np.ones(m * n_eq, dtype=bool)
+    acts = np.zeros(n_eq, dtype=bool)
+    for c in fit.structure.coefs:
+        acts |= np.any(c.column.reshape(n_eq, m) != 0.0, axis=1)
+    if fit.structure.level is not None:
+        acts[0] = True
+    return np.repeat(acts, m)
 
 
 def fit_baseline(data: GapData) -> CandidateFit:

@@ -275,7 +275,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
             reasons.append(f"{', '.join(s.coefs[i].name for i in g)} not distinguishable from zero "
                            f"(Wald p = {pv:.2g})")
     for nm, g in grid.items():
-        if nm in status and status[nm].status == "at_bound" and nm in ("delay_s", "width_rad"):
+        if nm in status and status[nm].status == "at_bound" and nm in ("delay_s", "width_rad", "v_s"):
             reasons.append(status[nm].reason)
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
     data.cache[key] = out
