@@ -170,7 +170,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         # presliding displacement x_p, a Stribeck bump of width v_s and bristle damping.
         v = data.raw["v"]
         dt = 1.0 / data.experiment.rate_hz
-        x_grid, v_grid = np.geomspace(1e-4, 1e-2, 5), np.geomspace(3e-3, 0.3, 5)
+        x_grid, v_grid = np.geomspace(1e-4, 1e-2, 5), np.geomspace(1e-3, 0.3, 6)
         for x_p in x_grid:
             s = _dahl(v, dt, x_p)
             sgn = data.decimate(s)

@@ -5,8 +5,9 @@ written for one generator:
 
 * **Is a fitted effect identified?** Every effect parameter gets a standard
   deviation from the least-squares fit, with the residual's autocorrelation
-  taken into account (:func:`hac_inflation`: filtered, decimated equation errors
-  are not white), and a status from :mod:`forecast_design.plausibility` (plausible
+  taken into account (a prewhitened Newey-West sandwich,
+  :func:`forecast_design.friction._lsq.hac_covariance`: filtered, decimated equation
+  errors are not white), and a status from :mod:`forecast_design.plausibility` (plausible
   range from the log's own torque, speed and deflection; a coefficient on a box
   bound or a grid parameter at a grid end is ``at_bound``). An effect counts only
   when its defining coefficients differ from zero by a Wald test at 5 % (e.g. the
@@ -43,10 +44,11 @@ from scipy import stats
 
 from ..effects import Effect
 from ..plausibility import ParameterStatus, assess, effect_bound, log_scales, LogScales
+from ..friction._lsq import hac_covariance
 from .candidates import CandidateFit, _calibration
 from .residuals import GapData
 
-__all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "hac_inflation",
+__all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status",
            "isolability", "gap_log_scales", "ISOLABILITY_THRESHOLD", "CALIBRATION"]
 
 #: Smallest separation (sine of the largest principal angle) at which two candidates count as isolable [-].
@@ -55,42 +57,6 @@ ISOLABILITY_THRESHOLD = 0.3
 CALIBRATION = "calibration"
 #: Wald-test level of an effect's defining coefficients [-].
 WALD_ALPHA = 0.05
-
-
-def hac_inflation(residual: np.ndarray) -> float:
-    """Variance inflation of a mean or a regression coefficient from the residual's autocorrelation.
-
-    ``f = 1 + 2 sum_k w_k rho_k`` (Bartlett weights ``w_k = 1 - k / (L + 1)``), the ratio of
-    the long-run variance to the variance (Newey-West). The bandwidth ``L`` is twice the
-    first lag at which the autocorrelation falls inside its white-noise band
-    ``2 / sqrt(n)``, at most ``n / 4``.
-
-    Parameters
-    ----------
-    residual : ndarray, shape (n,)
-        Time-ordered residual (any unit).
-
-    Returns
-    -------
-    float
-        ``f >= 1`` [-]: the covariance of least-squares coefficients is ``f`` times the
-        white-noise formula.
-    """
-    e = np.asarray(residual, dtype=float)
-    e = e - e.mean()
-    n = e.size
-    if n < 8 or not np.any(e):
-        return 1.0
-    spec = np.fft.rfft(e, 2 * n)
-    acf = np.fft.irfft(spec * np.conj(spec))[:n]
-    acf = acf / acf[0]
-    band = 2.0 / math.sqrt(n)
-    inside = np.flatnonzero(np.abs(acf[1:]) < band)
-    first = int(inside[0]) + 1 if inside.size else n // 4
-    L = int(min(max(2 * first, 1), n // 4))
-    k = np.arange(1, L + 1)
-    f = 1.0 + 2.0 * float(np.sum((1.0 - k / (L + 1.0)) * acf[1:L + 1]))
-    return max(f, 1.0)
 
 
 def gap_log_scales(data: GapData) -> LogScales:
@@ -138,28 +104,10 @@ def _coefficient_covariance(data: GapData, fit: CandidateFit) -> tuple[np.ndarra
         tol = 1e-9 * np.maximum.reduce([np.abs(p), np.where(np.isfinite(lo), np.abs(lo), 0.0),
                                         np.where(np.isfinite(hi), np.abs(hi), 0.0), np.full(p.size, 1e-12)])
         bound = (np.isfinite(lo) & (np.abs(p - lo) <= tol)) | (np.isfinite(hi) & (np.abs(p - hi) <= tol))
-    y = data.stacked_target()
-    r = (y - A @ p)[rows]
-    free = ~bound
-    cov = np.zeros((p.size, p.size))
-    if np.any(free):
-        Af = A[rows][:, free]
-        dof = max(Af.shape[0] - Af.shape[1], 1)
-        sigma2 = float(r @ r) / dof
-        # the worst equation's autocorrelation (each equation is a time series of its own)
-        m = data.t.size
-        infl = 1.0
-        for i in range(len(data.equations)):
-            eq_rows = rows[i * m:(i + 1) * m]
-            seg = (y - A @ p)[i * m:(i + 1) * m][eq_rows]
-            if seg.size > 8 and np.any(seg):
-                infl = max(infl, hac_inflation(seg))
-        colscale = np.sqrt(np.mean(Af ** 2, axis=0))
-        colscale[colscale == 0] = 1.0
-        G = (Af / colscale).T @ (Af / colscale)
-        cov_f = np.linalg.pinv(G, rcond=1e-12) / np.outer(colscale, colscale) * sigma2 * infl
-        idx = np.flatnonzero(free)
-        cov[np.ix_(idx, idx)] = cov_f
+    r = data.stacked_target() - A @ p
+    # Newey-West sandwich with prewhitening (the friction identification's own): the equation
+    # errors are filtered and decimated, so their residuals are not white
+    cov = hac_covariance(A, r, free=~bound, keep=rows).covariance
     return cov, bound
 
 
@@ -256,7 +204,10 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                 st = ParameterStatus(name=nm, value=base[nm], std=float(std[i]), status="identified",
                                      plausible=st.plausible) if not _zero_means_absent(nm) else st
         status[nm] = st
-    reasons = [st.reason for st in status.values() if st.status == "implausible"]
+    # With a presliding (bristle) state the sticking behaviour, not the Stribeck decay, tells
+    # stiction from coulomb: an unresolved v_s is then flagged but does not decide.
+    secondary = {"v_s"} if "x_p" in grid else set()
+    reasons = [st.reason for nm, st in status.items() if st.status == "implausible" and nm not in secondary]
     for group in s.tests:
         g = [i for i in group if not bound_eff[i]]
         if not g:
@@ -275,7 +226,8 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
             reasons.append(f"{', '.join(s.coefs[i].name for i in g)} not distinguishable from zero "
                            f"(Wald p = {pv:.2g})")
     for nm, g in grid.items():
-        if nm in status and status[nm].status == "at_bound" and nm in ("delay_s", "width_rad", "v_s"):
+        if nm in status and nm not in secondary and status[nm].status == "at_bound" \
+                and nm in ("delay_s", "width_rad", "v_s"):
             reasons.append(status[nm].reason)
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
     data.cache[key] = out
