@@ -307,3 +307,16 @@ def test_every_verb_rejects_bad_arguments_with_one_line(capsys, tmp_path, monkey
     err = capsys.readouterr().err
     assert fragment in err and "Traceback" not in err
     assert not (tmp_path / "x.toml").exists()
+
+
+@pytest.mark.parametrize("argv,fragment", [
+    (["bench-gap", "--generator", "mine"], "invalid choice: 'mine'"),
+    (["bench-gap", "--generator", "independent", "--scale", "0"], "magnitude_scale must lie in (0, 1]"),
+    (["bench-gap", "--generator", "independent", "--scale", "nan"], "magnitude_scale must lie in (0, 1]"),
+    (["bench-gap", "--generator", "independent", "--scale", "1.5"], "magnitude_scale must lie in (0, 1]"),
+    (["bench-gap", "--scale", "0.5"], "independent generator only"),
+])
+def test_bench_gap_generator_options_reject_bad_values(capsys, argv, fragment):
+    assert _exit_code(argv) == 2
+    err = capsys.readouterr().err
+    assert fragment in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err

@@ -185,3 +185,30 @@ def test_isolability_follows_the_excitation():
     assert iso.isolable("cogging", "coulomb") and iso.isolable("position_friction", "coulomb")
     # the torque gain is told from a re-calibration of J_m, d_m, k only by the latter's bound
     assert not iso.isolable("torque_gain", "calibration")
+
+
+def test_wald_test_survives_degenerate_covariances():
+    from forecast_design.gap.identifiability import _wald_p
+
+    from scipy import stats
+
+    # a coefficient the fit rows never excite (zero variance) carries no test; a collinear pair
+    # is one rank-1 test of the contribution it shares: z = (3 + 3) / sqrt(2), chi2 = z^2 / 2 = 9
+    cov = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, 1.0]])
+    assert _wald_p(np.array([5.0, 3.0, 3.0]), cov) == pytest.approx(float(stats.chi2.sf(9.0, 1)), rel=1e-9)
+    assert _wald_p(np.array([1.0]), np.array([[np.inf]])) == 1.0
+    assert _wald_p(np.array([np.nan]), np.array([[1.0]])) == 1.0
+
+
+def test_hac_covariance_of_a_column_never_excited_is_finite():
+    import warnings
+
+    from forecast_design.friction._lsq import hac_covariance
+
+    rng = np.random.default_rng(0)
+    W = np.column_stack([rng.normal(size=400), np.zeros(400), rng.normal(size=400)])
+    W[:200, 2] = 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        res = hac_covariance(W, rng.normal(size=400), keep=np.arange(400) >= 200)
+    assert np.all(np.isfinite(res.covariance))

@@ -204,7 +204,12 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
     # VAR(1) prewhitening: u_t = B u_{t-1} + eps_t
     U0, U1 = u[:-1], u[1:]
     B = (np.linalg.pinv(U0.T @ U0) @ (U0.T @ U1)).T
-    lam = np.abs(np.linalg.eigvals(B)) if B.size else np.zeros(0)
+    if not np.all(np.isfinite(B)):
+        B = np.zeros_like(B)   # a score series the VAR(1) cannot describe: no prewhitening
+    try:
+        lam = np.abs(np.linalg.eigvals(B)) if B.size else np.zeros(0)
+    except np.linalg.LinAlgError:
+        B, lam = np.zeros_like(B), np.zeros(0)
     if lam.size and lam.max() > 0.97:  # keep the recolouring finite (Andrews-Monahan's adjustment)
         B = B * (0.97 / lam.max())
     eps = U1 - U0 @ B.T
@@ -214,7 +219,7 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
     for lag in range(1, L + 1):
         G = eps[lag:].T @ eps[:-lag]
         S += (1.0 - lag / (L + 1.0)) * (G + G.T)
-    C = np.linalg.inv(np.eye(k) - B)
+    C = np.linalg.pinv(np.eye(k) - B)
     S = C @ S @ C.T * (m / (m - k))
     cov_f = Ainv @ S @ Ainv / np.outer(s, s)
     cov[np.ix_(free_mask, free_mask)] = cov_f
@@ -222,5 +227,5 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
     cov_iid[np.ix_(free_mask, free_mask)] = sigma2 * Ainv / np.outer(s, s)
     d_h, d_i = np.diag(cov_f), np.diag(cov_iid[np.ix_(free_mask, free_mask)])
     ok = d_i > 0
-    inflation = float(np.median(np.sqrt(d_h[ok] / d_i[ok]))) if ok.any() else 1.0
+    inflation = float(np.median(np.sqrt(np.clip(d_h[ok] / d_i[ok], 0.0, None)))) if ok.any() else 1.0
     return HacResult(cov, L, cov_iid, inflation)

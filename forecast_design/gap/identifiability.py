@@ -215,13 +215,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
             continue
         # joint Wald test of the free coefficients of the group; collinear columns (harmonics
         # over part of a revolution) leave a lower-rank test of the contribution they share
-        sub = cov_eff[np.ix_(g, g)]
-        d = np.sqrt(np.clip(np.diag(sub), 1e-300, None))
-        w, V = np.linalg.eigh(sub / np.outer(d, d))
-        keep = w > 1e-10 * max(float(w.max()), 1e-300)
-        z = V[:, keep].T @ (p_eff[g] / d)
-        chi2 = float(np.sum(z ** 2 / w[keep]))
-        pv = float(stats.chi2.sf(chi2, int(np.count_nonzero(keep)))) if np.isfinite(chi2) and np.any(keep) else 1.0
+        pv = _wald_p(p_eff[g], cov_eff[np.ix_(g, g)])
         if not pv < WALD_ALPHA:
             reasons.append(f"{', '.join(s.coefs[i].name for i in g)} not distinguishable from zero "
                            f"(Wald p = {pv:.2g})")
@@ -232,6 +226,33 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
     data.cache[key] = out
     return out
+
+
+def _wald_p(p: np.ndarray, cov: np.ndarray) -> float:
+    """p-value of the joint Wald test ``p = 0`` [-], on the subspace the covariance resolves.
+
+    Coefficients whose variance is zero or not finite carry no test (a column the fit rows
+    never excite); collinear ones leave a lower-rank test of the contribution they share.
+    """
+    d2 = np.diag(cov)
+    ok = np.isfinite(d2) & (d2 > 0) & np.isfinite(p)
+    if not np.any(ok):
+        return 1.0
+    p, cov = p[ok], cov[np.ix_(ok, ok)]
+    d = np.sqrt(d2[ok])
+    R = cov / np.outer(d, d)
+    if not np.all(np.isfinite(R)):
+        return 1.0
+    try:
+        w, V = np.linalg.eigh(0.5 * (R + R.T))
+    except np.linalg.LinAlgError:
+        return 1.0
+    keep = w > 1e-10 * max(float(w.max()), 1e-300)
+    if not np.any(keep):
+        return 1.0
+    z = V[:, keep].T @ (p / d)
+    chi2 = float(np.sum(z ** 2 / w[keep]))
+    return float(stats.chi2.sf(chi2, int(np.count_nonzero(keep)))) if math.isfinite(chi2) else 1.0
 
 
 def _zero_means_absent(name: str) -> bool:
