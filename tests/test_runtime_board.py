@@ -22,11 +22,12 @@ def _compiled():
 def emulator():
     started = []
 
-    def start(faults=None, noise_std=1e-3):
+    def start(faults=None, noise_std=1e-3, effects=()):
         master, slave, path = open_pty()
         stop = threading.Event()
         th = threading.Thread(target=serve_emulator, args=(master,), kwargs={"faults": faults, "stop": stop,
-                                                                          "noise_std": noise_std},
+                                                                          "noise_std": noise_std,
+                                                                          "effects": effects},
                               daemon=True)
         th.start()
         started.append((stop, th, master, slave))
@@ -62,6 +63,32 @@ def test_clean_run_records_every_sample_and_matches_simulator(emulator, tmp_path
     sim_tau_s = sim.to_experiment().signals.columns()["tau_s"]
     assert np.max(np.abs(cols["tau_s"] - sim_tau_s)) < 2e-3
     assert np.max(np.abs(cols["tau_s"])) > 0.1
+
+
+@pytest.mark.parametrize("effect", ["delay", "backlash", "torque_gain"])
+def test_emulated_board_honours_the_simulators_effects(emulator, tmp_path, effect):
+    from forecast_design import effects as fx
+    from forecast_design.simulation.run import plant_stepper
+
+    chosen = {"delay": fx.Delay(delay_s=3e-3), "backlash": fx.Backlash(width_rad=4e-3),
+              "torque_gain": fx.TorqueGain(gain=0.7)}[effect]
+    path = emulator(noise_std=0.0, effects=(chosen,))
+    run_on_port(path, out=tmp_path / "run.toml", reference="step:0.2", duration=0.3, compensator="ea-fob")
+    cols = load_experiment(tmp_path / "run.toml").signals.columns()
+    # replay the recorded commands through the simulator's own plant with and without the effect
+    design = Design(environment=environment_preset("exp-soft"))
+    with_fx = plant_stepper(design, (chosen,), n=cols["t"].size, process_noise_std=0.0)
+    without = plant_stepper(design, (), n=cols["t"].size, process_noise_std=0.0)
+    a, b = [], []
+    for cmd in cols["tau_m"]:
+        a.append(with_fx.measure()[0])
+        b.append(without.measure()[0])
+        with_fx.advance(cmd)
+        without.advance(cmd)
+    # the stream carries float32 samples (the replayed commands are rounded): agreement to one
+    # encoder count (2 pi / 2e6 rad), which a sample at a count boundary may cross
+    np.testing.assert_allclose(cols["theta"], a, rtol=0, atol=1.01 * 2 * np.pi / 2e6)
+    assert np.max(np.abs(np.array(a) - np.array(b))) > 1e-4   # the effect is there, not dropped
 
 
 def test_flipped_and_dropped_bytes_are_counted_not_hidden(emulator, tmp_path):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 import select
 import signal
@@ -103,36 +102,6 @@ def open_pty() -> tuple[int, int, str]:
     return master, slave, os.ttyname(slave)
 
 
-class _Testbed:
-    """The virtual testbed stepped one control period at a time (the simulator's plant kernel)."""
-
-    def __init__(self, design: Design, effects: Sequence[Any], rate_hz: float, substeps: int, seed: int,
-                 noise_std: float) -> None:
-        from ..simulation.plant import build_plant
-        from ..simulation.run import ENCODER_COUNTS
-
-        self.plant = build_plant(design, effects, rate_hz=rate_hz, substeps=substeps)
-        self.substeps = substeps
-        self.k = design.testbed.k
-        self.enc = 2.0 * math.pi / ENCODER_COUNTS
-        self.rng = np.random.default_rng(seed)
-        self.noise_std = noise_std
-        self.x = np.zeros(5)
-        self._out = np.zeros(2)
-
-    def measure(self) -> tuple[float, float, float]:
-        th = math.floor(self.x[0] / self.enc + 0.5) * self.enc
-        q = 0.0 if self.plant.locked else math.floor(self.x[2] / self.enc + 0.5) * self.enc
-        return th, q, self.k * (th - q)
-
-    def advance(self, tau_m: float) -> None:
-        from ..simulation.plant import I_GAIN, rk4_substep
-
-        tau = self.plant.params[I_GAIN] * tau_m + self.noise_std * self.rng.standard_normal()
-        for _ in range(self.substeps):
-            rk4_substep(self.x, tau, self.plant.params, self.plant.harmonics, self._out)
-
-
 class _Emulator:
     def __init__(self, fd: int, design: Design, effects: Sequence[Any], faults: Faults, rate_hz: float,
                  realtime: bool, stop: threading.Event, noise_std: float) -> None:
@@ -231,7 +200,10 @@ class _Emulator:
     def _run(self, n: int) -> None:
         M = pr.MsgType
         self.runs += 1
-        bed = _Testbed(self.design, self.effects, self.rate_hz, 10, self.runs, self.noise_std)
+        from ..simulation.run import plant_stepper   # numba loads only when a run starts
+
+        bed = plant_stepper(self.design, self.effects, n=n, rate_hz=self.rate_hz, seed=self.runs,
+                              process_noise_std=self.noise_std)
         ctrl = self.program.make_step()
         dt = 1.0 / self.rate_hz
         t0 = time.monotonic()
@@ -277,7 +249,9 @@ class _Emulator:
 
 def warm_up(design: Design, effects: Sequence[Any] = (), rate_hz: float = 2000.0) -> None:
     """Step the virtual testbed once so numba compiles the kernel before a host is waiting."""
-    _Testbed(design, effects, rate_hz, 10, 0, 0.0).advance(0.0)
+    from ..simulation.run import plant_stepper
+
+    plant_stepper(design, effects, n=1, rate_hz=rate_hz, process_noise_std=0.0).advance(0.0)
 
 
 def serve_emulator(fd: int, *, design: Design | None = None, effects: Sequence[Any] = (),

@@ -1,7 +1,7 @@
 """The virtual testbed: true plant with unmodelled effects, 2 kHz controllers, references, runs, scenarios."""
 
 from .controllers import DiscretePD, ObserverCompensator, SfmCompensator, pd_transfer_function
-from .plant import PlantModel, build_plant, integrate_open_loop, stability_check
+from .plant import PlantModel, PlantStepper, build_plant, integrate_open_loop, stability_check
 from .references import (
     REFERENCE_KINDS,
     Chirp,
@@ -14,7 +14,7 @@ from .references import (
     Step,
     reference_from_mapping,
 )
-from .run import ENCODER_COUNTS, SimulationResult, SimulationTruth, save_simulation, simulate
+from .run import ENCODER_COUNTS, SimulationResult, SimulationTruth, save_simulation, simulate, plant_stepper
 
 __all__ = [
     "simulate",
@@ -23,6 +23,8 @@ __all__ = [
     "SimulationTruth",
     "ENCODER_COUNTS",
     "PlantModel",
+    "PlantStepper",
+    "plant_stepper",
     "build_plant",
     "integrate_open_loop",
     "stability_check",

@@ -71,7 +71,7 @@ from ..errors import ParameterError
 from ..params import Design, Environment
 
 # numba IR-level inlining of the per-substep helpers: measured ~2x faster loops.
-_INLINE = {"_rhs": "always", "_bristle_rate": "always", "rk4_substep": "always"}
+_INLINE = {"_rhs": "always", "_bristle_rate": "always", "rk4_substep": "always", "advance_period": "always"}
 
 try:  # numba is optional: without it the kernels run as (slow) plain Python.
     from numba import njit as _numba_njit
@@ -86,7 +86,8 @@ except ImportError:  # pragma: no cover
 
     HAVE_NUMBA = False
 
-__all__ = ["PlantModel", "build_plant", "stability_check", "rk4_growth", "integrate_open_loop", "HAVE_NUMBA"]
+__all__ = ["PlantModel", "PlantStepper", "build_plant", "stability_check", "rk4_growth", "integrate_open_loop",
+           "advance_period", "history_length", "HAVE_NUMBA"]
 
 # Indices into the packed float parameter vector of the kernels.
 I_JM, I_DM, I_K, I_MODE, I_J, I_D, I_KE, I_BL = 0, 1, 2, 3, 4, 5, 6, 7
@@ -443,23 +444,62 @@ def rk4_substep(x, tau, p, harm, out):
 
 
 @_njit
-def _integrate(x, tau_cmd, noise, p, harm, nsub, dsub, log):
+def advance_period(x, k, nsub, dsub, hist, p, harm, noise_k, out, row):
+    """One control period of the true plant: ``nsub`` RK4 substeps under the held, delayed command.
+
+    The one place the plant is stepped: the simulator's closed-loop kernel, the open-loop
+    integrator and :class:`PlantStepper` (the board emulator's testbed) all call it.
+
+    Parameters
+    ----------
+    x : ndarray, shape (5,)
+        State ``[theta, omega, q, v, z]``, advanced in place.
+    k : int
+        Period index [-].
+    nsub, dsub : int
+        Substeps per period and the command delay in substeps [-].
+    hist : ndarray, shape (H,)
+        Ring buffer of held commands: ``hist[i % H]`` is the command of period ``i`` [N m];
+        ``H >= dsub // nsub + 2`` and period ``k``'s command already written. Periods before
+        0 hold 0.
+    p, harm : ndarray
+        Plant parameters and harmonics (:class:`PlantModel`).
+    noise_k : float
+        Process torque noise of this period [N m].
+    out : ndarray, shape (2,)
+        Scratch for ``(tau_frc, tau_s)`` of a substep.
+    row : ndarray, shape (8,)
+        Filled with the state at ``t_k``, ``tau_frc`` and ``tau_s`` of the first substep and
+        the applied torque at ``t_k``.
+    """
+    H = hist.shape[0]
+    for j in range(nsub):
+        idx = k * nsub + j - dsub
+        cmd = hist[(idx // nsub) % H] if idx >= 0 else 0.0
+        tau = p[I_GAIN] * cmd + noise_k
+        if j == 0:
+            for m in range(5):
+                row[m] = x[m]
+            row[7] = tau
+        rk4_substep(x, tau, p, harm, out)
+        if j == 0:
+            row[5] = out[0]
+            row[6] = out[1]
+
+
+def history_length(nsub: int, dsub: int) -> int:
+    """Ring-buffer length for :func:`advance_period` with a delay of ``dsub`` substeps [-]."""
+    return int(dsub) // max(int(nsub), 1) + 2
+
+
+@_njit
+def _integrate(x, tau_cmd, noise, p, harm, nsub, dsub, hist, log):
     """Open-loop integration: tau_cmd held per period; log[n] = state and (frc, tau_s, tau_app) at t_n."""
     out = np.zeros(2)
-    n_samples = tau_cmd.shape[0]
-    for n in range(n_samples):
-        for j in range(nsub):
-            idx = n * nsub + j - dsub
-            cmd = tau_cmd[idx // nsub] if idx >= 0 else 0.0
-            tau = p[I_GAIN] * cmd + noise[n]
-            if j == 0:
-                for m in range(5):
-                    log[n, m] = x[m]
-                log[n, 7] = tau
-            rk4_substep(x, tau, p, harm, out)
-            if j == 0:
-                log[n, 5] = out[0]
-                log[n, 6] = out[1]
+    H = hist.shape[0]
+    for n in range(tau_cmd.shape[0]):
+        hist[n % H] = tau_cmd[n]
+        advance_period(x, n, nsub, dsub, hist, p, harm, noise[n], out, log[n])
 
 
 def integrate_open_loop(plant: PlantModel, tau_cmd: np.ndarray, *, substeps: int,
@@ -489,5 +529,63 @@ def integrate_open_loop(plant: PlantModel, tau_cmd: np.ndarray, *, substeps: int
     noise = np.zeros_like(tau_cmd) if noise is None else np.ascontiguousarray(noise, dtype=float)
     x = np.zeros(5) if x0 is None else np.array(x0, dtype=float)
     log = np.empty((tau_cmd.shape[0], 8))
-    _integrate(x, tau_cmd, noise, plant.params, plant.harmonics, int(substeps), int(plant.delay_substeps), log)
+    hist = np.zeros(history_length(substeps, plant.delay_substeps))
+    _integrate(x, tau_cmd, noise, plant.params, plant.harmonics, int(substeps), int(plant.delay_substeps), hist, log)
     return log
+
+
+class PlantStepper:
+    """The virtual testbed advanced one control period at a time, with its sensors.
+
+    What a board sees: :meth:`measure` gives the encoder readings at ``t_k`` (quantised like
+    the simulator's encoders) and the spring torque the logger derives from them;
+    :meth:`advance` holds a command over ``[t_k, t_k+1)``. Every effect of
+    :func:`build_plant` acts, the delay included, through :func:`advance_period`, the same
+    step the simulator uses: driven by the commands a simulation recorded, it reproduces that
+    simulation exactly.
+
+    Parameters
+    ----------
+    plant : PlantModel
+        From :func:`build_plant`.
+    substeps : int
+        RK4 substeps per period [-] (the ``substeps`` the plant was built with).
+    k_nominal : float
+        Spring stiffness the logger uses for ``tau_s = k (theta - q)`` [N m/rad].
+    encoder_step : float
+        Encoder resolution [rad]; 0 for exact positions.
+    noise : ndarray, shape (n,), optional
+        Process torque noise per period [N m]; zeros beyond its end.
+    """
+
+    def __init__(self, plant: PlantModel, *, substeps: int, k_nominal: float, encoder_step: float,
+                 noise: np.ndarray | None = None) -> None:
+        self.plant = plant
+        self.substeps = int(substeps)
+        self.k_nominal = float(k_nominal)
+        self.encoder_step = float(encoder_step)
+        self.noise = np.zeros(0) if noise is None else np.asarray(noise, dtype=float)
+        self.x = np.zeros(5)
+        self.period = 0
+        self._hist = np.zeros(history_length(self.substeps, plant.delay_substeps))
+        self._out = np.zeros(2)
+        self.row = np.zeros(8)
+
+    def measure(self) -> tuple[float, float, float]:
+        """Encoder readings at the current instant: ``theta`` [rad], ``q`` [rad], ``tau_s`` [N m]."""
+        th, qq = float(self.x[0]), float(self.x[2])
+        if self.encoder_step > 0.0:
+            th = math.floor(th / self.encoder_step + 0.5) * self.encoder_step
+            qq = math.floor(qq / self.encoder_step + 0.5) * self.encoder_step
+        if self.plant.locked:
+            qq = 0.0
+        return th, qq, self.k_nominal * (th - qq)
+
+    def advance(self, tau_m: float) -> None:
+        """Hold the command ``tau_m`` [N m] over one period and step the plant."""
+        k = self.period
+        self._hist[k % self._hist.size] = float(tau_m)
+        noise_k = float(self.noise[k]) if k < self.noise.size else 0.0
+        advance_period(self.x, k, self.substeps, int(self.plant.delay_substeps), self._hist, self.plant.params,
+                       self.plant.harmonics, noise_k, self._out, self.row)
+        self.period = k + 1

@@ -46,7 +46,7 @@ from .controllers import (
     SfmCompensator,
     sfm_eval,
 )
-from .plant import I_GAIN, PlantModel, build_plant, rk4_substep, stability_check
+from .plant import PlantModel, PlantStepper, advance_period, build_plant, history_length, stability_check
 
 __all__ = [
     "ENCODER_COUNTS",
@@ -55,6 +55,8 @@ __all__ = [
     "SimulationResult",
     "simulate",
     "save_simulation",
+    "plant_stepper",
+    "process_noise",
 ]
 
 #: Encoder resolution of the Forecast testbed (DHO-05) [counts/rev].
@@ -73,8 +75,9 @@ _TRUTH = ("theta", "omega", "q", "v", "z", "tau_frc", "tau_s", "tau_m_applied")
 @_njit
 def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, noise, k_nom,
           pd_sos, pd_st, comp, sfm_coef, sfm_harm, vel_sos, vel_st,
-          gm_sos, gm_st, gs_sos, gs_st, gt_sos, gt_st, meas, truth):
+          gm_sos, gm_st, gs_sos, gs_st, gt_sos, gt_st, meas, truth, hist):
     out = np.zeros(2)
+    H = hist.shape[0]
     tau_prev = 0.0
     for k in range(n):
         th = x[0]
@@ -107,18 +110,8 @@ def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, no
         meas[k, 4] = u
         meas[k, 5] = tau_hat
         tau_prev = cmd
-        for j in range(nsub):
-            idx = k * nsub + j - dsub
-            c = meas[idx // nsub, 3] if idx >= 0 else 0.0
-            tau = p[I_GAIN] * c + noise[k]
-            if j == 0:
-                for m in range(5):
-                    truth[k, m] = x[m]
-                truth[k, 7] = tau
-            rk4_substep(x, tau, p, harm, out)
-            if j == 0:
-                truth[k, 5] = out[0]
-                truth[k, 6] = out[1]
+        hist[k % H] = cmd
+        advance_period(x, k, nsub, dsub, hist, p, harm, noise[k], out, truth[k])
 
 
 def _flush_stale_kernel_cache(kernel) -> None:
@@ -153,6 +146,50 @@ def _flush_stale_kernel_cache(kernel) -> None:
             stamp.write_text(current)
     except OSError:  # read-only install: numba then caches elsewhere or not at all
         pass
+
+
+def process_noise(seed: int, std: float, n: int) -> np.ndarray:
+    """The simulator's process torque noise: one held value per period [N m], shape (n,)."""
+    return np.random.default_rng(seed).normal(0.0, std, n) if std > 0 else np.zeros(n)
+
+
+def plant_stepper(design: Design, effects: Sequence[Any] = (), *, n: int, rate_hz: float = 2000.0,
+                    substeps: int = 10, seed: int = 0, process_noise_std: float = DEFAULT_PROCESS_NOISE_STD,
+                    encoder_counts: int | None = ENCODER_COUNTS, initial_angle: float = 0.0) -> PlantStepper:
+    """The virtual testbed of :func:`simulate` as a period-by-period stepper (for the board emulator).
+
+    Parameters
+    ----------
+    design : Design
+        Nominal design (its testbed's ``k`` derives ``tau_s``).
+    effects : sequence of effect parameter values
+        Unmodelled effects of the true hardware.
+    n : int
+        Periods the process noise is drawn for (the same draws as ``simulate`` with this seed) [-].
+    rate_hz : float
+        Control rate [Hz].
+    substeps : int
+        RK4 substeps per period [-].
+    seed : int
+        Seed of the process noise.
+    process_noise_std : float
+        Process torque noise [N m].
+    encoder_counts : int or None
+        Encoder resolution [counts/rev]; None or 0 for exact positions.
+    initial_angle : float
+        Absolute motor angle at ``theta = 0`` [rad].
+
+    Returns
+    -------
+    PlantStepper
+        Driven by the commands of a :func:`simulate` run with the same arguments, it reproduces
+        that run's measurements and truth exactly.
+    """
+    plant = build_plant(design, effects, rate_hz=rate_hz, substeps=substeps, initial_angle=initial_angle)
+    stability_check(plant)
+    return PlantStepper(plant, substeps=substeps, k_nominal=design.testbed.k,
+                        encoder_step=2.0 * math.pi / encoder_counts if encoder_counts else 0.0,
+                        noise=process_noise(seed, process_noise_std, n))
 
 
 @dataclass(frozen=True, slots=True)
@@ -407,8 +444,7 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         raise ParameterError(f"sfm_params given but the compensator is {comp.kind!r}", name="sfm_params",
                              value=sfm_params)
 
-    rng = np.random.default_rng(seed)
-    noise = rng.normal(0.0, process_noise_std, n) if process_noise_std > 0 else np.zeros(n)
+    noise = process_noise(seed, process_noise_std, n)
     enc_step = 2.0 * math.pi / encoder_counts if encoder_counts else 0.0
     x = np.zeros(5)
     meas = np.empty((n, len(_MEAS)))
@@ -430,7 +466,8 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
     _loop(n, int(substeps), int(plant.delay_substeps), rw(plant.params), rw(plant.harmonics), x, bool(closed_loop),
           ref, ol, float(torque_limit), float(enc_step), noise, float(design.testbed.k),
           pd_sos, st(pd_sos), comp_code, sfm_coef, sfm_harm, vel_sos, st(vel_sos),
-          gm_sos, st(gm_sos), gs_sos, st(gs_sos), gt_sos, st(gt_sos), meas, truth)
+          gm_sos, st(gm_sos), gs_sos, st(gs_sos), gt_sos, st(gt_sos), meas, truth,
+          np.zeros(history_length(substeps, plant.delay_substeps)))
 
     ran = dataclasses.replace(design, controller=controller,
                               compensator=(design.compensator if closed_loop else None))
