@@ -11,6 +11,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from .errors import ParameterError
+from . import polynomials as poly
 from .lti import RationalTF
 from .params import COMPENSATOR_KINDS, Compensator, Design, PDController
 
@@ -251,55 +252,6 @@ def disk_phase_margin_deg(alpha: float, sigma: float = 0.0) -> float:
 # ---------------------------------------------------------------------------------------------
 
 
-def _trim(p: np.ndarray) -> np.ndarray:
-    nz = np.flatnonzero(p != 0.0)
-    return p[nz[0]:] if nz.size else np.zeros(1)
-
-
-def _pad(p: np.ndarray, n: int) -> np.ndarray:
-    return np.concatenate([np.zeros(n - len(p)), p]) if len(p) < n else p
-
-
-def _der(p: np.ndarray) -> np.ndarray:
-    # np.polyder/polysub/polymul go through poly1d checks; these run in the hot path
-    return p[:-1] * np.arange(len(p) - 1, 0, -1) if len(p) > 1 else np.zeros(1)
-
-
-def _sub(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    n = max(len(p), len(q))
-    return _pad(p, n) - _pad(q, n)
-
-
-def _abs2_poly(p: np.ndarray) -> np.ndarray:
-    """A(x) with A(w^2) = |p(jw)|^2, coefficients descending in x.
-
-    p(s) p(-s) is even in s; at s = jw its s^(2k) term is (-1)^k x^k with x = w^2.
-    """
-    n = len(p) - 1
-    p_minus = p * (-1.0) ** np.arange(n, -1, -1)
-    q = np.convolve(p, p_minus)[::-1][::2]          # ascending coefficients of s^0, s^2, ...
-    a = q * (-1.0) ** np.arange(len(q))
-    return _trim(a[::-1].copy())
-
-
-def _add(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    n = max(len(p), len(q))
-    return _pad(p, n) + _pad(q, n)
-
-
-def _cross_poly(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """C(x) with C(w^2) = Re(p(jw) conj(q(jw))), coefficients descending in x.
-
-    (p(s) q(-s) + p(-s) q(s)) / 2 is even in s; at s = jw its s^(2k) term is (-1)^k x^k.
-    """
-    q_minus = q * (-1.0) ** np.arange(len(q) - 1, -1, -1)
-    p_minus = p * (-1.0) ** np.arange(len(p) - 1, -1, -1)
-    e = 0.5 * _add(np.convolve(p, q_minus), np.convolve(p_minus, q))
-    a = e[::-1][::2]
-    a = a * (-1.0) ** np.arange(len(a))
-    return _trim(a[::-1].copy())
-
-
 def _bilinear(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Map z-domain polynomials through z = (1 + s)/(1 - s) (same factor for both).
 
@@ -322,7 +274,7 @@ def _bilinear(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray]
             k = deg - i
             term = np.convolve(conv_pow(plus, k), conv_pow(minus, K - k))
             out += c * term
-        return _trim(out)
+        return poly.trim(out)
 
     return mapped(num), mapped(den)
 
@@ -330,13 +282,13 @@ def _bilinear(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def _char_poly(L: RationalTF) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     num, den = np.asarray(L.num, float), np.asarray(L.den, float)
     n = max(len(num), len(den))
-    return _pad(num, n), _pad(den, n), _pad(num, n) + _pad(den, n)
+    return poly.pad(num, n), poly.pad(den, n), poly.pad(num, n) + poly.pad(den, n)
 
 
 def _is_stable(L: RationalTF, char: np.ndarray) -> bool:
     """Closed-loop stability from the roots of den + num; improper closed loops are unstable."""
     n_deg = max(len(L.num), len(L.den)) - 1
-    char = _trim(char)
+    char = poly.trim(char)
     if len(char) - 1 < len(L.den) - 1 or len(char) - 1 < n_deg:
         # 1 + L(inf) = 0: the loop is not well posed (an infinite sensitivity peak)
         return False
@@ -383,8 +335,8 @@ def _scaled_G(num: np.ndarray, den: np.ndarray, c: float) -> _Scaled:
         R = -num                               # exact: strictly proper L
     else:
         R = den * (1.0 + c - g) + num * (c - g)
-    R = _trim(np.concatenate([[0.0], R[1:]]))  # the leading term cancels analytically
-    D = _trim(D)
+    R = poly.trim(np.concatenate([[0.0], R[1:]]))  # the leading term cancels analytically
+    D = poly.trim(D)
     nz = np.flatnonzero(D != 0.0)
     core = D[: nz[-1] + 1]                     # drop roots at s = 0 (only with an external flag)
     m = len(core) - 1
@@ -429,7 +381,7 @@ def _newton_polish(G: _Scaled, v0: np.ndarray | float) -> np.ndarray:
     if v.size == 0:
         return v
     R, D, g = G.R, G.D, G.g
-    rows = [R, _der(R), _der(_der(R)), D, _der(D), _der(_der(D))]
+    rows = [R, poly.derivative(R), poly.derivative(poly.derivative(R)), D, poly.derivative(D), poly.derivative(poly.derivative(D))]
     C = np.zeros((6, max(len(R), len(D))))
     for i, r in enumerate(rows):
         C[i, C.shape[1] - len(r):] = r
@@ -503,9 +455,9 @@ def _peak(G: _Scaled) -> tuple[float, float]:
     degD = len(G.D) - 1
     # |G|^2 = g^2 + E/B with E = 2 g Re(R D*) + |R|^2 and B = |D|^2 (polynomials in x = v^2):
     # the stationary points of |G|^2 are the roots of E'B - EB'
-    B = _abs2_poly(G.D)
-    E = _add(2.0 * G.g * _cross_poly(G.R, G.D), _abs2_poly(G.R))
-    F = _trim(_sub(np.convolve(_der(E), B), np.convolve(E, _der(B))))
+    B = poly.abs2_even(G.D)
+    E = poly.add(2.0 * G.g * poly.cross_even(G.R, G.D), poly.abs2_even(G.R))
+    F = poly.trim(poly.sub(np.convolve(poly.derivative(E), B), np.convolve(E, poly.derivative(B))))
     cands = np.zeros(0)
     if len(F) > 1:
         roots = np.roots(F)
@@ -549,7 +501,7 @@ def _continuous_equivalent(L: RationalTF) -> tuple[np.ndarray, np.ndarray]:
     if L.dt is not None:
         num, den = _bilinear(num, den)
     n = max(len(num), len(den))
-    return _pad(num, n), _pad(den, n)
+    return poly.pad(num, n), poly.pad(den, n)
 
 
 def _to_rad_s(L: RationalTF, v: float) -> float:
@@ -570,14 +522,14 @@ def _delay_margin(L: RationalTF, num: np.ndarray, den: np.ndarray, w0: float) ->
     k = np.arange(max(len(num), len(den)) - 1, -1, -1)
     ns, ds = num * w0 ** k[-len(num):], den * w0 ** k[-len(den):]
     f = max(np.max(np.abs(ns)), np.max(np.abs(ds)))
-    ns, ds = _trim(ns / f), _trim(ds / f)
-    P = _trim(_sub(_abs2_poly(ns), _abs2_poly(ds)))
+    ns, ds = poly.trim(ns / f), poly.trim(ds / f)
+    P = poly.trim(poly.sub(poly.abs2_even(ns), poly.abs2_even(ds)))
     if len(P) <= 1:
         return math.inf
     roots = np.roots(P)
     keep = (np.abs(roots.imag) <= _ROOT_IMAG_RTOL * np.abs(roots) + 1e-12) & (roots.real > 0.0)
     n0, d0 = ns.tolist(), ds.tolist()
-    n1, d1 = _der(ns).tolist(), _der(ds).tolist()
+    n1, d1 = poly.derivative(ns).tolist(), poly.derivative(ds).tolist()
     best = math.inf
     for x in roots.real[keep]:
         v = math.sqrt(x)
@@ -955,7 +907,7 @@ class SampledForceLoop:
         a = 0.5 / self.rate_hz
         num, den = np.asarray(self.L_w.num, float), np.asarray(self.L_w.den, float)
         n = max(len(num), len(den))
-        num, den = _pad(num, n), _pad(den, n)
+        num, den = poly.pad(num, n), poly.pad(den, n)
         # disk_margin's discrete variable is s~ = (z - 1)/(z + 1) = a w: coefficients of w^k
         # scale by a^-k
         k = np.arange(n - 1, -1, -1)
@@ -965,17 +917,6 @@ class SampledForceLoop:
         stable = self.stable and (num[0] + den[0]) != 0.0
         proxy = RationalTF((1.0,), (1.0,), dt=1.0 / self.rate_hz, name="L")
         return _disk_margin_from(proxy, num / f, den / f, sigma, stable)
-
-
-def _polymul(*polys: np.ndarray) -> np.ndarray:
-    out = np.ones(1)
-    for p in polys:
-        out = np.convolve(out, np.asarray(p, float))
-    return out
-
-
-def _polypow(p: np.ndarray, k: int) -> np.ndarray:
-    return _polymul(*([p] * k)) if k else np.ones(1)
 
 
 def _deflate_w(p: np.ndarray, what: str) -> np.ndarray:
@@ -998,10 +939,10 @@ def _to_w(dtf: Any) -> tuple[np.ndarray, np.ndarray]:
 
     def mapped(p):
         out = np.zeros(n + 1)
-        for i, c in enumerate(_pad(p, n + 1)):
+        for i, c in enumerate(poly.pad(p, n + 1)):
             j = n - i
-            out += c * _polymul(_polypow(rho, j), _polypow(ell, n - j))
-        return _trim(out)
+            out += c * poly.mul(poly.power(rho, j), poly.power(ell, n - j))
+        return poly.trim(out)
 
     return mapped(num), mapped(den)
 
@@ -1022,8 +963,8 @@ def _common_plant(design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     # the rigid-body pole; bring P back over P_theta's denominator
     q, r = np.polydiv(td, pd)
     if np.all(np.abs(r) <= 1e-12 * np.max(np.abs(td))):
-        return _polymul(pn, q), tn, td
-    return _polymul(pn, td), _polymul(tn, pd), _polymul(pd, td)
+        return poly.mul(pn, q), tn, td
+    return poly.mul(pn, td), poly.mul(tn, pd), poly.mul(pd, td)
 
 
 @dataclass(frozen=True, slots=True)
@@ -1050,7 +991,7 @@ def _zoh_plant(design: Design, rate_hz: float) -> _ZohPlant:
 
     ns, nt, d = _common_plant(design)
     n = len(d) - 1
-    num = np.vstack([_pad(ns, n + 1), _pad(nt, n + 1)])
+    num = np.vstack([poly.pad(ns, n + 1), poly.pad(nt, n + 1)])
     with warnings.catch_warnings():
         # strictly proper: the padded numerators start with zeros, which scipy flags
         warnings.simplefilter("ignore", signal.BadCoefficients)
@@ -1074,7 +1015,7 @@ def _zoh_plant(design: Design, rate_hz: float) -> _ZohPlant:
         numz, denz = signal.ss2tf(Ad, Bd, Cm, Dm)
     ell = np.array([-a, 1.0])
     free = bool(d[-1] == 0.0)
-    return _ZohPlant(_trim(_polymul(ell, n1[0])), _trim(_polymul(ell, n1[1])), np.asarray(dw, float),
+    return _ZohPlant(poly.trim(poly.mul(ell, n1[0])), poly.trim(poly.mul(ell, n1[1])), np.asarray(dw, float),
                      np.asarray(numz[0], float), np.asarray(numz[1], float), np.asarray(denz, float), free)
 
 
@@ -1173,7 +1114,7 @@ def sampled_force_loop(
     rho, ell = np.array([a, 1.0]), np.array([-a, 1.0])
     cutoff = DEFAULT_DERIVATIVE_CUTOFF_HZ if derivative_cutoff_hz is None else derivative_cutoff_hz
     ctf = DiscretePD(controller, rate_hz, derivative_cutoff_hz=cutoff).tf
-    Cn, Cd = (_trim(p) for p in _to_w(ctf))
+    Cn, Cd = (poly.trim(p) for p in _to_w(ctf))
     plant = _zoh_plant(true_design, rate_hz)
     Ns, Nt, D = plant.Ns_w, plant.Nt_w, plant.D_w
     if compensator is not None and compensator.is_observer:
@@ -1181,13 +1122,13 @@ def sampled_force_loop(
         # a zero filter (e.g. G_theta of the DOBs) runs as one zero section: no poles
         pairs = [_to_w(tf) if any(c != 0.0 for c in tf.num) else (np.zeros(1), np.ones(1)) for tf in obs.tfs]
         dens = [den for _, den in pairs]
-        E = _polymul(*dens)
-        Bm, Bs, Bt = (_polymul(num, *(dens[j] for j in range(3) if j != i)) for i, (num, _) in enumerate(pairs))
+        E = poly.mul(*dens)
+        Bm, Bs, Bt = (poly.mul(num, *(dens[j] for j in range(3) if j != i)) for i, (num, _) in enumerate(pairs))
         observer = tuple(tf.to_rational() for tf in obs.tfs)
     else:
         E, Bm, Bs, Bt = np.ones(1), np.zeros(1), np.zeros(1), np.zeros(1)
         observer = ()
-    Bm, Bs, Bt = _trim(Bm), _trim(Bs), _trim(Bt)
+    Bm, Bs, Bt = poly.trim(Bm), poly.trim(Bs), poly.trim(Bt)
     uses_theta = bool(np.any(Bt != 0.0))
     if plant.free:
         D, Ns = _deflate_w(D, "D"), _deflate_w(Ns, "N_s")
@@ -1195,18 +1136,18 @@ def sampled_force_loop(
             Bt = _deflate_w(Bt, "B_theta")
     if not uses_theta:
         Nt = np.zeros(1)            # theta unused (for a free output: its rigid-body drift too)
-    obs_terms = _add(_polymul(Bs, Ns), _polymul(Bt, Nt))
-    ell_d = _polypow(ell, d)
-    delta = _trim(_sub(_sub(_polymul(D, E, _polypow(rho, d + 1)), _polymul(Bm, ell, _polypow(rho, d), D)),
-                       _polymul(obs_terms, ell_d, rho)))
-    feed = _trim(_polymul(Cn, Ns, E, ell_d, rho))
-    chi = _trim(_add(_polymul(Cd, delta), feed))
+    obs_terms = poly.add(poly.mul(Bs, Ns), poly.mul(Bt, Nt))
+    ell_d = poly.power(ell, d)
+    delta = poly.trim(poly.sub(poly.sub(poly.mul(D, E, poly.power(rho, d + 1)), poly.mul(Bm, ell, poly.power(rho, d), D)),
+                       poly.mul(obs_terms, ell_d, rho)))
+    feed = poly.trim(poly.mul(Cn, Ns, E, ell_d, rho))
+    chi = poly.trim(poly.add(poly.mul(Cd, delta), feed))
     if break_at == "controller":
-        Lw = RationalTF(feed, _trim(_polymul(Cd, delta)), name="L_w")
+        Lw = RationalTF(feed, poly.trim(poly.mul(Cd, delta)), name="L_w")
     else:
-        num = _polymul(_sub(_polymul(Cn, E, Ns), _polymul(Cd, obs_terms)), ell_d, rho)
-        den = _polymul(Cd, D, _polypow(rho, d), _sub(_polymul(E, rho), _polymul(Bm, ell)))
-        Lw = RationalTF(_trim(num), _trim(den), name="L_w")
+        num = poly.mul(poly.sub(poly.mul(Cn, E, Ns), poly.mul(Cd, obs_terms)), ell_d, rho)
+        den = poly.mul(Cd, D, poly.power(rho, d), poly.sub(poly.mul(E, rho), poly.mul(Bm, ell)))
+        Lw = RationalTF(poly.trim(num), poly.trim(den), name="L_w")
     order = (len(Cd) - 1) + (len(D) - 1) + (len(E) - 1) + d + 1
     roots = np.roots(chi) if len(chi) > 1 else np.zeros(0, dtype=complex)
     stable = len(chi) - 1 == order and bool(

@@ -7,15 +7,13 @@ from typing import Sequence
 
 import numpy as np
 
+from . import polynomials as poly
+
 __all__ = ["RationalTF"]
 
 
 def _trim(coeffs: Sequence[float]) -> tuple[float, ...]:
-    arr = np.atleast_1d(np.asarray(coeffs, dtype=float))
-    nz = np.flatnonzero(arr != 0.0)
-    if nz.size == 0:
-        return (0.0,)
-    return tuple(float(c) for c in arr[nz[0]:])
+    return tuple(float(c) for c in poly.trim(coeffs))
 
 
 @dataclass(frozen=True, slots=True)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError
+from .. import polynomials as poly
 from ..lti import RationalTF
 from ..params import Compensator, Design, PDController
 from .numeric import catalogue_polynomials
@@ -39,38 +40,15 @@ STABILITY_TOLERANCE = 1e-9
 def _plant_polynomials(design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(N_s, N_theta, D) of the true plant (plant.sea_polynomials), descending powers of s."""
     polys = catalogue_polynomials("sea_locked" if design.environment.locked else "sea", design)
-    return tuple(_trim(p) for p in polys)
-
-
-def _trim(p: np.ndarray) -> np.ndarray:
-    p = np.atleast_1d(np.asarray(p, dtype=float))
-    nz = np.flatnonzero(p != 0.0)
-    return p[nz[0]:] if nz.size else np.zeros(1)
+    return tuple(poly.trim(p) for p in polys)
 
 
 def _add(*polys: np.ndarray) -> np.ndarray:
-    n = max(len(p) for p in polys)
-    out = np.zeros(n)
-    for p in polys:
-        out[n - len(p):] += p
-    return _trim(out)
+    return poly.trim(poly.add(*polys))
 
 
 def _mul(*polys: np.ndarray) -> np.ndarray:
-    out = np.ones(1)
-    for p in polys:
-        out = np.convolve(out, p)
-    return _trim(out)
-
-
-def _trailing_zeros(p: np.ndarray) -> int:
-    if not np.any(p != 0.0):
-        return 10**9
-    return int(len(p) - 1 - np.flatnonzero(p != 0.0)[-1])
-
-
-def _drop_s(p: np.ndarray, m: int) -> np.ndarray:
-    return p[: len(p) - m] if m and np.any(p != 0.0) else p
+    return poly.trim(poly.mul(*polys))
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,14 +163,14 @@ def force_loop(
     # into the plant lets the rigid-body position mode cancel exactly when k_e = 0.
     uses_theta = bool(np.any(A_t != 0.0))
     if uses_theta:
-        r = _trailing_zeros(A_t)
-        A_t = _drop_s(A_t, r)
+        r = poly.trailing_zeros(A_t)
+        A_t = poly.drop_trailing(A_t, r)
         N_theta = np.concatenate([N_theta, np.zeros(r)])
-    m = min(_trailing_zeros(N_s), _trailing_zeros(D), _trailing_zeros(N_theta) if uses_theta else 10**9)
+    m = min(poly.trailing_zeros(N_s), poly.trailing_zeros(D), poly.trailing_zeros(N_theta) if uses_theta else 10**9)
     if 0 < m < 10**9:
-        N_s, D, N_theta = _drop_s(N_s, m), _drop_s(D, m), _drop_s(N_theta, m)
+        N_s, D, N_theta = poly.drop_trailing(N_s, m), poly.drop_trailing(D, m), poly.drop_trailing(N_theta, m)
 
-    C = _trim(np.array([controller.D, controller.P], dtype=float))
+    C = poly.trim(np.array([controller.D, controller.P], dtype=float))
     delta = _add(_mul(D_o, D), -_mul(A_m, D), -_mul(A_s, N_s), -_mul(A_t, N_theta))
     chi = _add(delta, _mul(C, N_s, D_o))
     if break_at == "controller":
