@@ -1,85 +1,85 @@
-"""Friction models as composable terms and their identification from logs."""
+"""Friction models as composable terms and their identification from logs.
 
-from .derivatives import FilterSettings, Kinematics, decimate_columns, default_filter_settings, differentiate
-from .identify import (
-    FrictionFit,
-    FrictionValidation,
-    IdentificationData,
-    IllConditionedWarning,
-    experiment_scales,
-    fit_data,
-    fit_friction,
-    fit_friction_experiment,
-    fit_percent,
-    identify,
-    log_arrays,
-    predict_data,
-    prepare_identification_data,
-    validate,
-    validate_experiment,
-    zoh_align,
-)
-from .logs import AxisLog, load_axis_csv
-from .selection import SampleSelection, SelectionResult
-from .terms import (
-    MODEL_NAMES,
-    AsymmetricCoulomb,
-    AsymmetricViscous,
-    Coulomb,
-    FrictionModel,
-    Harmonics,
-    Inertia,
-    LuGre,
-    Offset,
-    PositionFriction,
-    Stribeck,
-    Term,
-    Viscous,
-    friction_model,
-    lugre_force,
-    stribeck_force,
-)
+Names are loaded on first use (PEP 562): ``forecast_design.friction.laws`` or
+``MODEL_NAMES`` do not pull in the identification machinery (casadi, scipy.signal).
+The function :func:`identify` shares its name with the submodule that defines it; the
+package attribute is always the function (import the module with
+``from forecast_design.friction.identify import ...``).
+"""
 
-__all__ = [
-    "AsymmetricCoulomb",
-    "AsymmetricViscous",
-    "AxisLog",
-    "Coulomb",
-    "FilterSettings",
-    "FrictionFit",
-    "FrictionModel",
-    "FrictionValidation",
-    "Harmonics",
-    "IdentificationData",
-    "IllConditionedWarning",
-    "Inertia",
-    "Kinematics",
-    "LuGre",
-    "MODEL_NAMES",
-    "Offset",
-    "PositionFriction",
-    "SampleSelection",
-    "SelectionResult",
-    "Stribeck",
-    "Term",
-    "Viscous",
-    "decimate_columns",
-    "identify",
-    "log_arrays",
-    "default_filter_settings",
-    "differentiate",
-    "experiment_scales",
-    "fit_data",
-    "fit_friction",
-    "fit_friction_experiment",
-    "fit_percent",
-    "friction_model",
-    "load_axis_csv",
-    "lugre_force",
-    "predict_data",
-    "prepare_identification_data",
-    "stribeck_force",
-    "validate",
-    "validate_experiment",
-    "zoh_align",
-]
+from __future__ import annotations
+
+import importlib
+import sys
+import types
+from typing import Any
+
+_HOME = {
+    "AsymmetricCoulomb": "terms",
+    "AsymmetricViscous": "terms",
+    "AxisLog": "logs",
+    "Coulomb": "terms",
+    "FilterSettings": "derivatives",
+    "FrictionFit": "identify",
+    "FrictionModel": "terms",
+    "FrictionValidation": "identify",
+    "Harmonics": "terms",
+    "IdentificationData": "identify",
+    "IllConditionedWarning": "identify",
+    "Inertia": "terms",
+    "Kinematics": "derivatives",
+    "LuGre": "terms",
+    "MODEL_NAMES": "terms",
+    "Offset": "terms",
+    "PositionFriction": "terms",
+    "SampleSelection": "selection",
+    "SelectionResult": "selection",
+    "Stribeck": "terms",
+    "Term": "terms",
+    "Viscous": "terms",
+    "decimate_columns": "derivatives",
+    "identify": "identify",
+    "log_arrays": "identify",
+    "default_filter_settings": "derivatives",
+    "differentiate": "derivatives",
+    "experiment_scales": "identify",
+    "fit_data": "identify",
+    "fit_friction": "identify",
+    "fit_friction_experiment": "identify",
+    "fit_percent": "identify",
+    "friction_model": "terms",
+    "load_axis_csv": "logs",
+    "lugre_force": "terms",
+    "predict_data": "identify",
+    "prepare_identification_data": "identify",
+    "stribeck_force": "terms",
+    "validate": "identify",
+    "validate_experiment": "identify",
+    "zoh_align": "identify",
+}
+
+__all__ = sorted(_HOME)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _HOME:
+        value = getattr(importlib.import_module(f".{_HOME[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_HOME))
+
+
+class _Package(types.ModuleType):
+    """Keeps a public function from being shadowed by the submodule of the same name."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name in _HOME and isinstance(value, types.ModuleType):
+            return
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

@@ -61,6 +61,7 @@ from scipy.optimize import least_squares, lsq_linear, minimize_scalar
 from ..errors import ParameterError, SolverError
 from . import _lsq
 from .derivatives import lowpass
+from .laws import clipped_exp, stribeck_decay, stribeck_level
 from .terms import FrictionModel, LuGre, Stribeck
 
 __all__ = ["NonlinearResult", "fit_nonlinear", "IPOPT_OPTIONS"]
@@ -121,8 +122,7 @@ STRIBECK_GRID = 48
 
 def _decay(v: np.ndarray, vs: float) -> np.ndarray:
     """exp(-(v/v_s)^2), flushed to zero beyond 7 v_s (avoids slow subnormal exponentials)."""
-    x = np.minimum((v / vs) ** 2, 50.0)
-    return np.where(x < 50.0, np.exp(-x), 0.0)
+    return stribeck_decay(v, vs, clipped_exp)
 
 
 def _stribeck_basis(v: np.ndarray, vs: float) -> tuple[np.ndarray, np.ndarray]:
@@ -355,7 +355,7 @@ def _lugre_casadi(h: float) -> ca.Function:
     S = ca.SX.sym("S", 6)
     p = ca.SX.sym("p", 6)
     s0, s1, Fs, Fc, vs, s2 = (p[i] for i in range(6))
-    g = Fc + (Fs - Fc) * ca.exp(-(v / vs) ** 2)
+    g = stribeck_level(v, Fs, Fc, vs, ca.exp)
     w1 = (w + h * s0 * v) / (1 + h * s0 * ca.fabs(v) / g)
     S1 = ca.jacobian(w1, w) * S + ca.jacobian(w1, p).T
     W1 = ca.SX.sym("W1")  # F's partial derivatives are taken with w+ held as a symbol
@@ -369,7 +369,7 @@ def _lugre_simulator(h: float, v: np.ndarray) -> ca.Function:
     """Function p (6) -> (F (m), dF/dp (m x 6)) along the velocity samples `v`."""
     m = v.size
     p = ca.SX.sym("p", 6)
-    g0 = p[3] + (p[2] - p[3]) * ca.exp(-(v[0] / p[4]) ** 2)
+    g0 = stribeck_level(float(v[0]), p[2], p[3], p[4], ca.exp)
     w0 = g0 * float(np.sign(v[0]))
     F0 = w0 + p[5] * float(v[0])
     head = ca.Function("lugre_start", [p], [ca.vertcat(w0, ca.jacobian(w0, p).T),
@@ -384,7 +384,7 @@ def _lugre_simulator(h: float, v: np.ndarray) -> ca.Function:
 def _lugre_force_sets(v: np.ndarray, h: float, s0: np.ndarray, Fs: np.ndarray, Fc: np.ndarray,
                       vs: np.ndarray, visc: np.ndarray) -> np.ndarray:
     """LuGre force (sigma1 = 0) for C parameter sets at once, shape (C, m) (backward Euler, vectorised)."""
-    g = Fc[:, None] + (Fs - Fc)[:, None] * np.exp(-np.minimum((v[None, :] / vs[:, None]) ** 2, 50.0))
+    g = stribeck_level(v[None, :], Fs[:, None], Fc[:, None], vs[:, None], clipped_exp)
     g = np.maximum(g, 1e-12)
     A = 1.0 / (1.0 + h * s0[:, None] * np.abs(v)[None, :] / g)
     z = g[:, 0] * np.sign(v[0]) / s0

@@ -16,6 +16,7 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from ..errors import ParameterError
+from .laws import clipped_exp, stribeck_level
 
 __all__ = [
     "Term",
@@ -274,7 +275,7 @@ def stribeck_force(velocity: np.ndarray, static: float, coulomb: float, stribeck
         F(v) = (F_c + (F_s - F_c) exp(-(v/v_s)^2)) sign(v) + viscous v [N m].
     """
     v = np.asarray(velocity, dtype=float)
-    g = coulomb + (static - coulomb) * np.exp(-np.minimum((v / stribeck_velocity) ** 2, 50.0))
+    g = stribeck_level(v, static, coulomb, stribeck_velocity, clipped_exp)
     return g * np.sign(v) + viscous * v
 
 
@@ -312,7 +313,7 @@ def lugre_force(velocity: np.ndarray, dt: float, *, sigma0: float, sigma1: float
     same recursion is what :func:`fit_friction` optimises.
     """
     v = np.asarray(velocity, dtype=float)
-    g = coulomb + (static - coulomb) * np.exp(-np.minimum((v / stribeck_velocity) ** 2, 50.0))
+    g = stribeck_level(v, static, coulomb, stribeck_velocity, clipped_exp)
     # z_k = a_k z_{k-1} + b_k; plain-float loop (numpy scalars are ~10x slower per step).
     a = (1.0 / (1.0 + dt * sigma0 * np.abs(v) / g)).tolist()
     b = (dt * v).tolist()

@@ -68,10 +68,12 @@ from ..effects import (
     TorqueGain,
 )
 from ..errors import ParameterError
+from ..friction.laws import stribeck_level
 from ..params import Design, Environment
 
 # numba IR-level inlining of the per-substep helpers: measured ~2x faster loops.
-_INLINE = {"_rhs": "always", "_bristle_rate": "always", "rk4_substep": "always", "advance_period": "always"}
+_INLINE = {"_rhs": "always", "_bristle_rate": "always", "rk4_substep": "always", "advance_period": "always",
+           "stribeck_level": "always"}
 
 try:  # numba is optional: without it the kernels run as (slow) plain Python.
     from numba import njit as _numba_njit
@@ -85,6 +87,9 @@ except ImportError:  # pragma: no cover
         return func
 
     HAVE_NUMBA = False
+
+# The friction laws' one definition, compiled for the scalar kernels.
+_stribeck_level = _njit(stribeck_level)
 
 __all__ = ["PlantModel", "PlantStepper", "build_plant", "stability_check", "rk4_growth", "integrate_open_loop",
            "advance_period", "history_length", "HAVE_NUMBA"]
@@ -374,8 +379,7 @@ def _rhs(x0, x1, x2, x3, x4, tau, p, harm, qs):
             frc += (1.0 if r > 1.0 else (-1.0 if r < -1.0 else r)) * (p[I_PFC] + pos)
     dz = 0.0
     if p[I_LUGRE] > 0.0:
-        vr = w / p[I_VS]
-        g = p[I_FC] + (fs - p[I_FC]) * math.exp(-vr * vr)
+        g = _stribeck_level(w, fs, p[I_FC], p[I_VS])
         s0 = p[I_S0]
         if qs:
             frc += (g if w > 0.0 else (-g if w < 0.0 else 0.0)) + p[I_S2] * w
@@ -408,8 +412,7 @@ def _bristle_rate(x0, x1, p, harm):
         for i in range(harm.shape[1]):
             fs += harm[H_SA, i] * si + harm[H_SB, i] * ci
             si, ci = si * c1 + ci * s1, ci * c1 - si * s1
-    vr = x1 / p[I_VS]
-    g = p[I_FC] + (fs - p[I_FC]) * math.exp(-vr * vr)
+    g = _stribeck_level(x1, fs, p[I_FC], p[I_VS])
     return p[I_S0] * abs(x1) / g, g
 
 

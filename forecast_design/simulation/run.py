@@ -119,15 +119,17 @@ def _flush_stale_kernel_cache(kernel) -> None:
 
     numba keys a cached function by its *own* file only; ``_loop`` inlines
     :func:`~forecast_design.export.discretize.sos_step`,
-    :func:`~.plant.rk4_substep` and :func:`~.controllers.sfm_eval`, so an
+    :func:`~.plant.rk4_substep`, :func:`~forecast_design.friction.laws.stribeck_level` and
+    :func:`~.controllers.sfm_eval`, so an
     edit there (e.g. a new section recursion) would otherwise leave a stale
-    compiled loop running the old code. A hash of the four sources is kept
+    compiled loop running the old code. A hash of the five sources is kept
     beside the cache; a mismatch flushes it (one recompilation).
     """
     import hashlib
     import importlib
 
-    mods = [importlib.import_module(f"{__package__.rsplit('.', 1)[0]}.export.discretize"),
+    root = __package__.rsplit('.', 1)[0]
+    mods = [importlib.import_module(f"{root}.export.discretize"), importlib.import_module(f"{root}.friction.laws"),
             importlib.import_module(f"{__package__}.plant"), importlib.import_module(f"{__package__}.controllers")]
 
     cache = getattr(kernel, "_cache", None)
