@@ -1,6 +1,7 @@
 """Framed protocol: CRC, encoding round trips, resynchronisation and loss accounting."""
 
 import struct
+import numpy as np
 
 import pytest
 from hypothesis import given, settings
@@ -128,3 +129,16 @@ def test_parser_recovers_every_intact_frame_in_order(plan, chunk):
     assert indices == intact
     assert tracker.n_lost == len(plan) - len(intact)
     assert tracker.out_of_order == 0
+
+
+def test_wire_reference_is_the_simulators_reference():
+    from forecast_design.runtime.protocol import Reference
+
+    t = np.arange(2000) / 2000.0
+    sine = Reference("sine", 0.5, 0.25, offset=0.1).signal().sample(t.size, 2000.0)
+    np.testing.assert_allclose(sine, 0.1 + 0.5 * np.sin(2 * np.pi * t / 0.25), atol=1e-12)
+    square = Reference("square", 0.2, 0.5).signal().sample(t.size, 2000.0)
+    np.testing.assert_array_equal(square, np.where(np.mod(t, 0.5) < 0.25, 0.2, -0.2))
+    step = Reference("step", 0.3, 0.1).signal().sample(t.size, 2000.0)
+    np.testing.assert_array_equal(step, np.where(t >= 0.1, 0.3, 0.0))
+    assert Reference("sine", 0.5, 0.25).value(0.0625) == pytest.approx(0.5)

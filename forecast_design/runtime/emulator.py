@@ -209,10 +209,11 @@ class _Emulator:
         t0 = time.monotonic()
         sent, reason = 0, 0
         batch = bytearray()
+        references = self.reference.signal().sample(n, self.rate_hz).tolist()
         for i in range(n):
             th, q, tau_s = bed.measure()
             t = i * dt
-            tau_r = self.reference.value(t)
+            tau_r = references[i]
             tau_m = ctrl.step(tau_r, tau_s, th)
             sample = pr.Sample(i, t, tau_m, th, q, tau_s, tau_r)
             frame = pr.encode_frame(M.SAMPLE, self.seq, pr.encode_sample(sample))

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass, field
+from typing import Any
 from enum import IntEnum
 
 from ..errors import ParameterError
@@ -415,14 +416,26 @@ class Reference:
             raise ParameterError(f"reference step delay must be >= 0 [s], got {self.period!r}",
                                  name="period", value=self.period)
 
+    def signal(self) -> Any:
+        """The same reference as a :mod:`forecast_design.simulation.references` signal (one home).
+
+        Returns
+        -------
+        Step, Square or Sine
+            Callable on times [s] since START, values in [N m].
+        """
+        from ..simulation import references as refs   # the protocol itself stays numpy-free
+
+        if self.kind == "step":
+            return refs.Step(amplitude=self.amplitude, t0=self.period, offset=self.offset)
+        if self.kind == "square":
+            return refs.Square(high=self.offset + self.amplitude, low=self.offset - self.amplitude,
+                               period_s=self.period)
+        return refs.Sine(amplitude=self.amplitude, frequency_hz=1.0 / self.period, offset=self.offset)
+
     def value(self, t: float) -> float:
         """Reference at time ``t`` [s] since START, in [N m]."""
-        if self.kind == "step":
-            return self.offset + (self.amplitude if t >= self.period else 0.0)
-        if self.kind == "square":
-            phase = math.fmod(t, self.period)
-            return self.offset + (self.amplitude if phase < 0.5 * self.period else -self.amplitude)
-        return self.offset + self.amplitude * math.sin(2.0 * math.pi * t / self.period)
+        return float(self.signal()(t))
 
     def to_string(self) -> str:
         """The ``kind:amplitude[:period]`` form accepted by :func:`parse_reference`."""
