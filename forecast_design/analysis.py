@@ -884,7 +884,7 @@ class SampledForceLoop:
         (python-control's grid on it gave alpha = 0.47 for a loop whose exact margin is
         1.10, stiff/LO-DOB 5 Hz at 2 kHz). Margins come from :meth:`disk_margin` (``L_w``).
         """
-        from .export.discretize import discretize
+        from .discrete import discretize
 
         lz = discretize(self.L_w, self.rate_hz, "tustin")
         return RationalTF(lz.num, lz.den, dt=1.0 / self.rate_hz, name="L")

@@ -273,7 +273,7 @@ def _fig7_metrics(runs: Mapping[str, Any]) -> dict[str, float]:
 def _q_filtered(values: np.ndarray, c: Fig7Choices) -> np.ndarray:
     from scipy import signal
 
-    from .export.discretize import discretize
+    from .discrete import discretize
     from .symbolic.observers import compensator_q_tf
 
     q = discretize(compensator_q_tf(Compensator(kind="ea-fob", **c.compensator_kwargs)), _RATE, "tustin")

@@ -115,14 +115,14 @@ def test_c_controller_in_closed_loop_with_the_virtual_testbed(kind, tmp_path):
     by 2 coulomb for a sample, so the SFM is compared with the float32 Python implementation.
     """
     from forecast_design.effects import Coulomb
-    from forecast_design.runtime.emulator import _Testbed
+    from forecast_design.simulation import plant_stepper
 
     res = _export(kind, tmp_path)
     c_ctrl = toolchain.HostController(toolchain.build_host(tmp_path, shared=True), res.program.n_sections)
     runs = {}
     reference = res.program.make_step(np.float32 if kind == "sfm" else np.float64)
     for label, ctrl in (("c", c_ctrl), ("python", reference)):
-        bed = _Testbed(res.design, [Coulomb(F_c=0.1)], 2000.0, 10, 0, 0.0)
+        bed = plant_stepper(res.design, [Coulomb(F_c=0.1)], n=10_000, process_noise_std=0.0)
         tau_s = np.empty(10_000)
         for i in range(tau_s.size):
             th, _, ts = bed.measure()

@@ -11,7 +11,7 @@ from scipy import signal, stats
 
 from forecast_design.effects import PositionFriction, Stiction
 from forecast_design.errors import ParameterError
-from forecast_design.export.discretize import discretize
+from forecast_design.discrete import discretize
 from forecast_design.params import Compensator
 from forecast_design.reproduce import (
     FIG7_VARIATIONS,

@@ -1,6 +1,6 @@
 """Controller export: discretisation (and, later, C emission) of filters and controllers."""
 
-from .discretize import (
+from ..discrete import (
     FIRST_DIFFERENCE,
     METHODS,
     DiscreteFilter,

@@ -2,7 +2,7 @@
 
 The controller is reduced to a :class:`ControllerProgram`: a sum of
 channels, each a cascade of second-order sections (the recursion of
-:mod:`forecast_design.export.discretize`) on one input signal, scaled, plus
+:mod:`forecast_design.discrete`) on one input signal, scaled, plus
 an optional sign term (the SFM's Coulomb part). The C code, the Python
 reference (:meth:`ControllerProgram.make_step`), the emulator and the board
 upload all run this one description.
@@ -25,7 +25,7 @@ import numpy as np
 from .. import __version__
 from ..errors import ExportError, ParameterError
 from ..params import Compensator, Design, PDController, environment_preset
-from .discretize import METHODS, DiscreteFilter, discretize
+from ..discrete import METHODS, DiscreteFilter, discretize
 
 __all__ = [
     "SOURCES",
@@ -63,7 +63,7 @@ class Channel:
         One of :data:`SOURCES`.
     sos : ndarray, shape (n_sections, 6)
         Delta sections, rows ``[b0, b1, b2, 1, a1, a2]`` in ``rho = z - 1`` (float64 design values;
-        :mod:`forecast_design.export.discretize`).
+        :mod:`forecast_design.discrete`).
     group : str
         ``"u"`` (controller output) or ``"hat"`` (friction estimate); the
         command is ``sat(sum(u) + sum(hat))``, each sum in channel order.
@@ -227,7 +227,7 @@ class ControllerProgram:
     rate_hz : float
         Sample rate [Hz].
     method : str
-        Discretisation method (see :data:`forecast_design.export.discretize.METHODS`).
+        Discretisation method (see :data:`forecast_design.discrete.METHODS`).
     channels : tuple of Channel
         Additive terms; the command is their sum.
     prewarp_hz : float or None

@@ -2,7 +2,7 @@
 
 Each object has a ``step(...)`` for use in Python and exposes its
 coefficient arrays to the compiled closed loop in :mod:`.run`, which calls
-the very same :func:`~forecast_design.export.discretize.sos_step`
+the very same :func:`~forecast_design.discrete.sos_step`
 recursion, so a Python re-run of the controller on logged measurements
 reproduces the simulated commands exactly.
 
@@ -30,7 +30,7 @@ offset (the paper's SFM is ``viscous``/``coulomb``; Section 7's extended
 SFM adds the harmonics); the observers ``ea-fob``, ``lo-dob``, ``ld-dob``,
 ``motor-fob``: ``tau_hat = G_m tau_m + G_s tau_s + G_theta theta`` with the
 three filters of :func:`forecast_design.symbolic.observers.observer_filters`
-discretised by :func:`forecast_design.export.discretize` and run as
+discretised by :func:`forecast_design.discrete.discretize` and run as
 second-order sections.
 
 The algebraic loop of the observers: the applied command is ``tau_m[n] =
@@ -53,7 +53,7 @@ from typing import Mapping
 import numpy as np
 
 from ..errors import ParameterError
-from ..export.discretize import DiscreteFilter, DiscreteTF, _njit, discretize
+from ..discrete import DiscreteFilter, DiscreteTF, discretize, njit as _njit
 from ..lti import RationalTF
 from ..params import Compensator, Design, PDController
 

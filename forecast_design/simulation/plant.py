@@ -68,6 +68,7 @@ from ..effects import (
     TorqueGain,
 )
 from ..errors import ParameterError
+from ..discrete import HAVE_NUMBA, njit
 from ..friction.laws import stribeck_level
 from ..params import Design, Environment
 
@@ -75,18 +76,9 @@ from ..params import Design, Environment
 _INLINE = {"_rhs": "always", "_bristle_rate": "always", "rk4_substep": "always", "advance_period": "always",
            "stribeck_level": "always"}
 
-try:  # numba is optional: without it the kernels run as (slow) plain Python.
-    from numba import njit as _numba_njit
+def _njit(func):
+    return njit(func, inline=_INLINE.get(func.__name__, "never"))
 
-    def _njit(func):
-        return _numba_njit(cache=True, inline=_INLINE.get(func.__name__, "never"))(func)
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover
-    def _njit(func):
-        return func
-
-    HAVE_NUMBA = False
 
 # The friction laws' one definition, compiled for the scalar kernels.
 _stribeck_level = _njit(stribeck_level)

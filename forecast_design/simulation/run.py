@@ -36,7 +36,7 @@ import numpy as np
 
 from ..effects import effects_to_mappings
 from ..errors import ParameterError
-from ..export.discretize import _njit, sos_step
+from ..discrete import njit as _njit, sos_step
 from ..params import Compensator, Design, Environment, PDController
 from .controllers import (
     DEFAULT_DERIVATIVE_CUTOFF_HZ,
@@ -118,7 +118,7 @@ def _flush_stale_kernel_cache(kernel) -> None:
     """Drop the on-disk numba cache of ``kernel`` when a module it inlines has changed.
 
     numba keys a cached function by its *own* file only; ``_loop`` inlines
-    :func:`~forecast_design.export.discretize.sos_step`,
+    :func:`~forecast_design.discrete.sos_step`,
     :func:`~.plant.rk4_substep`, :func:`~forecast_design.friction.laws.stribeck_level` and
     :func:`~.controllers.sfm_eval`, so an
     edit there (e.g. a new section recursion) would otherwise leave a stale
@@ -129,7 +129,7 @@ def _flush_stale_kernel_cache(kernel) -> None:
     import importlib
 
     root = __package__.rsplit('.', 1)[0]
-    mods = [importlib.import_module(f"{root}.export.discretize"), importlib.import_module(f"{root}.friction.laws"),
+    mods = [importlib.import_module(f"{root}.discrete"), importlib.import_module(f"{root}.friction.laws"),
             importlib.import_module(f"{__package__}.plant"), importlib.import_module(f"{__package__}.controllers")]
 
     cache = getattr(kernel, "_cache", None)
