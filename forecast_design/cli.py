@@ -657,7 +657,7 @@ def _configure_margins(p: argparse.ArgumentParser) -> None:
 @_command("margins", "disk margins of one force loop (environment, observer, knowledge error)", _configure_margins)
 def _cmd_margins(args: argparse.Namespace) -> int:
     from .analysis import loop_margins
-    from .export.c import parse_controller
+    from .params import parse_controller
     from .params import Compensator, Design
 
     design = Design.nominal(args.env)

@@ -23,6 +23,8 @@ __all__ = [
     "COMPENSATOR_KINDS",
     "Q_FAMILIES",
     "environment_preset",
+    "parse_controller",
+    "resolve_design",
 ]
 
 #: Compensator kinds: the experiment format's list plus the motor-side FOB.
@@ -373,3 +375,79 @@ class Design:
         tb, env = self.testbed, self.environment
         return {"J_m": tb.J_m, "d_m": tb.d_m, "k": tb.k, "J": env.J, "d": env.d,
                 "k_e": env.k_e, "J_l": env.J_l, "d_l": env.d_l}
+
+
+# --- design parsing (command-line forms) ------------------------------------------------
+
+
+def parse_controller(text: str) -> PDController:
+    """Parse ``pd:P:D`` (e.g. ``"pd:5:0.1"``) into a PDController.
+
+    Parameters
+    ----------
+    text : str
+        ``pd:<P [N m/N m]>:<D [N m s/N m]>``.
+
+    Returns
+    -------
+    PDController
+        The controller.
+
+    Raises
+    ------
+    ParameterError
+        One line naming the string and the expected form.
+    """
+    parts = str(text).split(":")
+    form = "expected pd:P:D, e.g. pd:5:0.1"
+    if len(parts) != 3 or parts[0] != "pd":
+        raise ParameterError(f"controller {text!r}: {form}", name="controller", value=text)
+    try:
+        P, D = float(parts[1]), float(parts[2])
+    except ValueError:
+        raise ParameterError(f"controller {text!r}: {form}", name="controller", value=text) from None
+    try:
+        return PDController(P=P, D=D)
+    except ParameterError as exc:
+        raise ParameterError(f"controller {text!r}: {exc}", name="controller", value=text) from None
+
+
+def resolve_design(design: Design | None = None, *, controller: PDController | str | None = None,
+                   compensator: Compensator | str | None = None, env: str | None = None,
+                   w_q_hz: float | None = None) -> Design:
+    """Apply CLI-style overrides to a design (shared by ``export`` and ``run``).
+
+    Parameters
+    ----------
+    design : Design, optional
+        Base (default: Table 1 testbed, ``exp-soft``, PD 5/0.1, no compensator).
+    controller : PDController or str, optional
+        ``"pd:P:D"`` or a value.
+    compensator : Compensator or str, optional
+        Kind string or a value.
+    env : str, optional
+        Environment preset name.
+    w_q_hz : float, optional
+        Q cutoff [Hz].
+
+    Returns
+    -------
+    Design
+        The design with the overrides.
+    """
+    if design is None:
+        design = Design(environment=environment_preset("exp-soft"))
+    if env is not None:
+        design = design.with_environment(env)
+    if isinstance(controller, str):
+        controller = parse_controller(controller)
+    if controller is not None:
+        design = dataclasses.replace(design, controller=controller)
+    elif design.controller is None:
+        design = dataclasses.replace(design, controller=PDController())
+    if isinstance(compensator, str):
+        compensator = Compensator(kind=compensator)
+    comp = compensator if compensator is not None else (design.compensator or Compensator())
+    if w_q_hz is not None:
+        comp = dataclasses.replace(comp, w_q_hz=w_q_hz)
+    return dataclasses.replace(design, compensator=comp)

@@ -14,7 +14,6 @@ import hashlib
 import math
 import string
 import struct
-import dataclasses
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -24,7 +23,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import ExportError, ParameterError
-from ..params import Compensator, Design, PDController, environment_preset
+from ..params import Compensator, Design, PDController, parse_controller, resolve_design
 from ..discrete import METHODS, DiscreteFilter, discretize
 
 __all__ = [
@@ -392,36 +391,7 @@ class ExportResult:
         }
 
 
-def parse_controller(text: str) -> PDController:
-    """Parse ``pd:P:D`` (e.g. ``"pd:5:0.1"``) into a PDController.
 
-    Parameters
-    ----------
-    text : str
-        ``pd:<P [N m/N m]>:<D [N m s/N m]>``.
-
-    Returns
-    -------
-    PDController
-        The controller.
-
-    Raises
-    ------
-    ParameterError
-        One line naming the string and the expected form.
-    """
-    parts = str(text).split(":")
-    form = "expected pd:P:D, e.g. pd:5:0.1"
-    if len(parts) != 3 or parts[0] != "pd":
-        raise ParameterError(f"controller {text!r}: {form}", name="controller", value=text)
-    try:
-        P, D = float(parts[1]), float(parts[2])
-    except ValueError:
-        raise ParameterError(f"controller {text!r}: {form}", name="controller", value=text) from None
-    try:
-        return PDController(P=P, D=D)
-    except ParameterError as exc:
-        raise ParameterError(f"controller {text!r}: {exc}", name="controller", value=text) from None
 
 
 def build_program(design: Design, *, rate_hz: float = 2000.0, method: str = "tustin",
@@ -668,44 +638,3 @@ def export_controller(design: Design | None = None, out_dir: str | Path = ".", *
     h, c = emit_c(program, out_dir)
     digest = hashlib.sha256(h.read_bytes() + c.read_bytes()).hexdigest()
     return ExportResult(h, c, program, design, digest)
-
-
-def resolve_design(design: Design | None = None, *, controller: PDController | str | None = None,
-                   compensator: Compensator | str | None = None, env: str | None = None,
-                   w_q_hz: float | None = None) -> Design:
-    """Apply CLI-style overrides to a design (shared by ``export`` and ``run``).
-
-    Parameters
-    ----------
-    design : Design, optional
-        Base (default: Table 1 testbed, ``exp-soft``, PD 5/0.1, no compensator).
-    controller : PDController or str, optional
-        ``"pd:P:D"`` or a value.
-    compensator : Compensator or str, optional
-        Kind string or a value.
-    env : str, optional
-        Environment preset name.
-    w_q_hz : float, optional
-        Q cutoff [Hz].
-
-    Returns
-    -------
-    Design
-        The design with the overrides.
-    """
-    if design is None:
-        design = Design(environment=environment_preset("exp-soft"))
-    if env is not None:
-        design = design.with_environment(env)
-    if isinstance(controller, str):
-        controller = parse_controller(controller)
-    if controller is not None:
-        design = dataclasses.replace(design, controller=controller)
-    elif design.controller is None:
-        design = dataclasses.replace(design, controller=PDController())
-    if isinstance(compensator, str):
-        compensator = Compensator(kind=compensator)
-    comp = compensator if compensator is not None else (design.compensator or Compensator())
-    if w_q_hz is not None:
-        comp = dataclasses.replace(comp, w_q_hz=w_q_hz)
-    return dataclasses.replace(design, compensator=comp)

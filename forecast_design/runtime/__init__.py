@@ -75,7 +75,8 @@ def run_on_port(port: str, *, out: str | Path, reference: str | Reference = "squ
     LinkError
         Disconnect or silence mid-run (after saving what was received).
     """
-    from ..export.c import build_program, resolve_design
+    from ..export.c import build_program
+    from ..params import resolve_design
 
     ref = parse_reference(reference) if isinstance(reference, str) else reference
     design = resolve_design(controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz)
