@@ -255,3 +255,24 @@ def empirical_response(data: GapData, *, nperseg: int = 1024) -> tuple[np.ndarra
     # One home for P(s): the free-output factor s is cancelled there, so f = 0 is finite.
     nominal = force_plant_tf(exp.design).freqresp(2.0 * np.pi * f)
     return f, measured, nominal
+
+
+def residual_psd(data: GapData, residual: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Welch power spectral density of a stacked residual, summed over the equations.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors (their decimated rate sets the frequency axis).
+    residual : ndarray, shape (m * n_equations,)
+        Stacked equation errors [N m].
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        Frequencies [Hz] and the PSD summed over the equations [N^2 m^2/Hz].
+    """
+    m = data.t.size
+    parts = np.column_stack([residual[i * m:(i + 1) * m] for i in range(len(data.equations))])
+    f, p = signal.welch(parts, fs=data.settings.decimated_rate_hz, nperseg=min(256, m), axis=0)
+    return f, p.sum(axis=1)

@@ -81,9 +81,7 @@ def plot_residual_spectrum(diag: Any, path: str | Path) -> Path:
     Path
         The file written.
     """
-    from scipy import signal
-
-    from ..gap.locate import empirical_response
+    from ..gap.locate import empirical_response, residual_psd
 
     plt = _plt()
     data = diag.data
@@ -92,9 +90,7 @@ def plot_residual_spectrum(diag: Any, path: str | Path) -> Path:
     for label, fit in (("nominal (calibrated)", diag.baseline), (f"with {diag.effect}", _after(diag))):
         if fit is None:
             continue
-        parts = _split(diag, fit.residual)
-        f, p = signal.welch(np.column_stack(list(parts.values())), fs=fs, nperseg=min(256, data.t.size), axis=0)
-        ax1.semilogy(f, p.sum(axis=1), label=label)
+        ax1.semilogy(*residual_psd(data, fit.residual), label=label)
     lo, hi = diag.location.frequency_band_hz
     ax1.axvspan(lo, hi, color="tab:red", alpha=0.12, label="band with 80 % of the energy")
     ax1.set_xlabel("f [Hz]")
