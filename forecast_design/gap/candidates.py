@@ -17,6 +17,16 @@ Friction candidates (``coulomb``, ``stiction``, ``position_friction``) also
 explain the samples where the motor is at rest: a static friction holds any
 net torque up to its breakaway level, so there the residual left is
 ``soft_threshold(r, level)``.
+
+Around reversals and stops the filters smear whatever torque a friction feature
+misses into the neighbouring rows where the motor moves, and a Stribeck bump
+``sign(v) exp(-(v/v_s)^2)`` (non-zero only there) absorbs it and passes for
+stiction. Two rules keep such torque out of the friction fit: the sign feature
+is zero only below the encoder's speed resolution, not in the whole ``stuck``
+band (a motor moving at 1-2 mrad/s still feels the full ``F_c``; see
+:func:`_sign`), and the friction laws are fitted on the rows that no sample at
+rest reaches through the derivative filter (:func:`.residuals.near_rest`: at
+rest the friction is set-valued, whatever torque holds the motor).
 """
 
 from __future__ import annotations
@@ -28,7 +38,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from ..effects import Effect
-from .residuals import GapData, delayed_input
+from .residuals import GapData, delayed_input, gap_log_scales, near_rest
 
 __all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_all", "fit_pair", "CANDIDATE_EFFECTS",
            "JointAttribution", "fit_joint"]
@@ -123,9 +133,25 @@ def _dahl(v: np.ndarray, dt: float, x_p: float) -> np.ndarray:
 
 
 def _sign(data: GapData) -> np.ndarray:
+    """Direction of the kinetic friction at the raw rate: ``sign(theta')``, 0 where the sign is not resolved.
+
+    The dead band is the encoder's speed resolution (one step per derivative-filter window,
+    :attr:`forecast_design.plausibility.LogScales.speed_resolution`, 0.6 mrad/s on the
+    testbed at 2 kHz): below it the sign of the filtered speed is quantisation noise, and a
+    motor at rest has a set-valued friction that the soft threshold on the ``stuck`` rows
+    explains. It is deliberately *not* ``GapOptions.stick_velocity`` (2 mrad/s), the speed
+    below which a *decimated* row may be stuck: a motor passing through a reversal at
+    1-2 mrad/s still moves and feels the full ``F_c`` (Coulomb's law does not depend on the
+    speed). A dead band that wide zeroed the feature for the ~10 raw samples each slow
+    reversal spends inside it, so the decimated sign column lacked ``2 F_c`` times that time
+    at every reversal; the anti-alias filters smear that hole into the neighbouring
+    *moving* rows, where a Stribeck bump ``sign(v) exp(-(v/v_s)^2)`` with ``v_s`` just
+    above the band (non-zero exactly next to the hole) fills it in. Coulomb logs in closed
+    loop (slow sine reversals) were then named ``stiction`` with ``F_s ~ 3 F_c``.
+    """
     v = data.raw["v"]
     s = np.sign(v)
-    s[np.abs(v) < data.options.stick_velocity] = 0.0
+    s[np.abs(v) < gap_log_scales(data).speed_resolution] = 0.0
     return s
 
 
@@ -317,17 +343,32 @@ def _summaries(data: GapData, r: np.ndarray) -> tuple[float, float, np.ndarray]:
     return (float(np.sqrt(np.mean(r[~held] ** 2))), float(np.sqrt(np.mean(r[held] ** 2))), sse)
 
 
+def _fit_rows(data: GapData, structure: _Structure | None) -> np.ndarray:
+    """Stacked rows a candidate is fitted on: the fit blocks; for a friction law, none near rest.
+
+    Static friction at rest is set-valued, and the derivative filter smears it into the
+    rows next to a rest (:func:`.residuals.near_rest`): a friction law is fitted on the
+    other rows of the fit blocks. Should fewer rows than coefficients be left (a log at
+    rest almost throughout), only the ``stuck`` rows are left out.
+    """
+    rows = ~data.stacked(data.held_out)
+    if structure is None or structure.level is None:
+        return rows
+    m = data.t.size
+    n_coefs = len(_calibration(data)) + len(structure.coefs)
+    for rest in (near_rest(data), data.stuck):
+        mask = np.zeros(rows.size, dtype=bool)
+        mask[:m] = rest
+        if np.count_nonzero(rows & ~mask) >= n_coefs:
+            return rows & ~mask
+    return rows & ~mask
+
+
 def _fit(data: GapData, effect: Effect, structure: _Structure | None) -> CandidateFit:
     cal = _calibration(data)
     coefs = cal + (structure.coefs if structure else [])
-    fit_rows = ~data.stacked(data.held_out)
     level = structure.level if structure else None
-    if level is not None:
-        # static friction at rest is set-valued: fit the friction law on the moving samples
-        stuck = np.zeros(fit_rows.size, dtype=bool)
-        stuck[:data.t.size] = data.stuck
-        fit_rows = fit_rows & ~stuck
-    p = _solve(data, coefs, fit_rows)
+    p = _solve(data, coefs, _fit_rows(data, structure))
     tb = data.experiment.design.testbed
     r, prediction = _evaluate(data, effect, coefs, p, len(cal), level)
     gap_fit, gap_held, sse = _summaries(data, r)

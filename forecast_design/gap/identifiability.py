@@ -43,10 +43,10 @@ import numpy as np
 from scipy import stats
 
 from ..effects import Effect
-from ..plausibility import ParameterStatus, assess, effect_bound, log_scales, LogScales
+from ..plausibility import ParameterStatus, assess, effect_bound
 from ..friction._lsq import hac_covariance
-from .candidates import CandidateFit, _calibration
-from .residuals import GapData
+from .candidates import CandidateFit, _calibration, _fit_rows as _candidate_fit_rows
+from .residuals import GapData, gap_log_scales
 
 __all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status",
            "isolability", "gap_log_scales", "ISOLABILITY_THRESHOLD", "CALIBRATION"]
@@ -59,26 +59,9 @@ CALIBRATION = "calibration"
 WALD_ALPHA = 0.05
 
 
-def gap_log_scales(data: GapData) -> LogScales:
-    """The log's magnitudes for the plausibility ranges (cached on ``data``)."""
-    if "scales" not in data.cache:
-        exp = data.experiment
-        sig = exp.signals
-        theta = np.asarray(sig.theta, dtype=float)
-        q = np.zeros_like(theta) if data.locked else np.asarray(sig.q, dtype=float)
-        data.cache["scales"] = log_scales(torque=np.asarray(sig.tau_m, dtype=float), position=theta,
-                                          rate_hz=exp.rate_hz, deflection=theta - q, velocity=data.raw["v"],
-                                          J_m=exp.design.testbed.J_m)
-    return data.cache["scales"]
-
-
 def _fit_rows(data: GapData, fit: CandidateFit) -> np.ndarray:
-    rows = ~data.stacked(data.held_out)
-    if fit.structure is not None and fit.structure.level is not None:
-        stuck = np.zeros(rows.size, dtype=bool)
-        stuck[:data.t.size] = data.stuck
-        rows = rows & ~stuck
-    return rows
+    """The rows a candidate was fitted on (:func:`.candidates._fit_rows`)."""
+    return _candidate_fit_rows(data, fit.structure)
 
 
 def _flatten(params: Mapping[str, Any]) -> dict[str, float]:
@@ -156,9 +139,13 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
     s = fit.structure
     if s is None or fit.coef is None:
         return EffectAssessment(identified=False, status={}, reasons=("no effect parameters",))
+    # keyed by the fit's id, with the fit itself stored next to its assessment: an id is only
+    # unique while its object lives, and the pair fits of the forward selection are built and
+    # dropped in loops, so a bare id would hand a new fit the assessment of a dead one
     key = ("assessment", id(fit))
-    if key in data.cache:
-        return data.cache[key]
+    hit = data.cache.get(key)
+    if hit is not None and hit[0] is fit:
+        return hit[1]
     cov, bound = _coefficient_covariance(data, fit)
     n_cal = fit.n_cal
     p_eff = np.asarray(fit.coef[n_cal:], dtype=float)
@@ -224,7 +211,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                 and nm in ("delay_s", "width_rad", "v_s"):
             reasons.append(status[nm].reason)
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
-    data.cache[key] = out
+    data.cache[key] = (fit, out)
     return out
 
 

@@ -40,13 +40,13 @@ import numpy as np
 
 from ..errors import ExperimentFormatError, IdentifiabilityError, ParameterError
 from ..experiment import Experiment
-from ..plausibility import DATASHEET_TOLERANCE
+from ..plausibility import DATASHEET_TOLERANCE, LogScales, log_scales
 from scipy import signal
 
-from ..friction.derivatives import FilterSettings, decimate_columns, default_filter_settings
+from ..friction.derivatives import FilterSettings, decimate_columns, default_filter_settings, settling_samples
 
 __all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
-           "zoh_input", "delayed_input", "lowpass"]
+           "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "near_rest"]
 
 #: Equation names, in stacking order.
 EQUATIONS = ("motor", "environment", "coupling")
@@ -78,7 +78,9 @@ class GapOptions:
     min_reduction : float
         Smallest held-out gap reduction ``1 - gap_after / gap_before`` that counts [-].
     stick_velocity : float
-        Motor speed below which the motor counts as stuck [rad/s].
+        Motor speed below which a decimated row counts as stuck (its friction is set-valued:
+        soft-thresholded by the friction candidates) [rad/s]. It is not the dead band of the
+        friction sign feature, which is the encoder's speed resolution (a slower motor still moves).
     max_delay_s : float
         Largest delay the ``delay`` candidate searches [s].
     min_effect_fraction : float
@@ -339,6 +341,66 @@ class GapData:
     def stacked(self, mask: np.ndarray) -> np.ndarray:
         """Repeat a per-sample mask or index array for each equation."""
         return np.concatenate([mask] * len(self.equations))
+
+
+def gap_log_scales(data: GapData) -> LogScales:
+    """The log's magnitudes (cached on ``data``): plausibility ranges and the encoder's speed resolution.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    LogScales
+        :func:`forecast_design.plausibility.log_scales` of the log's command, motor angle,
+        spring deflection and filtered speed; ``speed_resolution`` [rad/s] is one encoder
+        step per derivative-filter window.
+    """
+    if "scales" not in data.cache:
+        exp = data.experiment
+        sig = exp.signals
+        theta = np.asarray(sig.theta, dtype=float)
+        q = np.zeros_like(theta) if data.locked else np.asarray(sig.q, dtype=float)
+        data.cache["scales"] = log_scales(torque=np.asarray(sig.tau_m, dtype=float), position=theta,
+                                          rate_hz=exp.rate_hz, deflection=theta - q, velocity=data.raw["v"],
+                                          J_m=exp.design.testbed.J_m)
+    return data.cache["scales"]
+
+
+def near_rest(data: GapData) -> np.ndarray:
+    """Decimated rows that a motor at rest reaches through the derivative filter (cached on ``data``).
+
+    A raw sample is *at rest* when its filtered speed is below the encoder's speed resolution
+    (:func:`gap_log_scales`); there a static friction holds whatever net torque acts, anywhere
+    in ``[-F_s, F_s]``, so no friction law predicts it. The zero-phase position filter and the
+    two differences smear that torque ``settling_samples(...)[0]`` raw samples to either side
+    (:func:`forecast_design.friction.derivatives.settling_samples`; 20 at the default cut-off),
+    into rows whose motor moves. A row is near rest when it is ``stuck`` or a raw sample at
+    rest lies within that smear of it (the IDIM rule of :mod:`forecast_design.friction.selection`).
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    ndarray of bool, shape (m,)
+        True for the rows a static friction law is not fitted on.
+    """
+    if "near_rest" not in data.cache:
+        v = np.asarray(data.raw["v"], dtype=float)
+        rest = np.abs(v) < gap_log_scales(data).speed_resolution
+        w = settling_samples(data.settings)[0]
+        c = np.concatenate([[0], np.cumsum(rest, dtype=np.int64)])
+        idx = np.arange(v.size)
+        near = (c[np.minimum(idx + w + 1, v.size)] - c[np.maximum(idx - w, 0)]) > 0
+        e, R = data.settings.edge_samples, data.settings.decimation_factor
+        near = near[e:v.size - e][::R][:data.t.size]
+        data.cache["near_rest"] = near | data.stuck
+    return data.cache["near_rest"]
 
 
 def significant_digits(values: np.ndarray, *, sample: int = 4000) -> int:
