@@ -69,9 +69,9 @@ __all__ = [
 _LAZY = {
     "transfer_functions": "symbolic",
     "force_loop": "symbolic",
-    "disk_margin": "analysis",
+    "disk_margin": "margins",
     "loop_margins": "analysis",
-    "fig6_table": "analysis",
+    "fig6_table": "reproduce",
     "tune_q": "tuning",
     "identify": "friction",
     "fit_friction": "friction",

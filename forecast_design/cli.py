@@ -160,7 +160,7 @@ def _write_json(target: str, obj: Any) -> None:
 
 
 def _reproduce_fig6(args: argparse.Namespace) -> int:
-    from .analysis import fig6_table
+    from .reproduce import fig6_table
 
     rows = fig6_table(sigma=args.sigma)
     mapping = [row.to_mapping() for row in rows]

@@ -54,7 +54,7 @@ def _derive(out: Path) -> dict[str, Any]:
 
 
 def _tune(out: Path) -> dict[str, Any]:
-    from .analysis import fig6_table
+    from .reproduce import fig6_table
     from .plotting.margins import plot_fig6
     from .tuning import tune_q
 

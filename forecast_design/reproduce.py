@@ -75,7 +75,8 @@ import numpy as np
 
 from .effects import Cogging, PositionFriction, Stiction
 from .errors import ParameterError
-from .params import Compensator, Design, PDController
+from .margins import disk_margin, json_float
+from .params import COMPENSATOR_KINDS, Compensator, Design, PDController
 
 __all__ = [
     "PAPER_FIG7",
@@ -88,6 +89,8 @@ __all__ = [
     "Table3Result",
     "reproduce_table3",
     "pairwise_xcorr",
+    "MarginRow",
+    "fig6_table",
 ]
 
 #: The paper's Fig. 7 numbers (Section 6) [N m].
@@ -670,3 +673,100 @@ def _table3_explanation(result: Table3Result) -> str:
                          "friction the identified extended SFM describes well: " + "; ".join(
                              f"{r['environment']} at {r['sfm_deadband']:g} rad/s" for r in beat) + ".")
     return " ".join(parts)
+
+
+# ---------------------------------------------------------------------------------------------
+# Fig. 6: disk margins of the observers in soft and stiff environments
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class MarginRow:
+    """One disk of the paper's Fig. 6: an environment, an observer and its Q cutoff."""
+
+    environment: str                        # environment preset name
+    observer: str                           # compensator kind ('none' is the plant alone)
+    w_q_hz: float | None                    # Q(s) cutoff, None for 'none'      [Hz]
+    disk_margin: float                      # alpha (0 if unstable)            [-]
+    gain_margin_db: tuple[float, float]     # disk-based (lo, hi)              [dB]
+    phase_margin_deg: float                 # disk-based                       [deg]
+    frequency_rad_s: float                  # critical frequency               [rad/s]
+    stable: bool                            # nominal closed loop stable
+
+    def to_mapping(self) -> dict[str, Any]:
+        """JSON row with keys environment, observer, w_q_hz, disk_margin, gain_margin_db,
+        phase_margin_deg, frequency_rad_s, stable (infinities as ``None``)."""
+        return {
+            "environment": self.environment,
+            "observer": self.observer,
+            "w_q_hz": self.w_q_hz,
+            "disk_margin": json_float(self.disk_margin),
+            "gain_margin_db": [json_float(g) for g in self.gain_margin_db],
+            "phase_margin_deg": json_float(self.phase_margin_deg),
+            "frequency_rad_s": json_float(self.frequency_rad_s),
+            "stable": self.stable,
+        }
+
+
+def fig6_table(
+    *,
+    environments: Sequence[str] = ("soft", "stiff"),
+    w_q_hz: Sequence[float] = (1.0, 5.0, 10.0),
+    observers: Sequence[str] = ("none", "ea-fob", "lo-dob", "ld-dob"),
+    controller: PDController = PDController(P=5.0, D=0.1),
+    sigma: float = 0.0,
+) -> list[MarginRow]:
+    """Disk margins of the force loop with each observer, as in the paper's Fig. 6.
+
+    Parameters
+    ----------
+    environments : sequence of str
+        Environment preset names (paper: ``soft``, ``stiff``).
+    w_q_hz : sequence of float
+        Q(s) cutoffs [Hz] for every observer (paper: 1, 5, 10).
+    observers : sequence of str
+        Compensator kinds; ``none`` is the plant alone and gets a single row.
+    controller : PDController
+        Force controller (paper: P = 5 [N m / N m], D = 0.1 [N m s / N m]).
+    sigma : float
+        Skew of the disk [-] (the paper uses the balanced disk, 0).
+
+    Returns
+    -------
+    list of MarginRow
+        One row per environment, observer and cutoff (one per environment for ``none``),
+        in the order of the arguments.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown environment or observer kind, or a nonpositive cutoff.
+
+    Notes
+    -----
+    Each loop is :func:`forecast_design.symbolic.loops.force_loop` of the nominal design in
+    that environment, broken at the controller; its ``stable`` flag (from the full
+    characteristic polynomial, which sees cancellations) is passed to :func:`disk_margin`.
+    """
+    for kind in observers:
+        if kind not in COMPENSATOR_KINDS:
+            raise ParameterError(
+                f"fig6_table: observer must be one of {', '.join(COMPENSATOR_KINDS)}, got {kind!r}",
+                name="observers", value=kind)
+    from .symbolic.loops import force_loop
+    rows: list[MarginRow] = []
+    for env in environments:
+        design = Design.nominal(env)
+        for kind in observers:
+            cutoffs: Sequence[float | None] = (None,) if kind == "none" else tuple(w_q_hz)
+            for wq in cutoffs:
+                comp = None if wq is None else Compensator(kind=kind, w_q_hz=wq)
+                loop = force_loop(design, comp, controller=controller)
+                dm = disk_margin(loop.L, sigma, closed_loop_stable=bool(loop.stable))
+                rows.append(MarginRow(
+                    environment=env, observer=kind, w_q_hz=None if wq is None else float(wq),
+                    disk_margin=dm.alpha, gain_margin_db=dm.gain_margin_db,
+                    phase_margin_deg=dm.phase_margin_deg, frequency_rad_s=dm.frequency_rad_s,
+                    stable=dm.stable,
+                ))
+    return rows

@@ -27,7 +27,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .analysis import disk_margin
+from .margins import disk_margin
 from .errors import ParameterError, SolverError
 from .params import Compensator, Design, Environment, PDController, environment_preset
 
@@ -206,7 +206,7 @@ def _responses(true_design: Design, believed: Design, compensator: Compensator, 
     """(W, CP, M, dm) of one plant on the grid ``w`` [rad/s]."""
     key = (believed, float(w[0]), float(w[-1]), w.size)
     if setting.sampled:
-        from .analysis import _to_w, _zoh_plant
+        from .loops.sampled import to_w as _to_w, zoh_plant as _zoh_plant
         from .simulation.controllers import DiscretePD
 
         T = 1.0 / setting.rate_hz
@@ -244,7 +244,7 @@ def _exact_ratio(true_design: Design, believed: Design, compensator: Compensator
                  setting: _Setting) -> tuple[float, float]:
     """Exact disk margin (stability checked) and its critical frequency [rad/s]."""
     if setting.sampled:
-        from .analysis import sampled_force_loop
+        from .loops.sampled import sampled_force_loop
 
         dm = sampled_force_loop(true_design, compensator, controller=setting.controller, believed=believed,
                                 rate_hz=setting.rate_hz, break_at=setting.break_at,
@@ -326,7 +326,7 @@ def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("sof
     sigma : float
         Disk skew [-].
     sampled : bool
-        Use the sampled-data loop (:func:`forecast_design.analysis.sampled_force_loop`).
+        Use the sampled-data loop (:func:`forecast_design.loops.sampled.sampled_force_loop`).
     rate_hz : float
         Sampling rate when ``sampled`` [Hz].
     delay_samples : int
@@ -499,7 +499,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     seed : int
         Seed for ``random:N`` environment sets.
     sampled : bool
-        Tune on the sampled-data loop (:func:`forecast_design.analysis.sampled_force_loop`):
+        Tune on the sampled-data loop (:func:`forecast_design.loops.sampled.sampled_force_loop`):
         constraints on the discrete frequency response up to Nyquist, exact verification on
         the sampled loop.
     rate_hz : float

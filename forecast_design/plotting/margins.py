@@ -8,7 +8,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..analysis import DiskMarginCurve, MarginRow, disk_center_radius
+from ..margins import DiskMarginCurve, disk_center_radius
+from ..reproduce import MarginRow
 from ..errors import ParameterError
 from . import save_figure
 
@@ -80,7 +81,7 @@ def plot_fig6(rows: Sequence[MarginRow], path: str | Path, *, sigma: float = 0.0
     Parameters
     ----------
     rows : sequence of MarginRow
-        Rows of :func:`forecast_design.analysis.fig6_table`; one subplot per environment in
+        Rows of :func:`forecast_design.reproduce.fig6_table`; one subplot per environment in
         order of appearance. Unstable rows have no disk and are listed as unstable in the
         legend, as the paper's figure drops them.
     path : str or Path
@@ -172,7 +173,7 @@ def plot_disk_margin_curve(curves: DiskMarginCurve | Mapping[str, DiskMarginCurv
     Parameters
     ----------
     curves : DiskMarginCurve or Mapping[str, DiskMarginCurve]
-        One curve, or labelled curves from :func:`forecast_design.analysis.disk_margin_curve`.
+        One curve, or labelled curves from :func:`forecast_design.margins.disk_margin_curve`.
     path : str or Path
         Output PNG file.
     title : str, optional

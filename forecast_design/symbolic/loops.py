@@ -25,6 +25,7 @@ import numpy as np
 from ..errors import ParameterError
 from .. import polynomials as poly
 from ..lti import RationalTF
+from ..margins import STABILITY_TOLERANCE
 from ..params import Compensator, Design, PDController
 from .numeric import catalogue_polynomials
 from .observers import ObserverFilters, observer_filters
@@ -33,8 +34,6 @@ __all__ = ["ForceLoop", "force_loop", "BREAK_POINTS", "STABILITY_TOLERANCE"]
 
 #: Where the loop is broken for L(s).
 BREAK_POINTS = ("controller", "plant-input")
-#: A closed-loop root is stable when Re(p) < -STABILITY_TOLERANCE * max(1, |p|) [-].
-STABILITY_TOLERANCE = 1e-9
 
 
 def _plant_polynomials(design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
