@@ -42,7 +42,7 @@ def _loops() -> dict:
     loops = {"seiler-2020": RationalTF([25.0], [1.0, 10.0, 10.0, 10.0])}
     try:
         from forecast_design.params import Compensator, Design
-        from forecast_design.symbolic.loops import force_loop
+        from forecast_design.loops import force_loop
     except ImportError:
         return loops
     for env, kind, wq in [("soft", None, None), ("soft", "lo-dob", 10.0), ("stiff", "ea-fob", 10.0),
@@ -118,7 +118,7 @@ def bench_fig6(repeat: int) -> dict:
 
     t0 = time.perf_counter()
     try:
-        import forecast_design.symbolic.loops  # noqa: F401
+        import forecast_design.loops.continuous  # noqa: F401
     except ImportError as exc:  # force_loop not available yet
         return {"skipped": str(exc)}
     t_import = time.perf_counter() - t0
@@ -198,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     if "skipped" in fig6:
         print(f"fig6_table: skipped ({fig6['skipped']})")
     else:
-        print(f"fig6_table ({fig6['rows']} rows): import of symbolic.loops {fig6['t_import_s']:.3f} s, "
+        print(f"fig6_table ({fig6['rows']} rows): import of loops.continuous {fig6['t_import_s']:.3f} s, "
               f"first call {fig6['t_first_call_s']:.3f} s (force_loop's symbolic set-up), "
               f"warm {fig6['t_warm_s']:.3f} s of which disk margins {fig6['t_disk_margins_s']:.3f} s; "
               f"< {TARGET_FIG6_S} s: first call {'yes' if fig6['t_first_call_s'] < TARGET_FIG6_S else 'NO'}, "

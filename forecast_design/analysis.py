@@ -75,7 +75,7 @@ def loop_margins(
     sampled : bool
         Analyse the sampled-data loop (:func:`sampled_force_loop`: 200 Hz derivative filter,
         Tustin controller and observer, ZOH plant, delays) instead of the continuous one
-        (:func:`~forecast_design.symbolic.loops.force_loop`, pure PD).
+        (:func:`~forecast_design.loops.continuous.force_loop`, pure PD).
     rate_hz : float
         Sampling rate for ``sampled`` [Hz].
     delay_samples : int
@@ -94,7 +94,7 @@ def loop_margins(
     if sampled:
         return sampled_force_loop(design, comp, controller=ctrl, believed=believed, rate_hz=rate_hz,
                                   break_at=break_at, delay_samples=delay_samples).disk_margin(sigma)
-    from .symbolic.loops import force_loop
+    from .loops import force_loop
 
     loop = force_loop(design, comp, controller=ctrl, believed=believed, break_at=break_at)
     return disk_margin(loop.L, sigma, closed_loop_stable=bool(loop.stable))

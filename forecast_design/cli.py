@@ -672,7 +672,7 @@ def _cmd_margins(args: argparse.Namespace) -> int:
 
         from .analysis import disk_margin_curve, sampled_force_loop
         from .plotting.margins import plot_disk_margin_curve
-        from .symbolic import force_loop
+        from .loops import force_loop
 
         kwargs = dict(controller=controller, believed=believed, break_at=args.break_at)
         loop = (sampled_force_loop(design, comp, rate_hz=args.rate_hz, delay_samples=args.delay_samples, **kwargs)

@@ -1,7 +1,7 @@
 """Exact disk margins (Seiler, Packard, Gahinet 2020) of a loop transfer function.
 
 The one home of the disk-margin mathematics: the force-loop builders
-(:mod:`forecast_design.symbolic.loops`, :mod:`forecast_design.loops.sampled`), the Q
+(:mod:`forecast_design.loops.continuous`, :mod:`forecast_design.loops.sampled`), the Q
 tuner and the reproductions all evaluate margins here.
 """
 

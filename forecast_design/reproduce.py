@@ -744,7 +744,7 @@ def fig6_table(
 
     Notes
     -----
-    Each loop is :func:`forecast_design.symbolic.loops.force_loop` of the nominal design in
+    Each loop is :func:`forecast_design.loops.continuous.force_loop` of the nominal design in
     that environment, broken at the controller; its ``stable`` flag (from the full
     characteristic polynomial, which sees cancellations) is passed to :func:`disk_margin`.
     """
@@ -753,7 +753,7 @@ def fig6_table(
             raise ParameterError(
                 f"fig6_table: observer must be one of {', '.join(COMPENSATOR_KINDS)}, got {kind!r}",
                 name="observers", value=kind)
-    from .symbolic.loops import force_loop
+    from .loops import force_loop
     rows: list[MarginRow] = []
     for env in environments:
         design = Design.nominal(env)

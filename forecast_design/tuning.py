@@ -250,7 +250,7 @@ def _exact_ratio(true_design: Design, believed: Design, compensator: Compensator
                                 rate_hz=setting.rate_hz, break_at=setting.break_at,
                                 delay_samples=setting.delay_samples).disk_margin(setting.sigma)
     else:
-        from .symbolic import force_loop
+        from .loops import force_loop
 
         loop = force_loop(true_design, compensator, controller=setting.controller, believed=believed,
                           break_at=setting.break_at)

@@ -17,7 +17,7 @@ from IPython.display import Image, display
 from forecast_design import Compensator, Design
 from forecast_design.analysis import disk_margin, disk_margin_curve, fig6_table, loop_margins, sampled_force_loop
 from forecast_design.plotting.margins import plot_disk_margin_curve, plot_fig6
-from forecast_design.symbolic import force_loop
+from forecast_design.loops import force_loop
 from forecast_design.tuning import tune_q, worst_case_ratio
 
 FAST = os.environ.get("FORECAST_FAST") == "1"

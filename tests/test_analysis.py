@@ -427,11 +427,11 @@ def test_disk_margin_rejects_bad_inputs():
 
 
 # ---------------------------------------------------------------------------------------------
-# Fig. 6 (needs forecast_design.symbolic.loops.force_loop)
+# Fig. 6 (needs forecast_design.loops.continuous.force_loop)
 # ---------------------------------------------------------------------------------------------
 
-HAS_LOOPS = importlib.util.find_spec("forecast_design.symbolic.loops") is not None
-needs_loops = pytest.mark.skipif(not HAS_LOOPS, reason="forecast_design.symbolic.loops not available")
+HAS_LOOPS = importlib.util.find_spec("forecast_design.loops.continuous") is not None
+needs_loops = pytest.mark.skipif(not HAS_LOOPS, reason="forecast_design.loops.continuous not available")
 
 
 @pytest.fixture(scope="module")
@@ -482,7 +482,7 @@ def test_fig6_ld_dob_unstable_at_10_hz_in_stiff(fig6_rows):
 @needs_loops
 def test_fig6_disk_margins_agree_with_python_control_grid():
     from forecast_design.params import Compensator, Design
-    from forecast_design.symbolic.loops import force_loop
+    from forecast_design.loops import force_loop
 
     for env, comp in [("soft", None), ("stiff", Compensator(kind="lo-dob", w_q_hz=5.0)),
                       ("soft", Compensator(kind="ea-fob", w_q_hz=10.0))]:
@@ -497,7 +497,7 @@ def test_fig6_disk_margins_agree_with_python_control_grid():
 @needs_loops
 def test_fig6_every_stable_row_matches_refined_dense_grid(fig6_rows):
     from forecast_design.params import Compensator, Design
-    from forecast_design.symbolic.loops import force_loop
+    from forecast_design.loops import force_loop
 
     for r in fig6_rows:
         if not r.stable:
@@ -569,7 +569,7 @@ def test_fig6_stability_flag_agrees_with_roots_of_loop_polynomials(fig6_rows):
     # ForceLoop.stable comes from the uncancelled characteristic polynomial; our own check
     # uses den(L) + num(L). They agree when L has no hidden cancellation.
     from forecast_design.params import Compensator, Design
-    from forecast_design.symbolic.loops import force_loop
+    from forecast_design.loops import force_loop
 
     for r in fig6_rows:
         comp = None if r.w_q_hz is None else Compensator(kind=r.observer, w_q_hz=r.w_q_hz)

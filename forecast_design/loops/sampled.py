@@ -325,12 +325,12 @@ def sampled_force_loop(
     chi has the full order (controller, filters, plant and delays): a mode cancelled in L
     still decides stability. A free output (k_e = 0) has the rigid-body root w = 0 in D and
     N_s (and in B_theta, the motor FOB's double differentiator): that exact factor is
-    divided out, as :func:`~forecast_design.symbolic.loops.force_loop` divides out s.
+    divided out, as :func:`~forecast_design.loops.continuous.force_loop` divides out s.
     As T -> 0, rho, ell -> 1 and the plant tends to P(s): the loop tends to the continuous
     loop with the same (filtered) PD.
     """
     from ..simulation.controllers import DEFAULT_DERIVATIVE_CUTOFF_HZ, DiscretePD, ObserverCompensator
-    from ..symbolic.loops import BREAK_POINTS
+    from .continuous import BREAK_POINTS
 
     if break_at not in BREAK_POINTS:
         raise ParameterError(f"break_at must be one of {', '.join(BREAK_POINTS)}, got {break_at!r}",

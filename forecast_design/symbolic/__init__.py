@@ -1,4 +1,4 @@
-"""Symbolic SEA models (sympy), observer filters and the numeric force loop.
+"""Symbolic SEA models (sympy) and observer filters (the force loop is in :mod:`forecast_design.loops`).
 
 The models are derived in sympy (:mod:`.plant`, :mod:`.bridge`); their
 coefficient polynomials are also written to a generated numeric catalogue
@@ -7,7 +7,6 @@ and loops does not import sympy. The sympy-backed names below are imported on
 first use.
 """
 
-from .loops import BREAK_POINTS, ForceLoop, force_loop
 from .numeric import (
     NOMINAL_KINDS,
     TransferFunctionEntry,
@@ -44,9 +43,6 @@ __all__ = [
     "nominal_plant_tf",
     "parameter_values",
     "transfer_functions",
-    "BREAK_POINTS",
-    "ForceLoop",
-    "force_loop",
     "ObserverFilters",
     "observer_filters",
     "q_filter",
@@ -55,12 +51,18 @@ __all__ = [
     "required_q_order",
 ]
 
+# The force loop moved to forecast_design.loops.continuous; its names resolve there for one release.
+_MOVED_TO_LOOPS = ("BREAK_POINTS", "ForceLoop", "force_loop")
 _SYMPY_BACKED = ("ParametricTF", "derive_force_plant", "derive_joint_angle_plant", "derive_locked_force_plant",
                  "derive_motor_angle_plant", "nominal_plant")
 
 
 def __getattr__(name: str):
     """Import the sympy-backed derivations on first use (PEP 562)."""
+    if name in _MOVED_TO_LOOPS:
+        import importlib
+
+        return getattr(importlib.import_module(__name__.rsplit(".", 1)[0] + ".loops.continuous"), name)
     if name in _SYMPY_BACKED:
         from . import bridge
 

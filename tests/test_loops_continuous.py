@@ -12,7 +12,8 @@ from scipy import signal
 
 from forecast_design.errors import ParameterError
 from forecast_design.params import Compensator, Design, Environment, PDController
-from forecast_design.symbolic import force_loop, force_plant_tf, observer_filters
+from forecast_design.loops import force_loop
+from forecast_design.symbolic import force_plant_tf, observer_filters
 
 # --- independent reference built from the paper's printed formulas with python-control ------
 

@@ -1,0 +1,195 @@
+"""Numeric force loop: plant, observer and PD controller assembled with polynomials.
+
+The loop is built from numpy polynomials without any pole-zero
+cancellation, so a mode hidden by a cancellation (e.g. an unstable
+observer mode cancelled in L(s)) stays in the characteristic polynomial.
+
+Signals (Laplace domain, true plant P = N_s/D, P_theta = N_theta/D over one
+denominator; observer filters G = A/D_o over one denominator)::
+
+    tau_m = u + G_m tau_m + G_s tau_s + G_theta theta      (observer feed-forward)
+    tau_s = P tau_m,   theta = P_theta tau_m               (true plant)
+    u     = C_F (tau_r - tau_s),  C_F(s) = P + D s         (force controller)
+
+which gives F_DOB = tau_s/u = N_s D_o / Delta with
+Delta = D_o D - A_m D - A_s N_s - A_theta N_theta, and the closed-loop
+characteristic polynomial chi = Delta + C_F N_s D_o.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ParameterError
+from .. import polynomials as poly
+from ..lti import RationalTF
+from ..margins import STABILITY_TOLERANCE
+from ..params import Compensator, Design, PDController
+from ..symbolic.numeric import catalogue_polynomials
+from ..symbolic.observers import ObserverFilters, observer_filters
+
+__all__ = ["ForceLoop", "force_loop", "BREAK_POINTS", "STABILITY_TOLERANCE"]
+
+#: Where the loop is broken for L(s).
+BREAK_POINTS = ("controller", "plant-input")
+
+
+def _plant_polynomials(design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(N_s, N_theta, D) of the true plant (plant.sea_polynomials), descending powers of s."""
+    polys = catalogue_polynomials("sea_locked" if design.environment.locked else "sea", design)
+    return tuple(poly.trim(p) for p in polys)
+
+
+def _add(*polys: np.ndarray) -> np.ndarray:
+    return poly.trim(poly.add(*polys))
+
+
+def _mul(*polys: np.ndarray) -> np.ndarray:
+    return poly.trim(poly.mul(*polys))
+
+
+@dataclass(frozen=True, eq=False)
+class ForceLoop:
+    """The closed force loop of one design, observer and PD controller.
+
+    Attributes
+    ----------
+    L : RationalTF
+        Loop transfer function at the break point (negative-feedback
+        convention, closed loop 1 + L = 0) [-].
+    characteristic_polynomial : ndarray, shape (n + 1,)
+        Closed-loop characteristic polynomial, descending powers of s,
+        nothing cancelled.
+    closed_loop_poles : ndarray of complex, shape (n,)
+        Its roots [rad/s].
+    stable : bool
+        All roots satisfy Re(p) < -STABILITY_TOLERANCE * max(1, |p|).
+    P : RationalTF
+        True force plant tau_s/tau_m [N m/N m].
+    F_DOB : RationalTF
+        tau_s/u with the observer (eq. (4) for the DOB kinds; P without observer) [N m/N m].
+    filters : ObserverFilters
+        The observer filters used.
+    break_at : str
+        ``'controller'`` or ``'plant-input'``.
+    """
+
+    L: RationalTF
+    characteristic_polynomial: np.ndarray
+    closed_loop_poles: np.ndarray
+    stable: bool
+    P: RationalTF
+    F_DOB: RationalTF
+    filters: ObserverFilters
+    break_at: str
+
+    @property
+    def max_real_pole(self) -> float:
+        """Largest real part of the closed-loop poles [rad/s]."""
+        return float(np.max(self.closed_loop_poles.real)) if self.closed_loop_poles.size else -np.inf
+
+
+def force_loop(
+    true_design: Design,
+    compensator: Compensator | None = None,
+    *,
+    controller: PDController = PDController(P=5.0, D=0.1),
+    believed: Design | None = None,
+    break_at: str = "controller",
+) -> ForceLoop:
+    """Assemble the force loop: true plant, observer (believing ``believed``) and PD controller.
+
+    Parameters
+    ----------
+    true_design : Design
+        The real testbed [J_m kg m^2, d_m N m s/rad, k N m/rad] and
+        environment (locked allowed). Its ``controller`` and ``compensator``
+        fields are *not* consulted; pass them explicitly.
+    compensator : Compensator or None
+        Observer kind, cutoff ``w_q_hz`` [Hz] and Q filter. ``None``,
+        ``'none'`` and ``'sfm'`` (static, no linear dynamics) give the plant
+        alone.
+    controller : PDController
+        C_F(s) = P + D s [N m/N m], [N m s/N m] (the paper's pure PD).
+    believed : Design or None
+        What the observer believes (environment-knowledge error);
+        ``None`` means ``true_design``.
+    break_at : str
+        ``'controller'``: L = C_F F_DOB, at the force-controller output
+        (as in the paper); ``'plant-input'``: at the motor-torque input,
+        L = (C_F P - G_s P - G_theta P_theta) / (1 - G_m).
+
+    Returns
+    -------
+    ForceLoop
+        L, the characteristic polynomial, closed-loop poles, stability flag
+        and the pieces.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown ``break_at`` or an improper observer (see
+        :func:`~forecast_design.symbolic.observers.observer_filters`).
+
+    Notes
+    -----
+    The closed loop is proper although C_F is not: P has relative degree 2.
+    A free output (k_e = 0 exactly) adds a rigid-body position mode at
+    s = 0 that neither tau_s nor the motor acceleration sees; that exact
+    common factor s is divided out (as in ``force_plant_tf``). Any other
+    common factor, stable or not, is kept.
+    """
+    if break_at not in BREAK_POINTS:
+        raise ParameterError(
+            f"break_at must be one of {', '.join(BREAK_POINTS)}, got {break_at!r}",
+            name="break_at", value=break_at,
+        )
+    if not isinstance(controller, PDController):
+        raise ParameterError(
+            f"controller must be a PDController, got {type(controller).__name__}",
+            name="controller", value=controller,
+        )
+    filters = observer_filters(compensator, believed if believed is not None else true_design)
+    N_s, N_theta, D = _plant_polynomials(true_design)
+    D_o = np.asarray(filters.den, dtype=float)
+    A_m = np.asarray(filters.from_tau_m.num, dtype=float)
+    A_s = np.asarray(filters.from_tau_s.num, dtype=float)
+    A_t = np.asarray(filters.from_theta.num, dtype=float)
+
+    # G_theta acts on s^r theta (r = 2 for the motor FOB: acceleration); moving s^r
+    # into the plant lets the rigid-body position mode cancel exactly when k_e = 0.
+    uses_theta = bool(np.any(A_t != 0.0))
+    if uses_theta:
+        r = poly.trailing_zeros(A_t)
+        A_t = poly.drop_trailing(A_t, r)
+        N_theta = np.concatenate([N_theta, np.zeros(r)])
+    m = min(poly.trailing_zeros(N_s), poly.trailing_zeros(D), poly.trailing_zeros(N_theta) if uses_theta else 10**9)
+    if 0 < m < 10**9:
+        N_s, D, N_theta = poly.drop_trailing(N_s, m), poly.drop_trailing(D, m), poly.drop_trailing(N_theta, m)
+
+    C = poly.trim(np.array([controller.D, controller.P], dtype=float))
+    delta = _add(_mul(D_o, D), -_mul(A_m, D), -_mul(A_s, N_s), -_mul(A_t, N_theta))
+    chi = _add(delta, _mul(C, N_s, D_o))
+    if break_at == "controller":
+        L = RationalTF(_mul(C, N_s, D_o), delta, name="L")
+    else:
+        L = RationalTF(_add(_mul(C, N_s, D_o), -_mul(A_s, N_s), -_mul(A_t, N_theta)),
+                       _mul(_add(D_o, -A_m), D), name="L")
+    poles = np.roots(chi) if len(chi) > 1 else np.zeros(0, dtype=complex)
+    stable = bool(np.all(poles.real < -STABILITY_TOLERANCE * np.maximum(1.0, np.abs(poles))))
+    chi = chi.copy()
+    chi.flags.writeable = False
+    poles = np.asarray(poles, dtype=complex)
+    poles.flags.writeable = False
+    return ForceLoop(
+        L=L,
+        characteristic_polynomial=chi,
+        closed_loop_poles=poles,
+        stable=stable,
+        P=RationalTF(N_s, D, name="P"),
+        F_DOB=RationalTF(_mul(N_s, D_o), delta, name="F_DOB"),
+        filters=filters,
+        break_at=break_at,
+    )
