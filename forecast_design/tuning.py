@@ -27,6 +27,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .loops.response import LoopResponse, loop_response, observer_responses, q_argument, sensitivity
 from .margins import disk_margin
 from .errors import ParameterError, SolverError
 from .params import Compensator, Design, Environment, PDController, environment_preset
@@ -192,52 +193,16 @@ def environment_set(names: Sequence[str] | str, *, uncertainty: float = 0.0,
     return out
 
 
-def _filter_responses(compensator: Compensator, believed: Design, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A(s), B(s) with G_s = -Q A and G_theta = -Q B (independent of the cutoff)."""
-    from .symbolic import observer_filters
-
-    filters = observer_filters(compensator, believed)
-    g_m = np.polyval(filters.from_tau_m.num, s)
-    return -np.polyval(filters.from_tau_s.num, s) / g_m, -np.polyval(filters.from_theta.num, s) / g_m
-
-
 def _responses(true_design: Design, believed: Design, compensator: Compensator, setting: _Setting,
                w: np.ndarray, cache: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(W, CP, M, dm) of one plant on the grid ``w`` [rad/s]."""
+    """(W, CP, M, dm) of one plant on the grid ``w`` [rad/s] (:func:`~.loops.response.loop_response`)."""
     key = (believed, float(w[0]), float(w[-1]), w.size)
-    if setting.sampled:
-        from .loops.sampled import to_w as _to_w, zoh_plant as _zoh_plant
-        from .simulation.controllers import DiscretePD
-
-        T = 1.0 / setting.rate_hz
-        W = 2.0 / T * np.tan(0.5 * w * T)
-        s = 1j * W
-        zp = _zoh_plant(true_design, setting.rate_hz)
-        P = np.polyval(zp.Ns_w, s) / np.polyval(zp.D_w, s)
-        P_theta = np.polyval(zp.Nt_w, s) / np.polyval(zp.D_w, s)
-        cn, cd = _to_w(DiscretePD(setting.controller, setting.rate_hz).tf)
-        C = np.polyval(cn, s) / np.polyval(cd, s)
-        dm = np.exp(-1j * w * T)
-        dp = dm ** setting.delay_samples
-    else:
-        from .symbolic import force_plant_tf, motor_angle_tf
-
-        W = w
-        s = 1j * w
-        P = force_plant_tf(true_design)(s)
-        P_theta = motor_angle_tf(true_design)(s)
-        C = setting.controller.P + setting.controller.D * s
-        dm = np.ones_like(s)
-        dp = dm
-    try:
-        A, B = cache[key]
-    except KeyError:
-        A, B = cache[key] = _filter_responses(compensator, believed, s)
-    with np.errstate(invalid="ignore"):
-        # B = 0 (no theta path) times a free output's rigid-body pole is 0, not nan
-        theta_term = np.where(B == 0.0, 0.0, B * P_theta)
-    M = (A * P + theta_term) * dp - dm
-    return W, C * P * dp, M, dm
+    if key not in cache:
+        W = q_argument(w, sampled=setting.sampled, rate_hz=setting.rate_hz)
+        cache[key] = observer_responses(compensator, believed, 1j * W)
+    r = loop_response(true_design, believed, compensator, setting.controller, w, sampled=setting.sampled,
+                      rate_hz=setting.rate_hz, delay_samples=setting.delay_samples, observer=cache[key])
+    return r.W, r.CP, r.M, r.dm
 
 
 def _exact_ratio(true_design: Design, believed: Design, compensator: Compensator | None,
@@ -267,8 +232,8 @@ def _q_polynomial(compensator: Compensator) -> np.ndarray:
 
 
 def _sensitivity_offset(plant: _Plant, dq: np.ndarray, break_at: str, sigma: float) -> np.ndarray:
-    num = dq + plant.M if break_at == "controller" else dq - plant.dm
-    return num / (dq + plant.M + plant.CP * dq) + 0.5 * (sigma - 1.0)
+    parts = LoopResponse(w=plant.w, W=plant.W, CP=plant.CP, M=plant.M, dm=plant.dm)
+    return sensitivity(parts, dq, break_at) + 0.5 * (sigma - 1.0)
 
 
 def _grid_ratios(plants: Sequence[_Plant], coeffs: np.ndarray, w_q_hz: np.ndarray, break_at: str,
