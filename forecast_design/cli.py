@@ -9,6 +9,7 @@ from typing import Any, Callable, Sequence
 
 from . import __version__
 from .errors import ForecastError
+from .params import BREAK_POINTS, COMPENSATOR_KINDS, OBSERVER_KINDS, Q_FAMILIES
 
 __all__ = ["main"]
 
@@ -248,7 +249,7 @@ def _float_range(text: str) -> float:
 
 
 def _configure_tune_q(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--observer", required=True, choices=["ea-fob", "lo-dob", "ld-dob", "motor-fob"])
+    p.add_argument("--observer", required=True, choices=OBSERVER_KINDS)
     p.add_argument("--envs", default="soft,stiff",
                    help="comma-separated presets, or random:N (default soft,stiff)")
     p.add_argument("--uncertainty", type=_float_range, default=0.0, metavar="FRACTION",
@@ -257,9 +258,9 @@ def _configure_tune_q(p: argparse.ArgumentParser) -> None:
                    help="required disk-margin ratio observer/plant (default 0.9)")
     p.add_argument("--band", type=_float_range, nargs=2, default=(0.5, 30.0), metavar=("LO", "HI"),
                    help="search band of the cutoff [Hz] (default 0.5 30)")
-    p.add_argument("--q-family", default="butterworth", choices=["butterworth", "binomial"])
+    p.add_argument("--q-family", default="butterworth", choices=Q_FAMILIES)
     p.add_argument("--q-order", type=int, default=2)
-    p.add_argument("--break-at", default="controller", choices=["controller", "plant-input"])
+    p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
     p.add_argument("--max-margin", metavar="W_Q_HZ", type=_float_range,
                    help="instead: at this fixed cutoff, choose the 2nd-order Q damping that "
                         "maximises the worst-case margin ratio")
@@ -436,7 +437,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
 # --- export / emulate / run -----------------------------------------------------------
 
-_COMPENSATOR_CHOICES = ["none", "sfm", "ea-fob", "lo-dob", "ld-dob", "motor-fob"]
+_COMPENSATOR_CHOICES = COMPENSATOR_KINDS
 
 
 def _configure_export(p: argparse.ArgumentParser) -> None:
@@ -642,10 +643,10 @@ def _configure_margins(p: argparse.ArgumentParser) -> None:
     p.add_argument("--env", default="soft", metavar="NAME", help="true environment preset (default soft)")
     p.add_argument("--observer", default="none", choices=_COMPENSATOR_CHOICES)
     p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz]")
-    p.add_argument("--q-family", default="butterworth", choices=["butterworth", "binomial"])
+    p.add_argument("--q-family", default="butterworth", choices=Q_FAMILIES)
     p.add_argument("--believed", metavar="NAME", help="environment the observer believes in (default: the true one)")
     p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D")
-    p.add_argument("--break-at", default="controller", choices=["controller", "plant-input"])
+    p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
     p.add_argument("--sampled", action="store_true", help="sampled-data loop at --rate-hz")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0)
     p.add_argument("--delay-samples", type=int, default=1)

@@ -22,6 +22,8 @@ __all__ = [
     "ENVIRONMENT_PRESETS",
     "COMPENSATOR_KINDS",
     "Q_FAMILIES",
+    "OBSERVER_KINDS",
+    "BREAK_POINTS",
     "environment_preset",
     "parse_controller",
     "resolve_design",
@@ -33,6 +35,8 @@ COMPENSATOR_KINDS = ("none", "sfm", "ea-fob", "lo-dob", "ld-dob", "motor-fob")
 OBSERVER_KINDS = ("ea-fob", "lo-dob", "ld-dob", "motor-fob")
 #: Q-filter families (see :func:`forecast_design.symbolic.q_filter`).
 Q_FAMILIES = ("butterworth", "binomial")
+#: Where a force loop is broken for its loop transfer function L.
+BREAK_POINTS = ("controller", "plant-input")
 
 
 def check_number(owner: str, name: str, value: Any, *, positive: bool = False, nonneg: bool = True) -> float:

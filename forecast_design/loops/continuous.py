@@ -26,14 +26,12 @@ from ..errors import ParameterError
 from .. import polynomials as poly
 from ..lti import RationalTF
 from ..margins import STABILITY_TOLERANCE
-from ..params import Compensator, Design, PDController
+from ..params import BREAK_POINTS, Compensator, Design, PDController
 from ..symbolic.numeric import catalogue_polynomials
 from ..symbolic.observers import ObserverFilters, observer_filters
 
 __all__ = ["ForceLoop", "force_loop", "BREAK_POINTS", "STABILITY_TOLERANCE"]
 
-#: Where the loop is broken for L(s).
-BREAK_POINTS = ("controller", "plant-input")
 
 
 def _plant_polynomials(design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
