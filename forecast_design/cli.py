@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from typing import Any, Callable, Sequence
@@ -20,6 +21,20 @@ class _ArgumentParser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # pragma: no cover - exercised via main()
         self.exit(2, f"{self.prog}: error: {message}\n")
 
+
+
+@contextlib.contextmanager
+def _progress_bar(desc: str, unit: str, *, enabled: bool = True):
+    """The CLI's one progress mechanism: a tqdm bar on stderr behind a ``progress(done, total)`` callback."""
+    from tqdm import tqdm
+
+    with tqdm(total=0, desc=desc, unit=unit, disable=None if enabled else True, leave=False,
+              file=sys.stderr) as bar:
+        def progress(done: int, total: int) -> None:
+            bar.total = total
+            bar.update(done - bar.n)
+
+        yield progress
 
 def _print_json(obj: Any) -> None:
     json.dump(obj, sys.stdout, indent=2, allow_nan=True)
@@ -283,13 +298,7 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
                               break_at=args.break_at, seed=args.seed, sampled=args.sampled, rate_hz=args.rate_hz,
                               delay_samples=args.delay_samples)
     else:
-        from tqdm import tqdm
-
-        with tqdm(total=0, desc="exact scan", unit="cutoff", disable=None, leave=False, file=sys.stderr) as bar:
-            def progress(done: int, total: int) -> None:
-                bar.total = total
-                bar.update(done - bar.n)
-
+        with _progress_bar("exact scan", "cutoff") as progress:
             result = tune_q(args.observer, args.envs, uncertainty=args.uncertainty, min_ratio=args.min_ratio,
                             band_hz=tuple(args.band), q_family=args.q_family, q_order=args.q_order,
                             break_at=args.break_at, seed=args.seed, progress=progress, sampled=args.sampled,
@@ -593,9 +602,10 @@ def _cmd_bench_gap(args: argparse.Namespace) -> int:
 
     if args.per_effect < 1:
         raise ParameterError(f"--per-effect must be >= 1, got {args.per_effect}", name="per_effect")
-    result = benchmark(per_effect=args.per_effect, seed=args.seed, workers=args.workers,
-                       duration_s=args.duration, hard=args.hard, pairs=args.pairs, progress=args.json != "-",
-                       generator=args.generator, magnitude_scale=args.scale)
+    with _progress_bar("bench-gap", "log", enabled=args.json != "-") as progress:
+        result = benchmark(per_effect=args.per_effect, seed=args.seed, workers=args.workers,
+                           duration_s=args.duration, hard=args.hard, pairs=args.pairs, progress=progress,
+                           generator=args.generator, magnitude_scale=args.scale)
     if args.json:
         _write_json(args.json, result.to_mapping())
     if args.json != "-":

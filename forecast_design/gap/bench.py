@@ -49,7 +49,7 @@ import os
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -627,7 +627,8 @@ def available_workers() -> int:
 
 def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *, duration_s: float = 10.0,
               words: Sequence[Effect] = BENCH_WORDS, hard: int = 0, pairs: int = 0,
-              progress: bool = True, generator: str = "testbed", magnitude_scale: float = 1.0) -> BenchResult:
+              progress: Callable[[int, int], None] | None = None, generator: str = "testbed",
+              magnitude_scale: float = 1.0) -> BenchResult:
     """Run the withheld-effect benchmark.
 
     Parameters
@@ -646,8 +647,8 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
         Logs per hard (non-identifiable) scenario [-].
     pairs : int
         Logs per two-effect combination of ``PAIRS`` [-].
-    progress : bool
-        Show a tqdm progress bar (on stderr).
+    progress : callable, optional
+        ``progress(done, total)`` after each log (the CLI draws a bar with it).
     generator : str
         ``testbed`` (the project's virtual testbed, :mod:`forecast_design.simulation`) or
         ``independent`` (:mod:`forecast_design.independent`, written separately from the physics:
@@ -661,8 +662,6 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
     BenchResult
         Confusion matrix, accuracy and per-case outcomes.
     """
-    from tqdm import tqdm
-
     for name, value, lo in (("per_effect", per_effect, 0), ("hard", hard, 0), ("pairs", pairs, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < lo:
             raise ParameterError(f"{name} must be an integer >= {lo}, got {value!r}", name=name, value=value)
@@ -684,18 +683,17 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
                              value=per_effect)
     n_workers = workers if workers is not None else available_workers()
     t0 = time.perf_counter()
-    bar = tqdm(total=len(jobs), desc="bench-gap", disable=not progress, unit="log")
     cases: list[BenchCase] = []
+    report = progress if callable(progress) else (lambda done, total: None)
     if n_workers <= 1:
         for job in jobs:
             cases.append(run_case(job))
-            bar.update()
+            report(len(cases), len(jobs))
     else:
         with ProcessPoolExecutor(max_workers=n_workers) as pool:
             for case in pool.map(run_case, jobs):
                 cases.append(case)
-                bar.update()
-    bar.close()
+                report(len(cases), len(jobs))
     return BenchResult(cases=tuple(cases), per_effect=per_effect, seed=seed,
                        elapsed_s=time.perf_counter() - t0, workers=n_workers, generator=generator,
                        magnitude_scale=float(magnitude_scale))
