@@ -287,8 +287,22 @@ class Compensator:
     q_family: str = "butterworth"  # butterworth | binomial
     q_order: int = 2               # Q(s) order                    [-]
     q_damping: float | None = None  # 2nd-order Q damping ratio; None = the family's own [-]
+    # identified friction of an 'sfm' compensator, (name, value) pairs as forecast_design.friction
+    # names them (viscous [N m s/rad], coulomb, offset, sin<i>, cos<i> [N m]); a Mapping is accepted
+    friction: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
+        friction = self.friction.items() if isinstance(self.friction, Mapping) else self.friction
+        try:
+            pairs = tuple(sorted((str(k), _number("[compensator] friction", str(k), v, nonneg=False))
+                                 for k, v in friction))
+        except (TypeError, ValueError):
+            raise ParameterError(f"[compensator] friction must map parameter names to numbers, got {self.friction!r}",
+                                 name="friction", value=self.friction) from None
+        object.__setattr__(self, "friction", pairs)
+        if pairs and self.kind != "sfm":
+            raise ParameterError(f"[compensator] friction parameters apply to kind 'sfm', not {self.kind!r}",
+                                 name="friction", value=dict(pairs))
         if self.kind not in COMPENSATOR_KINDS:
             raise ParameterError(
                 f"[compensator] kind must be one of {', '.join(COMPENSATOR_KINDS)}, got {self.kind!r}",
@@ -319,6 +333,11 @@ class Compensator:
     def is_observer(self) -> bool:
         """True for the Q-filtered observers (EA-FOB, LO-DOB, LD-DOB, motor FOB)."""
         return self.kind in OBSERVER_KINDS
+
+    @property
+    def friction_params(self) -> dict[str, float] | None:
+        """The identified friction of an ``sfm`` compensator as a dict, or None when it carries none."""
+        return dict(self.friction) if self.friction else None
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "Compensator":

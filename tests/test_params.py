@@ -114,3 +114,25 @@ def test_design_parameters_flatten_environment_sums():
     p = Design.nominal("stiff").parameters()
     assert p["J"] == pytest.approx(0.1 + 0.0018) and p["d"] == pytest.approx(2 * math.sqrt(10.0) + 0.35)
     assert p["k_e"] == 100.0 and p["J_m"] == 0.133
+
+
+def test_sfm_compensator_carries_its_identified_friction():
+    import numpy as np
+
+    from forecast_design.export.c import build_program
+    from forecast_design.simulation import references as refs
+    from forecast_design.simulation import simulate
+
+    params = {"viscous": 0.3, "coulomb": 0.35, "sin1": 0.02}
+    comp = Compensator(kind="sfm", friction=params)
+    assert comp.friction_params == params and hash(comp) == hash(Compensator(kind="sfm", friction=params))
+    assert comp.to_mapping() == {"kind": "sfm"}          # the experiment format's table is unchanged
+    design = Design.nominal("exp-soft", controller=PDController(), compensator=comp)
+    plain = Design.nominal("exp-soft", controller=PDController(), compensator=Compensator(kind="sfm"))
+    kw = dict(reference=refs.Step(amplitude=0.2), duration_s=0.2, process_noise_std=0.0)
+    np.testing.assert_array_equal(simulate(design, **kw).tau_m, simulate(plain, sfm_params=params, **kw).tau_m)
+    assert build_program(design).info == build_program(plain, sfm_params=params).info
+    with pytest.raises(ParameterError, match="apply to kind 'sfm'"):
+        Compensator(kind="ea-fob", friction=params)
+    with pytest.raises(ParameterError, match="friction"):
+        Compensator(kind="sfm", friction={"coulomb": float("nan")})

@@ -448,6 +448,8 @@ def build_program(design: Design, *, rate_hz: float = 2000.0, method: str = "tus
                 channels.append(Channel(name, source, sos, "hat"))
     elif comp.kind == "sfm":
         if sfm_params is None:
+            sfm_params = comp.friction_params
+        if sfm_params is None:
             raise ParameterError("compensator sfm needs identified parameters (sfm_params: viscous, coulomb, ...)",
                                  name="sfm_params", value=None)
         sc = SfmCompensator(sfm_params, rate_hz)

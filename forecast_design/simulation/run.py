@@ -356,7 +356,8 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
     closed_loop : bool
         Force control (True) or open-loop torque (False).
     sfm_params : Mapping[str, float], optional
-        Required for ``compensator.kind == 'sfm'``: ``viscous`` [N m s/rad],
+        Required for ``compensator.kind == 'sfm'`` unless the compensator carries its own
+        ``friction`` (which this overrides): ``viscous`` [N m s/rad],
         ``coulomb`` [N m], optional ``offset``, ``sin<i>``, ``cos<i>``,
         ``coulomb_sin<i>``, ``coulomb_cos<i>`` [N m].
     derivative_cutoff_hz : float
@@ -431,6 +432,8 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
     gm_sos = gs_sos = gt_sos = zero_sos
     comp_code = 0
     if comp.kind == "sfm":
+        if sfm_params is None:
+            sfm_params = comp.friction_params   # the compensator's own identified friction
         if sfm_params is None:
             raise ParameterError("compensator 'sfm' needs sfm_params (viscous, coulomb[, sin<i>, cos<i>...])",
                                  name="sfm_params", value=None)
