@@ -455,8 +455,8 @@ def advance_period(x, k, nsub, dsub, hist, p, harm, noise_k, out, row):
         Substeps per period and the command delay in substeps [-].
     hist : ndarray, shape (H,)
         Ring buffer of held commands: ``hist[i % H]`` is the command of period ``i`` [N m];
-        ``H >= dsub // nsub + 2`` and period ``k``'s command already written. Periods before
-        0 hold 0.
+        ``H`` a power of two ``>= dsub // nsub + 2`` (:func:`history_length`) and period
+        ``k``'s command already written. Periods before 0 hold 0.
     p, harm : ndarray
         Plant parameters and harmonics (:class:`PlantModel`).
     noise_k : float
@@ -467,10 +467,10 @@ def advance_period(x, k, nsub, dsub, hist, p, harm, noise_k, out, row):
         Filled with the state at ``t_k``, ``tau_frc`` and ``tau_s`` of the first substep and
         the applied torque at ``t_k``.
     """
-    H = hist.shape[0]
+    mask = hist.shape[0] - 1          # a power of two (history_length)
     for j in range(nsub):
         idx = k * nsub + j - dsub
-        cmd = hist[(idx // nsub) % H] if idx >= 0 else 0.0
+        cmd = hist[(idx // nsub) & mask] if idx >= 0 else 0.0
         tau = p[I_GAIN] * cmd + noise_k
         if j == 0:
             for m in range(5):
@@ -483,8 +483,12 @@ def advance_period(x, k, nsub, dsub, hist, p, harm, noise_k, out, row):
 
 
 def history_length(nsub: int, dsub: int) -> int:
-    """Ring-buffer length for :func:`advance_period` with a delay of ``dsub`` substeps [-]."""
-    return int(dsub) // max(int(nsub), 1) + 2
+    """Ring-buffer length for :func:`advance_period` with a delay of ``dsub`` substeps [-].
+
+    A power of two (at least ``dsub // nsub + 2``), so the ring index is a bit mask.
+    """
+    need = int(dsub) // max(int(nsub), 1) + 2
+    return 1 << (need - 1).bit_length()
 
 
 @_njit
