@@ -47,6 +47,13 @@ SOURCES = ("error", "tau_s", "theta", "tau_m_prev")
 _BLOB_MAGIC = b"FDC2"
 
 
+def _sfm_formula():
+    """The simulator's SFM formula as plain Python (so that float32 inputs stay float32)."""
+    from ..simulation.controllers import sfm_eval
+
+    return getattr(sfm_eval, "py_func", sfm_eval)
+
+
 @dataclass(frozen=True, slots=True)
 class Channel:
     """One additive term of the motor command.
@@ -156,6 +163,7 @@ class ProgramStep:
         self._velocity = None if sfm is None else DiscreteFilter(sfm.velocity_sos, dtype=dtype)
         self._sfm_coef = None if sfm is None else np.asarray(sfm.coef, dtype=dtype)
         self._sfm_harm = None if sfm is None else np.asarray(sfm.harm, dtype=dtype)
+        self._sfm_eval = None if sfm is None else _sfm_formula()
         self.tau_m_prev = 0.0
 
     def reset(self) -> None:
@@ -167,17 +175,9 @@ class ProgramStep:
         self.tau_m_prev = 0.0
 
     def _sfm(self, theta):
-        f, c, h = self._f, self._sfm_coef, self._sfm_harm
-        v = f(self._velocity.step(theta))
-        sgn = f(1.0) if v > c[3] else (f(-1.0) if v < -c[3] else f(0.0))
-        out = f(f(f(c[0] * v) + f(c[1] * sgn)) + c[2])
-        th = f(theta + c[4])
-        for i in range(h.shape[1]):
-            if not np.any(h[:, i]):
-                continue
-            sn, cs = f(np.sin(f(i + 1) * th)), f(np.cos(f(i + 1) * th))
-            out = f(out + f(f(h[0, i] * sn) + f(h[1, i] * cs)) + f(sgn * f(f(h[2, i] * sn) + f(h[3, i] * cs))))
-        return out
+        # the simulator's own SFM formula, run un-compiled on this program's dtype
+        v = self._f(self._velocity.step(theta))
+        return self._f(self._sfm_eval(self._sfm_coef, self._sfm_harm, self._f(theta), v))
 
     def step(self, tau_r: float, tau_s: float, theta: float) -> float:
         """One period, as ``fd_step``: measurements in, motor torque command out [N m].

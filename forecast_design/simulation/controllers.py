@@ -291,19 +291,23 @@ def sfm_eval(coef, harm, theta, v):
     Returns
     -------
     float
-        tau_hat [N m].
+        tau_hat [N m]; float32 when called un-compiled on float32 arrays and scalars.
     """
     sgn = 0.0
     if v > coef[3]:
         sgn = 1.0
     elif v < -coef[3]:
         sgn = -1.0
-    out = coef[0] * v + coef[1] * sgn + coef[2]
+    # Evaluated in the C code's order (export/c.py writes the same expressions), so that the
+    # same function, called un-compiled on float32 values, is the export's float32 reference.
+    out = (coef[0] * v + coef[1] * sgn) + coef[2]
     th = theta + coef[4]
     for i in range(harm.shape[1]):
-        s = math.sin((i + 1) * th)
-        c = math.cos((i + 1) * th)
-        out += harm[0, i] * s + harm[1, i] * c + sgn * (harm[2, i] * s + harm[3, i] * c)
+        if harm[0, i] == 0.0 and harm[1, i] == 0.0 and harm[2, i] == 0.0 and harm[3, i] == 0.0:
+            continue
+        s = np.sin((i + 1) * th)
+        c = np.cos((i + 1) * th)
+        out = out + (harm[0, i] * s + harm[1, i] * c) + sgn * (harm[2, i] * s + harm[3, i] * c)
     return out
 
 
