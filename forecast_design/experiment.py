@@ -311,7 +311,7 @@ def _derived_tau_s(design: Design, theta: np.ndarray, q: np.ndarray) -> np.ndarr
     # The spec's spring equation: tau_s = k (theta - q). Non-finite inputs are reported
     # by the sample checks that follow, not as numpy warnings here.
     with np.errstate(all="ignore"):
-        return design.testbed.k * (theta - q)
+        return design.testbed.spring_torque(theta, q)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

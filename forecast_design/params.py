@@ -129,6 +129,21 @@ class Testbed:
         object.__setattr__(self, "d_m", _number("[testbed]", "d_m", self.d_m))
         object.__setattr__(self, "k", _number("[testbed]", "k", self.k, positive=True))
 
+    def spring_torque(self, theta: Any, q: Any) -> Any:
+        """The spec's spring equation ``tau_s = k (theta - q)`` [N m] (the logger's derived column).
+
+        Parameters
+        ----------
+        theta, q : float or ndarray
+            Motor and environment angles [rad] (q = 0 for a locked output).
+
+        Returns
+        -------
+        float or ndarray
+            Spring torque [N m].
+        """
+        return self.k * (theta - q)
+
     @classmethod
     def nominal(cls) -> "Testbed":
         """The paper's Table 1 testbed (J_m 0.133 kg m^2, d_m 0.3 N m s/rad, k 58 N m/rad)."""

@@ -942,10 +942,8 @@ def _experiment_arrays(experiment: Any) -> tuple[np.ndarray, np.ndarray, np.ndar
     measured at ``t_k`` and used as is.
     """
     sig = experiment.signals
-    tau_s = sig.tau_s
-    if tau_s is None:
-        tau_s = experiment.design.testbed.k * (np.asarray(sig.theta) - np.asarray(sig.q))
-    force = zoh_align(np.asarray(sig.tau_m, dtype=float)) - np.asarray(tau_s, dtype=float)
+    # the reader always fills tau_s (derived as k (theta - q) when the file has no column)
+    force = zoh_align(np.asarray(sig.tau_m, dtype=float)) - np.asarray(sig.tau_s, dtype=float)
     return np.asarray(sig.t, dtype=float), np.asarray(sig.theta, dtype=float), force, \
         float(experiment.design.testbed.J_m)
 

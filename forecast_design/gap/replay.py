@@ -174,7 +174,7 @@ def _replay(data: GapData, fit: Any | None, starts: np.ndarray, L: int) -> dict[
         X = replay_windows(tbx, env, inputs, x0, starts, L, rate, spring_scale=scale)
         qs = np.zeros_like(X[..., 0]) if env.locked else X[..., 2]
         # the log's tau_s is k (theta - q) with the nominal k (or a sensor reading of it)
-        return tb.k * (X[..., 0] - qs), X[..., 0]
+        return tb.spring_torque(X[..., 0], qs), X[..., 0]
 
     out["tau_s_before"], out["theta_before"] = run(tb, np.column_stack([tau_m, np.zeros(n)]), 1.0)
     out["tau_s_after"], out["theta_after"] = out["tau_s_before"], out["theta_before"]
