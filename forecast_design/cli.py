@@ -548,7 +548,8 @@ def _configure_diagnose(p: argparse.ArgumentParser) -> None:
 @_command("diagnose", "diagnose the sim-to-real gap: where, which unmodelled effect, how much", _configure_diagnose)
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from .experiment import load_experiment
-    from .gap import diagnose, write_report
+    from .gap import diagnose
+    from .reporting import write_report
 
     experiment = load_experiment(args.experiment)
     diagnosis = diagnose(experiment)

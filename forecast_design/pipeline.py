@@ -129,7 +129,8 @@ def _identify(out: Path) -> dict[str, Any]:
 def _diagnose(out: Path) -> dict[str, Any]:
     from .effects import Cogging
     from .experiment import load_experiment, save_experiment
-    from .gap import diagnose, write_report
+    from .gap import diagnose
+    from .reporting import write_report
     from .params import Design
     from .simulation import simulate
     from .simulation.references import Multisine

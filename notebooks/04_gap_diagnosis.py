@@ -39,7 +39,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from forecast_design import effects as fx
-from forecast_design.gap import diagnose, write_report
+from forecast_design.gap import diagnose
+from forecast_design.reporting import write_report
 from forecast_design.params import Design, PDController
 from forecast_design.simulation import references as refs
 from forecast_design.simulation import simulate

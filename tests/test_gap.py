@@ -11,7 +11,8 @@ from scipy import stats
 
 from forecast_design import effects as fx
 from forecast_design.effects import Effect
-from forecast_design.gap import GapOptions, diagnose, held_out_test, prepare_gap_data, write_report
+from forecast_design.gap import GapOptions, diagnose, held_out_test, prepare_gap_data
+from forecast_design.reporting import write_report
 from forecast_design.gap.locate import empirical_response
 from forecast_design.gap.residuals import delayed_input, zoh_input
 from forecast_design.params import Design, PDController

@@ -17,7 +17,7 @@ LAYERS = {
     "symbolic": 1, "friction": 1, "discrete": 1,
     "analysis": 2, "loops": 2, "simulation": 2, "export": 2, "independent": 2,
     "tuning": 3, "gap": 3, "reproduce": 3,
-    "plotting": 4, "runtime": 4, "gap.report": 4,
+    "plotting": 4, "runtime": 4, "reporting": 4,
     "pipeline": 5, "cli": 6, "__main__": 6,
 }
 
@@ -57,7 +57,7 @@ def test_import_layering_holds():
 
 
 PUBLIC_MODULES = [
-    "forecast_design", "forecast_design.experiment", "forecast_design.symbolic", "forecast_design.analysis", "forecast_design.margins", "forecast_design.loops",
+    "forecast_design", "forecast_design.experiment", "forecast_design.symbolic", "forecast_design.analysis", "forecast_design.margins", "forecast_design.loops", "forecast_design.reporting",
     "forecast_design.tuning", "forecast_design.friction", "forecast_design.simulation", "forecast_design.gap",
     "forecast_design.export", "forecast_design.runtime", "forecast_design.reproduce", "forecast_design.pipeline",
     "forecast_design.independent",

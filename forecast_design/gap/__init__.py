@@ -5,7 +5,6 @@ from .candidates import CANDIDATE_EFFECTS, CandidateFit, JointAttribution, fit_j
 from .diagnose import Diagnosis, RankedCandidate, diagnose, held_out_test
 from .locate import Location, empirical_response, locate_gap
 from .replay import ReplayCheck, replay_check, replay_trace
-from .report import write_report
 from .residuals import GapData, GapOptions, prepare_gap_data
 
 __all__ = [
@@ -32,3 +31,13 @@ __all__ = [
     "BenchResult",
     "BenchCase",
 ]
+
+
+def __getattr__(name: str):
+    # write_report moved to forecast_design.reporting (it draws, a layer above the diagnosis);
+    # resolved there on use for one release
+    if name == "write_report":
+        import importlib
+
+        return importlib.import_module(__name__.rsplit(".", 1)[0] + ".reporting").write_report
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
