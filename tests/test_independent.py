@@ -174,7 +174,7 @@ def test_switch_instants_do_not_depend_on_the_log_rate(monkeypatch, words, param
     case = _case(words, env=env, rate_hz=1000.0, effect_params=params, initial_angle=1.0, tau_m_digits=17)
     _, slow = simulate_independent(case)
     held = np.repeat(np.asarray(slow.command), 2)
-    monkeypatch.setattr(ind, "excitation_signal", lambda ex, n, rate: held[:n])
+    monkeypatch.setattr(ind.plant, "excitation_signal", lambda ex, n, rate: held[:n])
     _, fast = simulate_independent(dataclasses.replace(case, rate_hz=2000.0))
     assert slow.events > 0 and fast.events == slow.events
     assert np.max(np.abs(fast.theta[::2] - slow.theta)) < 1e-9
