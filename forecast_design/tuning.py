@@ -27,7 +27,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from .loops.response import LoopResponse, loop_response, observer_responses, q_argument, sensitivity
+from .loops.response import (LoopResponse, loop_response, observer_responses, q_argument, sensitivity,
+                             sensitivity_terms)
 from .margins import disk_margin
 from .errors import ParameterError, SolverError
 from .params import Compensator, Design, Environment, PDController, environment_preset
@@ -345,37 +346,53 @@ def _with_frequency(plant: _Plant, compensator: Compensator, setting: _Setting, 
                                M=np.append(plant.M, M), dm=np.append(plant.dm, dm))
 
 
-def _complex_ops():
-    import casadi as ca
+class _Complex:
+    """A complex number as a pair of real (casadi) expressions, for the NLP's sensitivity."""
 
-    def mul(a, b):
-        return (a[0] * b[0] - a[1] * b[1], a[0] * b[1] + a[1] * b[0])
+    __slots__ = ("re", "im")
 
-    def add(a, b):
-        return (a[0] + b[0], a[1] + b[1])
+    def __init__(self, re: Any, im: Any = 0.0) -> None:
+        self.re, self.im = re, im
 
-    def abs2(a):
-        return a[0] ** 2 + a[1] ** 2
+    @staticmethod
+    def of(x: Any) -> "_Complex":
+        return x if isinstance(x, _Complex) else _Complex(float(np.real(x)), float(np.imag(x)))
 
-    return ca, mul, add, abs2
+    def __add__(self, other: Any) -> "_Complex":
+        o = _Complex.of(other)
+        return _Complex(self.re + o.re, self.im + o.im)
+
+    __radd__ = __add__
+
+    def __sub__(self, other: Any) -> "_Complex":
+        o = _Complex.of(other)
+        return _Complex(self.re - o.re, self.im - o.im)
+
+    def __mul__(self, other: Any) -> "_Complex":
+        if isinstance(other, (int, float)):
+            return _Complex(other * self.re, other * self.im)
+        o = _Complex.of(other)
+        return _Complex(o.re * self.re - o.im * self.im, o.re * self.im + o.im * self.re)
+
+    __rmul__ = __mul__
+
+    def abs2(self) -> Any:
+        return self.re ** 2 + self.im ** 2
 
 
-def _casadi_abs2_G(ca, mul, add, abs2, plant: _Plant, idx: np.ndarray, dq_re, dq_im, break_at: str,
-                   sigma: float):
-    """|S + (sigma-1)/2|^2 at the frequencies ``idx`` as casadi expressions of D_q."""
+def _casadi_abs2_G(plant: _Plant, idx: np.ndarray, dq_re, dq_im, break_at: str, sigma: float):
+    """|S + (sigma-1)/2|^2 at the frequencies ``idx`` as (numerator, denominator) casadi expressions of D_q.
+
+    ``S = num / den`` from :func:`~.loops.response.sensitivity_terms`, the same formula as the
+    numpy grid; ``G = num / den + c`` is kept as ``|num + c den|^2 / |den|^2``.
+    """
     exprs = []
     c = 0.5 * (sigma - 1.0)
     for j, (re, im) in enumerate(zip(dq_re, dq_im)):
         i = idx[j]
-        dq = (re, im)
-        M = (float(plant.M[i].real), float(plant.M[i].imag))
-        CP = (float(plant.CP[i].real), float(plant.CP[i].imag))
-        den = add(add(dq, M), mul(CP, dq))
-        dm = plant.dm[i]
-        num = add(dq, M) if break_at == "controller" else (dq[0] - float(dm.real), dq[1] - float(dm.imag))
-        # G = num/den + c  ->  |num + c den|^2 / |den|^2
-        top = add(num, (c * den[0], c * den[1]))
-        exprs.append((abs2(top), abs2(den)))
+        num, den = sensitivity_terms(complex(plant.M[i]), complex(plant.CP[i]), complex(plant.dm[i]),
+                                     _Complex(re, im), break_at)
+        exprs.append(((num + c * den).abs2(), den.abs2()))
     return exprs
 
 
@@ -410,15 +427,15 @@ def _ipopt(ca, nlp, x0, lbx, ubx, lbg, ubg) -> tuple[np.ndarray, dict]:
 
 def _solve_max_cutoff(plants, coeffs, bound, log_lo, log_hi, x0, active, break_at, sigma):
     """max log(w_q) s.t. |G_e(w_i)|^2 <= bound_e^2 on the active frequencies."""
-    ca, mul, add, abs2 = _complex_ops()
+    import casadi as ca
+
     x = ca.SX.sym("log_w_q")
     g, dens = [], []
     for p, plant in enumerate(plants):
         idx = np.asarray(sorted(active[p]), dtype=int)
         u = plant.W[idx] / ca.exp(x)
         dq = [_dq_casadi(ca, coeffs, u[k]) for k in range(len(idx))]
-        for top, den in _casadi_abs2_G(ca, mul, add, abs2, plant, idx, [d[0] for d in dq],
-                                       [d[1] for d in dq], break_at, sigma):
+        for top, den in _casadi_abs2_G(plant, idx, [d[0] for d in dq], [d[1] for d in dq], break_at, sigma):
             g.append(top - bound[p] ** 2 * den)   # |G|^2 <= bound^2, cleared of the denominator
             dens.append(den)
     # |den|^2 spans many decades (D_q grows like (w/w_q)^n up to Nyquist): scale each
@@ -671,7 +688,8 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
     base = Compensator(kind=observer, w_q_hz=w_q_hz, q_family="butterworth", q_order=2)
     plants = _plants(base, envs, uncertainty, setting, seed)
     w_q = 2 * math.pi * w_q_hz
-    ca, mul, add, abs2 = _complex_ops()
+    import casadi as ca
+
     alpha = np.array([p.alpha_plant for p in plants])
 
     def exact_at(zeta: float) -> np.ndarray:
@@ -694,8 +712,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
         for p, plant in enumerate(plants):
             idx = np.asarray(sorted(active[p]), dtype=int)
             for i, (top, den) in zip(idx, _casadi_abs2_G(
-                    ca, mul, add, abs2, plant, idx,
-                    [1 - (plant.W[i] / w_q) ** 2 for i in idx], [2 * z * plant.W[i] / w_q for i in idx],
+                    plant, idx, [1 - (plant.W[i] / w_q) ** 2 for i in idx], [2 * z * plant.W[i] / w_q for i in idx],
                     break_at, sigma)):
                 g.append(t**2 * alpha[p] ** 2 * top - den)
         nlp = {"x": ca.vertcat(z, t), "f": -t, "g": ca.vertcat(*g)}

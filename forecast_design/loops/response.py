@@ -18,12 +18,13 @@ of those loops.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from ..params import Compensator, Design, PDController
 
-__all__ = ["LoopResponse", "loop_response", "observer_responses", "sensitivity", "q_argument"]
+__all__ = ["LoopResponse", "loop_response", "observer_responses", "sensitivity", "sensitivity_terms", "q_argument"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,6 +149,31 @@ def loop_response(true_design: Design, believed: Design, compensator: Compensato
     return LoopResponse(w=w, W=W, CP=C * P * dp, M=M, dm=dm)
 
 
+def sensitivity_terms(M: Any, CP: Any, dm: Any, dq: Any, break_at: str = "controller") -> tuple[Any, Any]:
+    """Numerator and denominator of the sensitivity ``S = num / den`` at one or many frequencies.
+
+    Written with ``+``, ``-`` and ``*`` only, so it serves numpy complex arrays and the Q
+    tuner's complex pairs of casadi expressions alike.
+
+    Parameters
+    ----------
+    M, CP, dm : complex or ndarray
+        Parts of :class:`LoopResponse`.
+    dq : complex, ndarray or a complex-like object
+        The Q denominator at ``j W / w_q``.
+    break_at : str
+        ``controller`` or ``plant-input``.
+
+    Returns
+    -------
+    (num, den)
+        ``S = num / den``.
+    """
+    den = dq + M + CP * dq
+    num = dq + M if break_at == "controller" else dq - dm
+    return num, den
+
+
 def sensitivity(response: LoopResponse, dq: np.ndarray, break_at: str = "controller") -> np.ndarray:
     """The loop's sensitivity ``1 / (1 + L)`` from its parts and ``D_q(j W / w_q)``.
 
@@ -165,5 +191,5 @@ def sensitivity(response: LoopResponse, dq: np.ndarray, break_at: str = "control
     ndarray
         ``S`` at each frequency.
     """
-    num = dq + response.M if break_at == "controller" else dq - response.dm
-    return num / (dq + response.M + response.CP * dq)
+    num, den = sensitivity_terms(response.M, response.CP, response.dm, dq, break_at)
+    return num / den
