@@ -281,7 +281,8 @@ def nominal_plant_tf(kind: str, believed: Design) -> RationalTF:
     kind : str
         ``'ea-fob'`` (eq. 5), ``'lo-dob'`` (eq. 6) or ``'ld-dob'`` (eq. 8).
     believed : Design
-        The believed design (J_m, k; for EA its environment, for LD its link).
+        The believed design (J_m, k; for EA its environment, for LD its link). With a locked
+        believed environment the EA-FOB's nominal plant is P_n^LO (the limit k_e -> infinity).
 
     Returns
     -------
@@ -291,6 +292,8 @@ def nominal_plant_tf(kind: str, believed: Design) -> RationalTF:
     if kind not in NOMINAL_KEYS:
         raise ParameterError(f"nominal plant kind must be one of {', '.join(NOMINAL_KEYS)}, got {kind!r}",
                              name="kind", value=kind)
+    if kind == "ea-fob" and believed.environment.locked:
+        kind = "lo-dob"   # a locked environment is k_e -> infinity: P_n^EA becomes P_n^LO (eq. 6)
     return catalogue_tf(NOMINAL_KEYS[kind], believed)
 
 

@@ -300,8 +300,7 @@ def observer_filters(compensator: Compensator | None, believed: Design) -> Obser
         g_theta = -J_m * np.concatenate([qn, [0.0, 0.0]])
         den = qd
     else:
-        nominal_kind = "lo-dob" if (kind == "ea-fob" and believed.environment.locked) else kind
-        pn = nominal_plant_tf(nominal_kind, believed)
+        pn = nominal_plant_tf(kind, believed)   # locked EA -> P_n^LO, decided there
         if pn.num == (0.0,):
             raise ParameterError(
                 f"{kind} nominal plant is identically zero for the believed design "
