@@ -8,7 +8,6 @@ tuner and the reproductions all evaluate margins here.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from typing import Any, Sequence
 

@@ -300,6 +300,9 @@ def test_export_bad_controller_string_exit_2(tmp_path, capsys):
     (["emulate", "--fault", "gremlin:1"], "gremlin"),
     (["run", "--port", "loop://", "--reference", "triangle:1", "--out", "x.toml"], "triangle"),
     (["pipeline", "--bogus"], "unrecognized arguments"),
+    (["identify", "--csv", "x.csv", "--time", "t", "--position", "x", "--force", "f", "--select-samples", "some"],
+     "invalid choice"),
+    (["margins", "--break-at", "middle"], "invalid choice"),
 ])
 def test_every_verb_rejects_bad_arguments_with_one_line(capsys, tmp_path, monkeypatch, argv, fragment):
     monkeypatch.chdir(tmp_path)

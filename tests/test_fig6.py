@@ -2,20 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import math
 
-import control
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy.optimize import minimize_scalar
 
 from forecast_design.analysis import (
-    DiskMargin,
-    disk_center_radius,
     disk_gain_margin,
     disk_margin,
     disk_margin_curve,

@@ -2,30 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
-import json
 import math
 
 import control
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy.optimize import minimize_scalar
 
-from forecast_design.analysis import (
-    DiskMargin,
-    disk_center_radius,
-    disk_gain_margin,
-    disk_margin,
-    disk_margin_curve,
-    disk_phase_margin_deg,
-)
+from forecast_design.analysis import disk_margin
 from forecast_design.errors import ParameterError
 from forecast_design.lti import RationalTF
-# shared helpers of the disk-margin tests
-from test_margins import (ATOL_DENSE, RTOL_GRID, SLACK,
-                          _control_grid_alpha, _delta_of, _grid_alpha, _refined_alpha)
 
 
 # ---------------------------------------------------------------------------------------------

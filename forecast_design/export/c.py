@@ -24,7 +24,7 @@ import numpy as np
 from .. import __version__
 from ..errors import ExportError, ParameterError
 from ..params import Compensator, Design, PDController, parse_controller, resolve_design
-from ..discrete import METHODS, DiscreteFilter, discretize
+from ..discrete import METHODS, DiscreteFilter
 
 __all__ = [
     "SOURCES",

@@ -16,7 +16,7 @@ from ..errors import IdentifiabilityError, ParameterError
 from ..plausibility import LogScales, log_scales
 from . import _lsq
 from .derivatives import FilterSettings, decimate_columns, default_filter_settings, differentiate, lowpass
-from .selection import SampleSelection, SelectionResult, resolve_selection, select_samples
+from .selection import SampleSelection, resolve_selection, select_samples
 from .selection import encoder_step as _observed_step
 from .terms import FrictionModel, Offset, friction_model
 from .results import (FrictionFit, FrictionValidation, IdentificationData, IllConditionedWarning,

@@ -326,7 +326,6 @@ def _evaluate(data: GapData, effect: Effect, coefs: Sequence[_Coef], p: np.ndarr
     prediction = A[:, n_cal:] @ p[n_cal:] if A.shape[1] > n_cal else np.zeros_like(y)
     r = y - A @ p
     if level is not None:
-        m = data.t.size
         st = np.flatnonzero(data.stuck)
         lv = level(p[n_cal:])
         lv = lv[st] if np.ndim(lv) else lv
