@@ -603,11 +603,14 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
         coul = passing.get(str(Effect.COULOMB))
         if coul is None:
             pair_c = fit_pair(data, first, Effect.COULOMB)
-            if pair_c is not None and held_out_test(first, pair_c, held_blocks, units=test_units(data, pair_c)) < alpha:
+            p_c = held_out_test(first, pair_c, held_blocks, units=test_units(data, pair_c)) if pair_c else 1.0
+            if pair_c is not None and p_c < alpha:
                 red = 1.0 - pair_c.gap_held_out / gap0 if gap0 > 0 else 0.0
+                sse = pair_c.gap_held_out ** 2 * n_held
+                bic = n_held * math.log(max(sse / n_held, 1e-300)) + pair_c.n_params * math.log(n_held)
                 coul = (RankedCandidate(effect=Effect.COULOMB, gap_after=pair_c.gap_held_out,
                                         reduction=float(min(max(red, 0.0), 1.0)), params=pair_c.params,
-                                        p_value=0.0, bic=best.bic, significant=True,
+                                        p_value=p_c, bic=bic, significant=True,
                                         assessment=assess_fit(data, pair_c)), pair_c)
         if coul is not None and coul[0].identified and \
                 not _richer_law_justified(data, passing[str(best.effect)][1], coul[1], held_blocks):
