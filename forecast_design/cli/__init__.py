@@ -8,9 +8,9 @@ import json
 import sys
 from typing import Any, Callable, Sequence
 
-from . import __version__
-from .errors import ForecastError
-from .params import BREAK_POINTS, COMPENSATOR_KINDS, OBSERVER_KINDS, Q_FAMILIES
+from .. import __version__
+from ..errors import ForecastError
+from ..params import BREAK_POINTS, COMPENSATOR_KINDS, OBSERVER_KINDS, Q_FAMILIES
 
 __all__ = ["main"]
 
@@ -101,10 +101,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _design_from_args(args: argparse.Namespace, *, env_name: str | None = None):
     """The design named by --experiment (its nominal model) or --env (a preset)."""
-    from .params import Design
+    from ..params import Design
 
     if getattr(args, "experiment", None):
-        from .experiment import load_experiment
+        from ..experiment import load_experiment
 
         return load_experiment(args.experiment).design
     return Design.nominal(env_name or "soft")
@@ -124,7 +124,7 @@ def _configure_tf(p: argparse.ArgumentParser) -> None:
 
 @_command("tf", "print the plant P and the nominal plants EA, LO, LD (eqs. 2-8)", _configure_tf)
 def _cmd_tf(args: argparse.Namespace) -> int:
-    from .symbolic import transfer_functions
+    from ..symbolic import transfer_functions
 
     names = args.env or [None]
     designs = [(name or "soft", _design_from_args(args, env_name=name)) for name in names]
@@ -132,7 +132,7 @@ def _cmd_tf(args: argparse.Namespace) -> int:
         designs = [(args.experiment, designs[0][1])]
     results = [(label, transfer_functions(design)) for label, design in designs]
     if args.plot:
-        from .plotting.bode import plot_bode
+        from ..plotting.bode import plot_bode
 
         curves = [(f"{key} ({label})" if len(results) > 1 else key, getattr(tfs, key).tf)
                   for label, tfs in results for key in ("P", "EA", "LO", "LD")]
@@ -176,12 +176,12 @@ def _write_json(target: str, obj: Any) -> None:
 
 
 def _reproduce_fig6(args: argparse.Namespace) -> int:
-    from .reproduce import fig6_table
+    from ..reproduce import fig6_table
 
     rows = fig6_table(sigma=args.sigma)
     mapping = [row.to_mapping() for row in rows]
     if args.plot:
-        from .plotting.margins import plot_fig6
+        from ..plotting.margins import plot_fig6
 
         plot_fig6(rows, args.plot, sigma=args.sigma)
     if args.json:
@@ -199,11 +199,11 @@ def _reproduce_fig6(args: argparse.Namespace) -> int:
 
 
 def _reproduce_fig7(args: argparse.Namespace) -> int:
-    from .reproduce import reproduce_fig7
+    from ..reproduce import reproduce_fig7
 
     result = reproduce_fig7()
     if args.plot:
-        from .plotting.simulation import plot_fig7
+        from ..plotting.simulation import plot_fig7
 
         plot_fig7(result, args.plot)
     mapping = result.to_mapping()
@@ -217,11 +217,11 @@ def _reproduce_fig7(args: argparse.Namespace) -> int:
 
 
 def _reproduce_table3(args: argparse.Namespace) -> int:
-    from .reproduce import reproduce_table3
+    from ..reproduce import reproduce_table3
 
     result = reproduce_table3()
     if args.plot:
-        from .plotting.simulation import plot_table3
+        from ..plotting.simulation import plot_table3
 
         plot_table3(result, args.plot)
     # The issue's contract is a list of rows; each row also carries the explanation of deviations.
@@ -246,7 +246,7 @@ _REPRODUCERS: dict[str, Callable[[argparse.Namespace], int]] = {
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     handler = _REPRODUCERS.get(args.figure)
     if handler is None:
-        from .errors import ParameterError
+        from ..errors import ParameterError
 
         raise ParameterError(f"reproduce {args.figure}: not available in this version", name="figure",
                              value=args.figure)
@@ -291,7 +291,7 @@ def _configure_tune_q(p: argparse.ArgumentParser) -> None:
 @_command("tune-q", "choose the Q-filter cutoff by optimisation (casadi) over a set of environments",
           _configure_tune_q)
 def _cmd_tune_q(args: argparse.Namespace) -> int:
-    from .tuning import tune_q, tune_q_shape
+    from ..tuning import tune_q, tune_q_shape
 
     if args.max_margin is not None:
         result = tune_q_shape(args.observer, args.envs, w_q_hz=args.max_margin, uncertainty=args.uncertainty,
@@ -325,7 +325,7 @@ def _configure_pipeline(p: argparse.ArgumentParser) -> None:
 
 @_command("pipeline", "run the whole design pipeline on bundled defaults into a report folder", _configure_pipeline)
 def _cmd_pipeline(args: argparse.Namespace) -> int:
-    from .pipeline import run_pipeline
+    from ..pipeline import run_pipeline
 
     result = run_pipeline(args.out, progress=None if args.json else lambda step: print(f"[{step}]", flush=True))
     if args.json:
@@ -345,7 +345,7 @@ def _configure_check(p: argparse.ArgumentParser) -> None:
 
 @_command("check", "validate an experiment (TOML + CSV) and summarise it", _configure_check)
 def _cmd_check(args: argparse.Namespace) -> int:
-    from .experiment import load_experiment
+    from ..experiment import load_experiment
 
     summary = load_experiment(args.experiment).summary()
     if args.json:
@@ -361,7 +361,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _configure_identify(p: argparse.ArgumentParser) -> None:
-    from .friction import MODEL_NAMES
+    from ..friction import MODEL_NAMES
 
     p.add_argument("log", nargs="?", metavar="LOG.toml", help="experiment in the shared format (motor side)")
     p.add_argument("--csv", metavar="FILE", help="instead: a plain CSV of a rigid axis (with the column options)")
@@ -385,24 +385,24 @@ def _configure_identify(p: argparse.ArgumentParser) -> None:
 
 def _load_log(path: str, args: argparse.Namespace):
     if args.csv is not None:
-        from .friction import load_axis_csv
+        from ..friction import load_axis_csv
 
         missing = [opt for opt in ("time", "position", "force") if getattr(args, opt) is None]
         if missing:
-            from .errors import ParameterError
+            from ..errors import ParameterError
 
             raise ParameterError(f"--csv needs --{', --'.join(missing)} (the column names)", name=missing[0])
         return load_axis_csv(path, time=args.time, position=args.position, force=args.force,
                              rate_hz=args.rate_hz, scale_force=args.scale_force)
-    from .experiment import load_experiment
+    from ..experiment import load_experiment
 
     return load_experiment(path)
 
 
 @_command("identify", "identify friction from a log by least squares (casadi), SFM to LuGre", _configure_identify)
 def _cmd_identify(args: argparse.Namespace) -> int:
-    from .errors import ParameterError
-    from .friction import identify
+    from ..errors import ParameterError
+    from ..friction import identify
 
     if (args.log is None) == (args.csv is None):
         raise ParameterError("give exactly one of LOG.toml or --csv FILE", name="log")
@@ -412,8 +412,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                    estimate_inertia=args.estimate_inertia, holdout=args.holdout, validation_log=validation,
                    selection=args.select_samples)
     if args.plot:
-        from .friction import fit_data, log_arrays
-        from .plotting.friction import plot_friction_fit
+        from ..friction import fit_data, log_arrays
+        from ..plotting.friction import plot_friction_fit
 
         t, position, force, _ = log_arrays(log)
         plot_friction_fit(fit, fit_data(fit, t, position, force), args.plot)
@@ -464,13 +464,13 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
 
 @_command("export", "export the controller and compensator as C99 for the Nucleo F446RE (2 kHz)", _configure_export)
 def _cmd_export(args: argparse.Namespace) -> int:
-    from .export.c import export_controller
+    from ..export.c import export_controller
 
     result = export_controller(out_dir=args.out, controller=args.controller, compensator=args.compensator,
                                env=args.env, w_q_hz=args.w_q_hz, rate_hz=args.rate_hz, method=args.method)
     mapping = result.to_mapping()
     if args.check_arm:
-        from .export.toolchain import check_on_cortex_m4
+        from ..export.toolchain import check_on_cortex_m4
 
         mapping["cortex_m4"] = check_on_cortex_m4(args.out)
     if args.json:
@@ -495,8 +495,8 @@ def _configure_emulate(p: argparse.ArgumentParser) -> None:
 @_command("emulate", "emulate the board on a pseudo-terminal (prints its path, serves until terminated)",
           _configure_emulate)
 def _cmd_emulate(args: argparse.Namespace) -> int:
-    from .params import Design
-    from .runtime import emulate, parse_fault
+    from ..params import Design
+    from ..runtime import emulate, parse_fault
 
     return emulate(faults=parse_fault(args.fault), design=Design.nominal(args.env), realtime=args.realtime)
 
@@ -517,7 +517,7 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
 
 @_command("run", "upload the exported controller to a board, record a run as an experiment", _configure_run)
 def _cmd_run(args: argparse.Namespace) -> int:
-    from .runtime import LinkError, run_on_port
+    from ..runtime import LinkError, run_on_port
 
     try:
         result = run_on_port(args.port, out=args.out, reference=args.reference, duration=args.duration,
@@ -547,9 +547,9 @@ def _configure_diagnose(p: argparse.ArgumentParser) -> None:
 
 @_command("diagnose", "diagnose the sim-to-real gap: where, which unmodelled effect, how much", _configure_diagnose)
 def _cmd_diagnose(args: argparse.Namespace) -> int:
-    from .experiment import load_experiment
-    from .gap import diagnose
-    from .reporting import write_report
+    from ..experiment import load_experiment
+    from ..gap import diagnose
+    from ..reporting import write_report
 
     experiment = load_experiment(args.experiment)
     diagnosis = diagnose(experiment)
@@ -598,8 +598,8 @@ def _configure_bench_gap(p: argparse.ArgumentParser) -> None:
 
 @_command("bench-gap", "withheld-effect benchmark of the diagnosis (confusion matrix, accuracy)", _configure_bench_gap)
 def _cmd_bench_gap(args: argparse.Namespace) -> int:
-    from .errors import ParameterError
-    from .gap import benchmark
+    from ..errors import ParameterError
+    from ..gap import benchmark
 
     if args.per_effect < 1:
         raise ParameterError(f"--per-effect must be >= 1, got {args.per_effect}", name="per_effect")
@@ -630,13 +630,13 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
 @_command("simulate", "simulate the testbed (friction, effects, controller at 2 kHz) into an experiment",
           _configure_simulate)
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from .simulation.scenario import load_scenario
-    from .simulation.run import save_simulation
+    from ..simulation.scenario import load_scenario
+    from ..simulation.run import save_simulation
 
     result = load_scenario(args.scenario).run()
     paths = save_simulation(result, args.out)
     if args.plot:
-        from .plotting.simulation import plot_simulation
+        from ..plotting.simulation import plot_simulation
 
         plot_simulation({args.scenario: result}, args.plot)
     if args.json:
@@ -668,9 +668,9 @@ def _configure_margins(p: argparse.ArgumentParser) -> None:
 
 @_command("margins", "disk margins of one force loop (environment, observer, knowledge error)", _configure_margins)
 def _cmd_margins(args: argparse.Namespace) -> int:
-    from .analysis import loop_margins
-    from .params import parse_controller
-    from .params import Compensator, Design
+    from ..analysis import loop_margins
+    from ..params import parse_controller
+    from ..params import Compensator, Design
 
     design = Design.nominal(args.env)
     comp = None if args.observer == "none" else Compensator(kind=args.observer, w_q_hz=args.w_q_hz,
@@ -682,9 +682,9 @@ def _cmd_margins(args: argparse.Namespace) -> int:
     if args.plot:
         import numpy as np
 
-        from .analysis import disk_margin_curve, sampled_force_loop
-        from .plotting.margins import plot_disk_margin_curve
-        from .loops import force_loop
+        from ..analysis import disk_margin_curve, sampled_force_loop
+        from ..plotting.margins import plot_disk_margin_curve
+        from ..loops import force_loop
 
         kwargs = dict(controller=controller, believed=believed, break_at=args.break_at)
         loop = (sampled_force_loop(design, comp, rate_hz=args.rate_hz, delay_samples=args.delay_samples, **kwargs)
@@ -698,3 +698,8 @@ def _cmd_margins(args: argparse.Namespace) -> int:
         print(f"disk margin {dm.alpha:.4f} (stable {dm.stable}): gain [{lo:.3f}, {hi:.3f}] dB, phase "
               f"{dm.phase_margin_deg:.2f} deg at {dm.frequency_rad_s:.4g} rad/s; delay margin {dm.delay_margin_s:.4g} s")
     return 0
+
+
+# Verbs with modules of their own register themselves on import (kept last so
+# `_command` and the shared helpers above exist when they load).
+from . import _verbs  # noqa: E402,F401
