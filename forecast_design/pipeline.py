@@ -105,7 +105,7 @@ def _identification_log(seed: int = 5):
 
 def _identify(out: Path) -> dict[str, Any]:
     from .experiment import save_experiment
-    from .friction import fit_data, identify, log_arrays
+    from .friction import fit_data, identify
     from .plotting.friction import plot_friction_fit
 
     truth, run = _identification_log()
@@ -113,8 +113,7 @@ def _identify(out: Path) -> dict[str, Any]:
     save_experiment(log, out / "identification_run.toml")
     fit = identify(log, "position-friction", harmonics=2)
     _dump(out / "identify.json", fit.to_mapping())
-    t, x, f, _ = log_arrays(log)
-    plot_friction_fit(fit, fit_data(fit, t, x, f), out / "identify.png")
+    plot_friction_fit(fit, fit_data(fit, log), out / "identify.png")
     params = fit.to_mapping()["params"]
     return {"files": ["identification_run.toml", "identify.json", "identify.png"],
             "text": (f"Position-dependent friction identified from a 20 s simulated open-loop log: mean level "

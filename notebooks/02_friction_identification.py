@@ -14,7 +14,7 @@ import os
 from pathlib import Path
 
 import forecast_design
-from forecast_design.friction import fit_data, identify, load_axis_csv, log_arrays
+from forecast_design.friction import fit_data, identify, load_axis_csv
 from forecast_design.plotting.friction import plot_friction_fit
 
 FAST = os.environ.get("FORECAST_FAST") == "1"
@@ -39,8 +39,7 @@ if (EMPS / "emps_train.csv").exists():
     print("validation relative error:", round(report["validation"]["relative_error_percent"], 3), "%")
     asym = identify(train, "asymmetric", estimate_inertia=True).to_mapping()["params"]
     print({k: round(v, 3) for k, v in asym.items()})
-    t, x, f, _ = log_arrays(train)
-    plot_friction_fit(fit, fit_data(fit, t, x, f), "emps_fit.png")
+    plot_friction_fit(fit, fit_data(fit, train), "emps_fit.png")
 else:
     print("shared EMPS data not present; skipping")
 
@@ -76,8 +75,7 @@ for model in ("sfm", "extended-sfm", "position-friction"):
 # The plain SFM explains the least: the angle ripple is what it cannot see.
 
 # %%
-t, x, f, _ = log_arrays(log)
-plot_friction_fit(fit, fit_data(fit, t, x, f), "forecast_fit.png")
+plot_friction_fit(fit, fit_data(fit, log), "forecast_fit.png")
 from IPython.display import Image  # noqa: E402
 
 Image("forecast_fit.png")

@@ -22,7 +22,7 @@ from forecast_design import PDController
 from forecast_design.cli import main
 from forecast_design.effects import Effect
 from forecast_design.experiment import save_experiment
-from forecast_design.friction import fit_friction_experiment
+from forecast_design.friction import identify
 from forecast_design.independent import Excitation, IndependentCase, friction_log, simulate_independent
 from forecast_design.params import Testbed, environment_preset
 
@@ -36,8 +36,8 @@ def extended_sfm_runs():
     runs = []
     for seed in range(N_LOGS):
         exp, true = friction_log("extended-sfm", seed=seed, duration_s=20.0)
-        runs.append((true, fit_friction_experiment(exp, "extended-sfm"),
-                     fit_friction_experiment(exp, "extended-sfm", selection="off")))
+        runs.append((true, identify(exp, "extended-sfm", holdout=0.0),
+                     identify(exp, "extended-sfm", holdout=0.0, selection="off")))
     return runs
 
 
@@ -80,7 +80,7 @@ def test_stribeck_on_slow_breakaways_is_recovered_with_real_intervals():
     """Failure class 7: many slow breakaways, static 0.45 / Coulomb 0.25."""
     exp, true = friction_log("stribeck", {"static": 0.45, "coulomb": 0.25, "stribeck_velocity": 0.05},
                              seed=4, duration_s=20.0)
-    fit = fit_friction_experiment(exp, "stribeck")
+    fit = identify(exp, "stribeck", holdout=0.0)
     for k in true:
         assert fit.params[k] == pytest.approx(true[k], rel=0.05), k
         lo, hi = fit.interval95[k]
@@ -94,7 +94,7 @@ def test_stribeck_decay_below_the_encoder_resolution_is_flagged():
     """No breakaway the encoder can resolve (v_s = 0.003 rad/s): v_s and the static level are not estimates."""
     exp, _ = friction_log("stribeck", {"static": 0.45, "coulomb": 0.25, "stribeck_velocity": 0.003},
                           seed=2, duration_s=10.0)
-    fit = fit_friction_experiment(exp, "stribeck")
+    fit = identify(exp, "stribeck", holdout=0.0)
     assert fit.status["stribeck_velocity"].status in ("at_bound", "uncertain")
     assert not fit.status["static"].identified
     assert fit.params["coulomb"] == pytest.approx(0.25, rel=0.05) and fit.status["coulomb"].identified
@@ -103,7 +103,7 @@ def test_stribeck_decay_below_the_encoder_resolution_is_flagged():
 
 def test_lugre_with_enough_sliding_is_recovered():
     exp, true = friction_log("lugre", seed=1, duration_s=20.0)
-    fit = fit_friction_experiment(exp, "lugre")
+    fit = identify(exp, "lugre", holdout=0.0)
     for k in ("sigma0", "static", "coulomb", "stribeck_velocity", "viscous"):
         assert fit.params[k] == pytest.approx(true[k], rel=0.05), k
     assert fit.params["sigma1"] == pytest.approx(true["sigma1"], rel=0.10)

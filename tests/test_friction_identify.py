@@ -18,6 +18,7 @@ from forecast_design.friction import (
     fit_data,
     fit_friction,
     fit_friction_experiment,
+    identify,
     fit_percent,
     friction_model,
     load_axis_csv,
@@ -258,7 +259,7 @@ def test_filter_settings_defaults_follow_emps_recipe():
         default_filter_settings(1000.0, position_cutoff_hz=600.0)
 
 
-def test_fit_friction_experiment_uses_nominal_inertia_and_spring_torque():
+def test_identify_on_an_experiment_uses_nominal_inertia_and_spring_torque():
     from forecast_design.experiment import experiment_from_arrays
     from forecast_design.params import Design
 
@@ -271,12 +272,24 @@ def test_fit_friction_experiment_uses_nominal_inertia_and_spring_torque():
     th_h, v_h, acc_h = _trajectory(t + 0.5 / RATE_HZ)
     tau_m = design.testbed.J_m * acc_h + design.testbed.k * th_h + 0.3 * v_h + 0.4 * np.sign(v_h)
     exp = experiment_from_arrays(design, RATE_HZ, t, tau_m, thq, np.zeros_like(t), tau_s=tau_s)
-    fit = fit_friction_experiment(exp, "sfm")
+    fit = identify(exp, "sfm", holdout=0.0)
     assert fit.inertia_nominal == design.testbed.J_m
     assert fit.params["viscous"] == pytest.approx(0.3, rel=0.01)
     assert fit.params["coulomb"] == pytest.approx(0.4, rel=0.01)
-    fit_j = fit_friction_experiment(exp, "sfm", estimate_inertia=True)
+    fit_j = identify(exp, "sfm", estimate_inertia=True, holdout=0.0)
     assert fit_j.params["inertia"] == pytest.approx(design.testbed.J_m, rel=0.01)
+    # a model object gives the same numbers as its name; the deprecated alias is identify without hold-out
+    fit_obj = identify(exp, Viscous() + Coulomb(), holdout=0.0)
+    assert fit_obj.params == pytest.approx(fit.params, rel=1e-12)
+    assert fit_friction_experiment(exp, "sfm").params == pytest.approx(fit.params, rel=1e-12)
+    # validating on the estimation log itself reproduces the fit's own error
+    v = validate(fit, exp)
+    assert v.n_samples > 0 and v.fit_percent > 99.0
+
+
+def test_identify_rejects_what_is_not_a_log(tmp_path):
+    with pytest.raises(ParameterError, match="Experiment .*AxisLog.*got PosixPath"):
+        identify(tmp_path / "run.toml")
 
 
 def _write_csv(path, rows, header="time,pos,tau"):

@@ -412,11 +412,10 @@ def _cmd_identify(args: argparse.Namespace) -> int:
                    estimate_inertia=args.estimate_inertia, holdout=args.holdout, validation_log=validation,
                    selection=args.select_samples)
     if args.plot:
-        from ..friction import fit_data, log_arrays
+        from ..friction import fit_data
         from ..plotting.friction import plot_friction_fit
 
-        t, position, force, _ = log_arrays(log)
-        plot_friction_fit(fit, fit_data(fit, t, position, force), args.plot)
+        plot_friction_fit(fit, fit_data(fit, log), args.plot)
     mapping = fit.to_mapping()
     if args.json:
         _write_json(args.json, mapping)

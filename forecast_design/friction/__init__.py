@@ -42,7 +42,9 @@ _HOME = {
     "log_arrays": "identify",
     "default_filter_settings": "derivatives",
     "differentiate": "derivatives",
-    "experiment_scales": "identify",
+    "experiment_scales": "source",
+    "FrictionLog": "source",
+    "friction_log": "source",
     "fit_data": "identify",
     "fit_friction": "identify",
     "fit_friction_experiment": "identify",
@@ -55,7 +57,7 @@ _HOME = {
     "stribeck_force": "terms",
     "validate": "identify",
     "validate_experiment": "identify",
-    "zoh_align": "identify",
+    "zoh_align": "source",
 }
 
 __all__ = sorted(_HOME)

@@ -16,9 +16,10 @@ from ..errors import IdentifiabilityError, ParameterError
 from ..plausibility import LogScales, log_scales
 from . import _lsq
 from .derivatives import FilterSettings, decimate_columns, default_filter_settings, differentiate, lowpass
+from .source import FrictionLog, experiment_scales, friction_log, zoh_align
 from .selection import SampleSelection, resolve_selection, select_samples
 from .selection import encoder_step as _observed_step
-from .terms import FrictionModel, Offset, friction_model
+from .terms import FrictionModel, Inertia, Offset, friction_model
 from .results import (FrictionFit, FrictionValidation, IdentificationData, IllConditionedWarning,
                       _relative_error, _ro, fit_percent)
 from .verdict import grade, identifiability
@@ -29,6 +30,7 @@ __all__ = [
     "IllConditionedWarning",
     "IdentificationData",
     "fit_friction",
+    "identify",
     "fit_friction_experiment",
     "prepare_identification_data",
     "validate",
@@ -522,39 +524,29 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
     )
 
 
-def zoh_align(force: np.ndarray) -> np.ndarray:
-    """Average a zero-order-hold command over consecutive samples: ``(f[k-1] + f[k]) / 2`` (first kept).
-
-    A command held over ``[t_k, t_k+1)`` acts on the central-difference
-    acceleration at ``t_k`` (which spans ``[t_k-1, t_k+1]``) as the mean of
-    the two commands around ``t_k``.
-
-    Parameters
-    ----------
-    force : ndarray, shape (n,)
-        The held command [N m] (or [N]).
-
-    Returns
-    -------
-    ndarray, shape (n,)
-        The aligned force.
-    """
-    f = np.array(force, dtype=float)
-    if f.size > 1:
-        f[1:] = 0.5 * (f[1:] + f[:-1])
-    return f
+def _log_or_arrays(log: Any, position: np.ndarray | None, force: np.ndarray | None) -> FrictionLog:
+    """A FrictionLog from a log object, or from ``(t, position, force)`` arrays (the older form)."""
+    if position is None and force is None:
+        return friction_log(log)
+    if position is None or force is None:
+        raise ParameterError("give a log, or all of t, position and force", name="position", value=None)
+    return FrictionLog(t=_check_array("t", log), position=_check_array("position", position),
+                       force=_check_array("force", force))
 
 
-def fit_data(fit: FrictionFit, t: np.ndarray, position: np.ndarray, force: np.ndarray, *,
-             velocity: np.ndarray | None = None) -> IdentificationData:
+def fit_data(fit: FrictionFit, log: Any, position: np.ndarray | None = None, force: np.ndarray | None = None,
+             *, velocity: np.ndarray | None = None) -> IdentificationData:
     """Prepare a log exactly as `fit` prepared its own (same filters, nominal inertia, sample rule).
 
     Parameters
     ----------
     fit : FrictionFit
         Gives the filter settings and the nominal inertia.
-    t, position, force : ndarray, shape (n,)
-        The log: times [s], position [rad], force [N m].
+    log : Experiment, AxisLog, FrictionLog or ndarray
+        The log; or its times [s] when `position` and `force` are given as arrays
+        (position [rad], force [N m], explained force as in :func:`fit_friction`).
+    position, force : ndarray, shape (n,), optional
+        See `log`.
     velocity : ndarray, shape (n,), optional
         Measured velocity [rad/s].
 
@@ -563,13 +555,13 @@ def fit_data(fit: FrictionFit, t: np.ndarray, position: np.ndarray, force: np.nd
     IdentificationData
         Decimated data, e.g. for :func:`forecast_design.plotting.friction.plot_friction_fit`.
     """
-    rate = _rate_from_time(_check_array("t", t))
+    data = _log_or_arrays(log, position, force)
+    rate = _rate_from_time(_check_array("t", data.t))
     settings = dataclasses.replace(fit.filter, rate_hz=rate)
-    if fit.zoh_force:
-        force = zoh_align(_check_array("force", force))
+    f = zoh_align(_check_array("force", data.force)) if fit.zoh_force else data.force
     rule = fit.selection.rule if fit.selection is not None else "off"
     step = fit.scales.encoder_step if fit.scales is not None else None
-    return prepare_identification_data(t, position, force, fit.model, velocity=velocity,
+    return prepare_identification_data(data.t, data.position, f, fit.model, velocity=velocity,
                                        inertia=fit.inertia_nominal, settings=settings, selection=rule,
                                        encoder_step=step)
 
@@ -592,17 +584,19 @@ def predict_data(fit: FrictionFit, data: IdentificationData) -> np.ndarray:
     return _predict_data(fit.model, fit.params, data)
 
 
-def validate(fit: FrictionFit, t: np.ndarray, position: np.ndarray, force: np.ndarray, *,
-             velocity: np.ndarray | None = None) -> FrictionValidation:
+def validate(fit: FrictionFit, log: Any, position: np.ndarray | None = None, force: np.ndarray | None = None,
+             *, velocity: np.ndarray | None = None) -> FrictionValidation:
     """Cross-test a fit on a second log with the same filtering.
 
     Parameters
     ----------
     fit : FrictionFit
         The fit to test.
-    t, position, force : ndarray, shape (n,)
-        The second log: times [s], position [rad], force [N m] (same meaning as
-        in :func:`fit_friction`; the fit's nominal inertia is subtracted again).
+    log : Experiment, AxisLog, FrictionLog or ndarray
+        The second log (the fit's nominal inertia is subtracted again); or its
+        times [s] with `position` [rad] and `force` [N m] given as arrays.
+    position, force : ndarray, shape (n,), optional
+        See `log`.
     velocity : ndarray, shape (n,), optional
         Measured velocity [rad/s].
 
@@ -612,154 +606,43 @@ def validate(fit: FrictionFit, t: np.ndarray, position: np.ndarray, force: np.nd
         Relative error ``100 ||y - y_hat|| / ||y||`` [%] and fit [%] on the
         samples the fit's sample rule keeps in this log.
     """
-    data = fit_data(fit, t, position, force, velocity=velocity)
+    data = fit_data(fit, log, position, force, velocity=velocity)
     y_hat = _predict_data(fit.model, fit.params, data)
     k = data.used
     return FrictionValidation(relative_error_percent=_relative_error(data.force[k], y_hat[k]),
                               fit_percent=fit_percent(data.force[k], y_hat[k]), n_samples=int(k.sum()))
 
 
-def _experiment_arrays(experiment: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """t, theta, tau_frc + J_m theta'' = zoh(tau_m) - tau_s, J_m of an SEA experiment.
-
-    ``tau_m`` is the command held over ``[t_k, t_k+1)`` (experiment format), so it
-    is averaged over consecutive samples (:func:`zoh_align`); ``tau_s`` is
-    measured at ``t_k`` and used as is.
-    """
-    sig = experiment.signals
-    # the reader always fills tau_s (derived as k (theta - q) when the file has no column)
-    force = zoh_align(np.asarray(sig.tau_m, dtype=float)) - np.asarray(sig.tau_s, dtype=float)
-    return np.asarray(sig.t, dtype=float), np.asarray(sig.theta, dtype=float), force, \
-        float(experiment.design.testbed.J_m)
-
-
-def experiment_scales(experiment: Any) -> LogScales:
-    """The plausibility scales of an SEA experiment (motor torque ``tau_m``, motor angle, spring deflection).
-
-    The encoder step is the log's smallest angle step, not below the
-    testbed's 2 pi / 2,000,000 rad (:func:`forecast_design.plausibility.log_scales`).
-
-    Parameters
-    ----------
-    experiment : Experiment
-        The log.
-
-    Returns
-    -------
-    LogScales
-        Its magnitudes, with the nominal ``J_m``.
-    """
-    sig = experiment.signals
-    theta = np.asarray(sig.theta, dtype=float)
-    return log_scales(torque=np.asarray(sig.tau_m, dtype=float), position=theta,
-                      rate_hz=float(experiment.rate_hz), deflection=theta - np.asarray(sig.q, dtype=float),
-                      J_m=float(experiment.design.testbed.J_m))
-
-
-def fit_friction_experiment(experiment: Any, model: FrictionModel | str = "extended-sfm", *,
-                            harmonics: int | None = None, offset: bool = False,
-                            estimate_inertia: bool = False, **kwargs: Any) -> FrictionFit:
-    """Identify motor friction from an SEA experiment log.
-
-    Parameters
-    ----------
-    experiment : Experiment
-        A loaded experiment (``signals.t``, ``tau_m``, ``theta``, ``tau_s``;
-        ``design.testbed.J_m``).
-    model : FrictionModel or str
-        Model or model name (see :func:`friction_model`).
-    harmonics : int, optional
-        Position harmonics N when `model` is a name.
-    offset : bool
-        Add an ``offset`` term when `model` is a name.
-    estimate_inertia : bool
-        Estimate the motor inertia (an ``inertia`` column on theta'') instead of
-        subtracting the nominal ``J_m theta''``.
-    **kwargs
-        Passed to :func:`fit_friction` (``settings``, ``holdout``, ``constrain``...).
-
-    Returns
-    -------
-    FrictionFit
-        The fit of tau_frc = tau_m - J_m theta'' - tau_s [N m] (or, with
-        `estimate_inertia`, of tau_m - tau_s with an inertia column).
-    """
-    if isinstance(model, str):
-        model = friction_model(model, harmonics=harmonics, offset=offset, estimate_inertia=estimate_inertia)
-    elif estimate_inertia and "inertia" not in model.names:
-        from .terms import Inertia
-
-        model = Inertia() + model
-    t, theta, force, J_m = _experiment_arrays(experiment)
-    inertia = None if "inertia" in model.names else J_m
-    kwargs.setdefault("scales", experiment_scales(experiment))
-    return fit_friction(t, theta, force, model, inertia=inertia, **kwargs)
-
-
-def validate_experiment(fit: FrictionFit, experiment: Any) -> FrictionValidation:
-    """Cross-test a fit on a second SEA experiment (see :func:`validate`).
-
-    Parameters
-    ----------
-    fit : FrictionFit
-        Fit from :func:`fit_friction_experiment`.
-    experiment : Experiment
-        The second log.
-
-    Returns
-    -------
-    FrictionValidation
-        Relative error [%] and fit [%].
-    """
-    t, theta, force, _ = _experiment_arrays(experiment)
-    return validate(fit, t, theta, force)
-
-
-def log_arrays(log: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | None]:
-    """Time [s], position [rad or m], explained force [N m or N] and nominal inertia of a log.
-
-    Parameters
-    ----------
-    log : Experiment or AxisLog
-        An SEA experiment (force = tau_m - tau_s, inertia J_m [kg m^2]) or a plain
-        axis log from :func:`~forecast_design.friction.load_axis_csv` (no nominal inertia).
-
-    Returns
-    -------
-    tuple
-        ``(t, position, force, inertia)``; ``inertia`` is None for an axis log.
-    """
-    if hasattr(log, "signals"):
-        return _experiment_arrays(log)
-    return np.asarray(log.t), np.asarray(log.position), np.asarray(log.force), None
-
-
-def identify(log: Any, model: str = "extended-sfm", *, harmonics: int | None = None, offset: bool = False,
-             estimate_inertia: bool = False, holdout: float = 0.3, validation_log: Any = None,
-             selection: SampleSelection | str = "auto") -> FrictionFit:
+def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics: int | None = None,
+             offset: bool = False, estimate_inertia: bool = False, holdout: float = 0.3,
+             validation_log: Any = None, selection: SampleSelection | str = "auto",
+             **fit_options: Any) -> FrictionFit:
     """Identify friction from one log and optionally cross-test it on another (the ``identify`` verb).
 
     Parameters
     ----------
-    log : Experiment or AxisLog
+    log : Experiment, AxisLog or FrictionLog
         The estimation log. On an SEA experiment the explained torque is
         tau_frc = tau_m - J_m theta'' - tau_s [N m] with the nominal J_m unless
         `estimate_inertia`; on an axis log, force = inertia x'' + friction.
-    model : str
-        One of :data:`~forecast_design.friction.MODEL_NAMES`.
+    model : FrictionModel or str
+        A model (e.g. ``Viscous() + Coulomb() + Harmonics(n=4)``) or one of
+        :data:`~forecast_design.friction.MODEL_NAMES`.
     harmonics : int, optional
-        Angle harmonics N for the models that have them.
+        Angle harmonics N when `model` is a name that has them.
     offset : bool
-        Add a constant offset term [N m].
+        Add a constant offset term [N m] when `model` is a name.
     estimate_inertia : bool
-        Estimate the inertia (always on for an axis log, which has no nominal inertia).
+        Estimate the inertia (always on for a log without a nominal one).
     holdout : float
         Fraction of the log's end held out for the hold-out fit % [-].
-    validation_log : Experiment or AxisLog, optional
+    validation_log : Experiment, AxisLog or FrictionLog, optional
         Second log for the relative error 100 ||y - y_hat|| / ||y|| [%].
     selection : SampleSelection or str
         Sample selection rule (``"auto"``, ``"on"``, ``"off"``), see
         :mod:`forecast_design.friction.selection`.
+    **fit_options
+        Passed to :func:`fit_friction` (``settings``, ``constrain``, ``velocity``...).
 
     Returns
     -------
@@ -767,13 +650,83 @@ def identify(log: Any, model: str = "extended-sfm", *, harmonics: int | None = N
         The fit (parameters on the whole log), with ``validation`` when a second
         log is given; ``status``/``not_identified`` say which numbers are estimates.
     """
-    t, position, force, inertia = log_arrays(log)
-    fm = friction_model(model, harmonics=harmonics, offset=offset,
-                        estimate_inertia=estimate_inertia or inertia is None)
-    scales = experiment_scales(log) if hasattr(log, "signals") else None
-    fit = fit_friction(t, position, force, fm, inertia=None if "inertia" in fm.names else inertia,
-                       holdout=holdout, selection=selection, scales=scales)
+    data = friction_log(log)
+    wants_inertia = estimate_inertia or data.inertia is None
+    if isinstance(model, str):
+        fm = friction_model(model, harmonics=harmonics, offset=offset, estimate_inertia=wants_inertia)
+    else:
+        fm = _resolve_model(model)
+        if wants_inertia and "inertia" not in fm.names:
+            fm = Inertia() + fm
+    fit_options.setdefault("scales", data.scales)
+    fit = fit_friction(data.t, data.position, data.force, fm,
+                       inertia=None if "inertia" in fm.names else data.inertia,
+                       holdout=holdout, selection=selection, **fit_options)
     if validation_log is not None:
-        vt, vpos, vforce, _ = log_arrays(validation_log)
-        fit = fit.with_validation(validate(fit, vt, vpos, vforce))
+        fit = fit.with_validation(validate(fit, validation_log))
     return fit
+
+
+# --- deprecated entry points (kept for one release; use identify / validate / friction_log) ---
+
+
+def fit_friction_experiment(experiment: Any, model: FrictionModel | str = "extended-sfm", *,
+                            harmonics: int | None = None, offset: bool = False,
+                            estimate_inertia: bool = False, **kwargs: Any) -> FrictionFit:
+    """Deprecated alias of :func:`identify` on an experiment (no hold-out unless asked, as before).
+
+    Parameters
+    ----------
+    experiment : Experiment
+        The log.
+    model : FrictionModel or str
+        As in :func:`identify`.
+    harmonics, offset, estimate_inertia
+        As in :func:`identify`.
+    **kwargs
+        As in :func:`identify`; ``holdout`` defaults to 0.
+
+    Returns
+    -------
+    FrictionFit
+        ``identify(experiment, model, holdout=0.0, ...)``.
+    """
+    kwargs.setdefault("holdout", 0.0)
+    kwargs.setdefault("selection", "auto")
+    return identify(experiment, model, harmonics=harmonics, offset=offset, estimate_inertia=estimate_inertia,
+                    **kwargs)
+
+
+def validate_experiment(fit: FrictionFit, experiment: Any) -> FrictionValidation:
+    """Deprecated alias of :func:`validate` on an experiment.
+
+    Parameters
+    ----------
+    fit : FrictionFit
+        The fit to test.
+    experiment : Experiment
+        The second log.
+
+    Returns
+    -------
+    FrictionValidation
+        ``validate(fit, experiment)``.
+    """
+    return validate(fit, experiment)
+
+
+def log_arrays(log: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | None]:
+    """Deprecated: ``(t, position, force, inertia)`` of :func:`friction_log`.
+
+    Parameters
+    ----------
+    log : Experiment or AxisLog
+        The log.
+
+    Returns
+    -------
+    tuple
+        Time [s], position [rad or m], explained force [N m or N], nominal inertia or None.
+    """
+    data = friction_log(log)
+    return data.t, data.position, data.force, data.inertia
