@@ -13,6 +13,7 @@ from .errors import (
     SolverError,
 )
 from .effects import Effect
+from .environments import EnvironmentSet, resolve_environments, resolve_testbed
 from .experiment import Experiment, Signals, experiment_from_arrays, load_experiment, save_experiment
 from .lti import RationalTF
 from .params import (
@@ -45,6 +46,9 @@ __all__ = [
     "ENVIRONMENT_PRESETS",
     "COMPENSATOR_KINDS",
     "environment_preset",
+    "EnvironmentSet",
+    "resolve_environments",
+    "resolve_testbed",
     "Effect",
     "Experiment",
     "Signals",

@@ -161,7 +161,11 @@ class Stiction(_EffectBase):
     ``g(v) sign(v) + sigma2 v``. ``F_s(theta) = F_s + sum_i a_i sin(i theta)
     + b_i cos(i theta)`` makes the static level depend on the motor angle
     (paper Section 2, Fig. 2c); empty ``F_s_a``/``F_s_b`` give a constant
-    ``F_s``.
+    ``F_s``. Likewise ``v_s(theta) = v_s exp(sum_i c_i sin(i theta) + d_i cos(i theta))``
+    (``v_s_a`` = c, ``v_s_b`` = d, harmonics of ``ln v_s``, so ``v_s`` stays > 0)
+    makes the Stribeck curve's width depend on the angle: a wide curve is a
+    strong negative damping at low speed (stick-slip), a narrow one a sharp
+    breakaway.
     """
 
     effect: ClassVar[Effect] = Effect.STICTION
@@ -173,6 +177,8 @@ class Stiction(_EffectBase):
     sigma0: float = 260.0   # bristle stiffness                    [N m/rad]
     F_s_a: tuple[float, ...] = ()  # sin(i theta) harmonics of F_s [N m]
     F_s_b: tuple[float, ...] = ()  # cos(i theta) harmonics of F_s [N m]
+    v_s_a: tuple[float, ...] = ()  # sin(i theta) harmonics of ln v_s [-]
+    v_s_b: tuple[float, ...] = ()  # cos(i theta) harmonics of ln v_s [-]
 
     def __post_init__(self) -> None:
         for name in ("F_s", "sigma2", "sigma1"):
@@ -184,12 +190,20 @@ class Stiction(_EffectBase):
         _pair("stiction F_s_", a, b)
         object.__setattr__(self, "F_s_a", a)
         object.__setattr__(self, "F_s_b", b)
+        va = _harmonics("stiction", "v_s_a", self.v_s_a)
+        vb = _harmonics("stiction", "v_s_b", self.v_s_b)
+        _pair("stiction v_s_", va, vb)
+        object.__setattr__(self, "v_s_a", va)
+        object.__setattr__(self, "v_s_b", vb)
         spread = sum(abs(x) for x in a) + sum(abs(x) for x in b)
         if self.F_s - spread <= 0.0:
             raise ParameterError(
                 f"stiction F_s - sum(|F_s_a| + |F_s_b|) must be > 0 (g(v) > 0), got {self.F_s - spread!r}",
                 name="F_s", value=self.F_s,
             )
+        if self.F_s < self.F_c:   # the format's vocabulary: static friction above the Coulomb level
+            raise ParameterError(f"stiction F_s must be >= F_c (static friction above the Coulomb level), got "
+                                 f"F_s = {self.F_s!r} < F_c = {self.F_c!r}", name="F_s", value=self.F_s)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -305,7 +319,8 @@ class EnvironmentMismatch(_EffectBase):
 
     def __post_init__(self) -> None:
         for name in ("J_scale", "d_scale", "k_e_scale"):
-            object.__setattr__(self, name, _num("environment_mismatch", name, getattr(self, name)))
+            object.__setattr__(self, name, _num("environment_mismatch", name, getattr(self, name),
+                                                positive=name == "J_scale"))   # J = 0: no inertia at all
         if self.environment is not None and not isinstance(self.environment, Environment):
             if isinstance(self.environment, Mapping):
                 object.__setattr__(self, "environment", Environment.from_mapping(self.environment))

@@ -11,6 +11,7 @@ __all__ = [
     "IdentifiabilityError",
     "SolverError",
     "ExportError",
+    "OutputError",
 ]
 
 
@@ -78,3 +79,19 @@ class SolverError(ForecastError, RuntimeError):
 
 class ExportError(ForecastError, RuntimeError):
     """Code generation or compilation of an exported controller failed."""
+
+
+class OutputError(ForecastError, OSError):
+    """An output file could not be written; the previous file, if any, is left intact.
+
+    Parameters
+    ----------
+    message : str
+        One line naming the user's path (never a temporary one) and the reason.
+    path : str, optional
+        The output path at fault.
+    """
+
+    def __init__(self, message: str, *, path: str | None = None):
+        super().__init__(message)
+        self.path = path

@@ -8,6 +8,7 @@ from typing import Sequence
 import numpy as np
 
 from . import polynomials as poly
+from .errors import ParameterError
 
 __all__ = ["RationalTF"]
 
@@ -89,6 +90,39 @@ class RationalTF:
         import control
 
         return control.tf(list(self.num), list(self.den), 0 if self.dt is None else self.dt)
+
+    @classmethod
+    def from_control(cls, sys, name: str = "") -> "RationalTF":
+        """A SISO ``control.TransferFunction`` or ``control.StateSpace`` as a RationalTF.
+
+        Parameters
+        ----------
+        sys : control.TransferFunction or control.StateSpace
+            SISO system (``dt`` 0/None: continuous; ``True`` is refused: the period is needed).
+        name : str
+            Label (default: the system's own name).
+
+        Returns
+        -------
+        RationalTF
+            The same transfer function.
+        """
+        import control
+
+        if isinstance(sys, control.StateSpace):
+            sys = control.ss2tf(sys)
+        if not isinstance(sys, control.TransferFunction):
+            raise ParameterError(f"expected a RationalTF, control.TransferFunction or control.StateSpace, "
+                                 f"got {type(sys).__name__}", name="L", value=sys)
+        if sys.ninputs != 1 or sys.noutputs != 1:
+            raise ParameterError(f"only SISO systems are supported, got {sys.noutputs}x{sys.ninputs}",
+                                 name="L", value=sys)
+        dt = sys.dt
+        if dt is True:
+            raise ParameterError("discrete system with unspecified period (dt=True): give its sample time",
+                                 name="dt", value=dt)
+        num, den = sys.num[0][0], sys.den[0][0]
+        return cls(tuple(num), tuple(den), None if not dt else float(dt), name or str(sys.name or ""))
 
     def to_scipy(self):
         """The same TF as ``scipy.signal.TransferFunction`` (or dlti for discrete time)."""

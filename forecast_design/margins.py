@@ -94,9 +94,24 @@ class DiskMargin:
     delay_margin_s: float                     # classical delay margin of L                     [s]
     stable: bool                              # nominal closed loop stable
 
+    @property
+    def skew(self) -> float:
+        """The disk's skew (python-control's and MATLAB's name for ``sigma``) [-]."""
+        return self.sigma
+
     def to_mapping(self) -> dict[str, Any]:
-        """JSON-ready mapping; infinite values (e.g. an unbounded gain margin) become ``None``."""
+        """JSON-ready mapping; infinite values (e.g. an unbounded gain margin) become ``None``.
+
+        ``disk_margin`` is ``alpha`` (both keys kept), ``skew`` is ``sigma``, ``phase_margins_deg``
+        is ``[-phase, +phase]`` as MATLAB's ``diskmargin`` reports it and ``frequency_hz`` the
+        critical frequency in Hz.
+        """
+        pm, w = json_float(self.phase_margin_deg), json_float(self.frequency_rad_s)
         return {
+            "disk_margin": json_float(self.alpha),
+            "skew": self.sigma,
+            "phase_margins_deg": None if pm is None else [-pm, pm],
+            "frequency_hz": None if w is None else w / (2.0 * math.pi),
             "alpha": json_float(self.alpha),
             "sigma": self.sigma,
             "gain_margin": [json_float(g) for g in self.gain_margin],
@@ -132,6 +147,13 @@ class DiskMarginCurve:
 # ---------------------------------------------------------------------------------------------
 # Disk geometry (Seiler, Packard, Gahinet 2020, Section 3)
 # ---------------------------------------------------------------------------------------------
+
+
+def _skew(skew: float, sigma: float | None) -> float:
+    """``skew``, or its alias ``sigma`` when given (both differing is an error)."""
+    if sigma is not None and skew not in (0.0, sigma):
+        raise ParameterError(f"give skew or its alias sigma, not both ({skew!r} and {sigma!r})", name="skew")
+    return skew if sigma is None else sigma
 
 
 def check_skew(sigma: float) -> float:
@@ -587,27 +609,36 @@ def _delay_margin(L: RationalTF, num: np.ndarray, den: np.ndarray, w0: float) ->
 # ---------------------------------------------------------------------------------------------
 
 
-def _check_loop(L: RationalTF) -> None:
+def _check_loop(L: Any) -> RationalTF:
+    """The loop as a RationalTF (python-control TransferFunction/StateSpace accepted), checked."""
     if not isinstance(L, RationalTF):
-        raise ParameterError(f"loop L must be a RationalTF, got {type(L).__name__}", name="L", value=L)
+        if type(L).__module__.split(".")[0] != "control":
+            raise ParameterError(f"loop L must be a RationalTF or a python-control TransferFunction/StateSpace, "
+                                 f"got {type(L).__name__}", name="L", value=L)
+        L = RationalTF.from_control(L)
     if L.dt is not None and (not math.isfinite(L.dt) or L.dt <= 0.0):
         raise ParameterError(f"loop {L.name!r}: sample period dt must be > 0 [s], got {L.dt!r}",
                              name="dt", value=L.dt)
+    return L
 
 
-def disk_margin(L: RationalTF, sigma: float = 0.0, *, closed_loop_stable: bool | None = None) -> DiskMargin:
+def disk_margin(L: RationalTF, skew: float = 0.0, *, closed_loop_stable: bool | None = None,
+                sigma: float | None = None) -> DiskMargin:
     """Exact disk margin of a SISO loop (continuous, or discrete up to Nyquist).
 
     Parameters
     ----------
-    L : RationalTF
+    L : RationalTF, control.TransferFunction or control.StateSpace
         Loop transfer function L(s) (or L(z) with ``dt``), negative feedback u = -L y.
-    sigma : float
-        Skew of the disk [-]: 0 balanced (S - T)/2, 1 uses S, -1 uses T.
+    skew : float
+        Skew sigma of the disk [-] (python-control's and MATLAB's ``skew``): 0 balanced
+        (S - T)/2, 1 uses S, -1 uses T.
     closed_loop_stable : bool or None
         Nominal closed-loop stability if known from elsewhere (e.g. ``ForceLoop.stable``,
         which also sees hidden pole-zero cancellations). ``None`` checks the roots of
         den(L) + num(L).
+    sigma : float or None
+        Alias of ``skew`` (the name used before; give one of the two).
 
     Returns
     -------
@@ -656,8 +687,8 @@ def disk_margin(L: RationalTF, sigma: float = 0.0, *, closed_loop_stable: bool |
     >>> round(dm.alpha, 4), round(dm.gain_margin_db[1], 2), round(dm.phase_margin_deg, 1)
     (0.4581, 4.05, 25.8)
     """
-    _check_loop(L)
-    sigma = check_skew(sigma)
+    L = _check_loop(L)
+    sigma = check_skew(_skew(skew, sigma))
     num, den = _continuous_equivalent(L)
     if closed_loop_stable is None:
         _, _, char = _char_poly(L)
@@ -715,17 +746,19 @@ def disk_margin_from_polynomials(L: RationalTF, num: np.ndarray, den: np.ndarray
 
 
 def disk_margin_curve(L: RationalTF, w_rad_s: Sequence[float] | np.ndarray,
-                      sigma: float = 0.0) -> DiskMarginCurve:
+                      skew: float = 0.0, *, sigma: float | None = None) -> DiskMarginCurve:
     """Frequency-dependent disk margin alpha(w) = 1 / |S(jw) + (sigma - 1)/2| for plots.
 
     Parameters
     ----------
-    L : RationalTF
+    L : RationalTF, control.TransferFunction or control.StateSpace
         Loop transfer function (continuous, or discrete with ``dt``).
     w_rad_s : array_like
         Frequencies [rad/s], shape (n,).
-    sigma : float
-        Skew [-].
+    skew : float
+        Skew sigma [-] (python-control's ``skew``).
+    sigma : float or None
+        Alias of ``skew``.
 
     Returns
     -------
@@ -738,8 +771,8 @@ def disk_margin_curve(L: RationalTF, w_rad_s: Sequence[float] | np.ndarray,
     ParameterError
         If ``L`` is not a RationalTF or ``sigma`` is not finite.
     """
-    _check_loop(L)
-    sigma = check_skew(sigma)
+    L = _check_loop(L)
+    sigma = check_skew(_skew(skew, sigma))
     w = np.asarray(w_rad_s, dtype=float).ravel()
     c = 0.5 * (sigma - 1.0)
     x = 1j * w if L.dt is None else np.exp(1j * w * L.dt)

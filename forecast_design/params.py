@@ -8,10 +8,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
 
+import numpy as np
+
 from .errors import ExperimentFormatError, ParameterError
+from .plausibility import check_limit, check_physical
 
 __all__ = [
     "Testbed",
@@ -25,6 +29,7 @@ __all__ = [
     "OBSERVER_KINDS",
     "BREAK_POINTS",
     "environment_preset",
+    "require_design",
     "parse_controller",
     "resolve_design",
 ]
@@ -60,7 +65,7 @@ def check_number(owner: str, name: str, value: Any, *, positive: bool = False, n
     float
         The value as a float.
     """
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):   # numpy scalars are Real
         raise ParameterError(f"{owner} {name} must be a number, got {value!r}", name=name, value=value)
     value = float(value)
     if not math.isfinite(value):
@@ -128,6 +133,8 @@ class Testbed:
         object.__setattr__(self, "J_m", _number("[testbed]", "J_m", self.J_m, positive=True))
         object.__setattr__(self, "d_m", _number("[testbed]", "d_m", self.d_m))
         object.__setattr__(self, "k", _number("[testbed]", "k", self.k, positive=True))
+        for name in ("J_m", "d_m", "k"):   # documented plausible ranges (plausibility.PHYSICAL_RANGES)
+            check_physical("[testbed]", name, getattr(self, name))
 
     def spring_torque(self, theta: Any, q: Any) -> Any:
         """The spec's spring equation ``tau_s = k (theta - q)`` [N m] (the logger's derived column).
@@ -177,6 +184,7 @@ class Environment:
     def __post_init__(self) -> None:
         for name in ("J_e", "d_e", "k_e", "J_l", "d_l"):
             object.__setattr__(self, name, _number("[environment]", name, getattr(self, name)))
+            check_physical("[environment]", name, getattr(self, name))
         if not isinstance(self.locked, bool):
             raise ParameterError(
                 f"[environment] locked must be true or false, got {self.locked!r}",
@@ -187,6 +195,11 @@ class Environment:
                 "[environment] J_e + J_l, d_e + d_l and k_e are all 0: E(s) = 0 transmits no force; "
                 "set locked = true for a held output",
                 name="J_e", value=0.0,
+            )
+        if not self.locked and self.J == 0.0:
+            raise ParameterError(
+                "[environment] J_e + J_l = 0: the output has no inertia (the link alone has J_l); "
+                "give J_l (e.g. 0.0018) or set locked = true", name="J_l", value=0.0,
             )
 
     @property
@@ -230,6 +243,28 @@ ENVIRONMENT_PRESETS: Mapping[str, Environment] = {
     "locked": Environment(J_e=0.0, d_e=0.0, k_e=0.0, locked=True),
     "link-only": Environment(J_e=0.0, d_e=0.0, k_e=0.0),
 }
+
+
+def require_design(value: Any, what: str) -> "Design":
+    """``value`` if it is a :class:`Design`, else a one-line ParameterError (not a raw AttributeError later).
+
+    Parameters
+    ----------
+    value : object
+        The candidate.
+    what : str
+        The function receiving it, for the message.
+
+    Returns
+    -------
+    Design
+        ``value``.
+    """
+    if not isinstance(value, Design):
+        hint = f" (e.g. Design.nominal({value!r}))" if isinstance(value, str) else ""
+        raise ParameterError(f"{what} needs a Design{hint}, got {type(value).__name__} {value!r:.60}",
+                             name="design", value=value)
+    return value
 
 
 def environment_preset(name: str) -> Environment:
@@ -324,6 +359,7 @@ class Compensator:
                 name="kind", value=self.kind,
             )
         object.__setattr__(self, "w_q_hz", _number("[compensator]", "w_q_hz", self.w_q_hz, positive=True))
+        check_physical("[compensator]", "w_q_hz", self.w_q_hz)
         if self.q_family not in Q_FAMILIES:
             raise ParameterError(
                 f"[compensator] q_family must be one of {', '.join(Q_FAMILIES)}, got {self.q_family!r}",
@@ -334,6 +370,7 @@ class Compensator:
                 f"[compensator] q_order must be an integer >= 1, got {self.q_order!r}",
                 name="q_order", value=self.q_order,
             )
+        check_limit("[compensator] q_order", "q_order", self.q_order)
 
         if self.q_damping is not None:
             object.__setattr__(self, "q_damping",
@@ -353,6 +390,19 @@ class Compensator:
     def friction_params(self) -> dict[str, float] | None:
         """The identified friction of an ``sfm`` compensator as a dict, or None when it carries none."""
         return dict(self.friction) if self.friction else None
+
+    def require_friction(self) -> dict[str, float]:
+        """The identified friction an ``sfm`` compensator runs on [N m s/rad, N m].
+
+        Raises
+        ------
+        ParameterError
+            When the compensator carries none (an SFM needs identified parameters).
+        """
+        if not self.friction:
+            raise ParameterError("compensator 'sfm' needs identified friction (viscous, coulomb[, offset, sin<i>, "
+                                 "cos<i>]): give friction= (e.g. from identify --json)", name="friction", value=None)
+        return dict(self.friction)
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "Compensator":
@@ -384,6 +434,16 @@ class Design:
     controller: PDController | None = None
     compensator: Compensator | None = None
 
+    def __post_init__(self) -> None:
+        # a wrong type here would surface much later as a raw AttributeError deep in a model
+        for name, kind, optional in (("testbed", Testbed, False), ("environment", Environment, False),
+                                     ("controller", PDController, True), ("compensator", Compensator, True)):
+            value = getattr(self, name)
+            if not (isinstance(value, kind) or (optional and value is None)):
+                hint = " (use Design.nominal(NAME) for a preset)" if name == "environment" else ""
+                raise ParameterError(f"Design {name} must be a {kind.__name__}{' or None' if optional else ''}, "
+                                     f"got {type(value).__name__} {value!r}{hint}", name=name, value=value)
+
     @classmethod
     def nominal(cls, environment: str | Environment = "soft", **kwargs: Any) -> "Design":
         """Table 1 testbed with a named (or given) environment.
@@ -407,6 +467,34 @@ class Design:
         """A copy with another environment (preset name or value)."""
         env = environment_preset(environment) if isinstance(environment, str) else environment
         return dataclasses.replace(self, environment=env)
+
+    def with_friction(self, friction: Mapping[str, float] | None) -> "Design":
+        """A copy whose ``sfm`` compensator carries `friction` (identified parameters); None changes nothing.
+
+        Parameters
+        ----------
+        friction : Mapping[str, float] or None
+            Parameter names as :mod:`forecast_design.friction` gives them (viscous
+            [N m s/rad], coulomb, offset, sin<i>, cos<i> [N m]).
+
+        Returns
+        -------
+        Design
+            The design with the friction on its compensator.
+
+        Raises
+        ------
+        ParameterError
+            When the compensator is not ``sfm``.
+        """
+        if friction is None:
+            return self
+        comp = self.compensator
+        if comp is None or comp.kind != "sfm":
+            raise ParameterError(
+                f"identified friction given but the compensator is {comp.kind if comp else 'none'!r}; "
+                "it applies to 'sfm'", name="friction", value=dict(friction))
+        return dataclasses.replace(self, compensator=dataclasses.replace(comp, friction=friction))
 
     def parameters(self) -> dict[str, float]:
         """Flat numeric parameters for the symbolic models: J_m, d_m, k, J, d, k_e, J_l, d_l."""

@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from .fileio import atomic_write
+
 __all__ = ["PipelineResult", "run_pipeline"]
 
 
@@ -32,7 +34,7 @@ class PipelineResult:
 
 
 def _dump(path: Path, obj: Any) -> None:
-    path.write_text(json.dumps(obj, indent=2, allow_nan=True) + "\n")
+    atomic_write(path, json.dumps(obj, indent=2, allow_nan=True) + "\n")
 
 
 def _derive(out: Path) -> dict[str, Any]:
@@ -154,15 +156,22 @@ def _diagnose(out: Path) -> dict[str, Any]:
 
 def _export(out: Path) -> dict[str, Any]:
     from .export.c import export_controller
+    from .tuning import tune_q
 
-    tuned = json.loads((out / "tune_q.json").read_text())["ea-fob"]["w_q_hz"]
+    # the cutoff is tuned for the environment set the controller is exported for (not soft/stiff's)
+    env = "exp-soft"
+    tuning = tune_q("ea-fob", env, min_ratio=0.9, band_hz=(0.5, 30.0))
+    tuned = tuning.w_q_hz
+    _dump(out / "export_tune_q.json", tuning.to_mapping())
     result = export_controller(out_dir=out / "export", controller="pd:5:0.1", compensator="ea-fob",
-                               env="exp-soft", w_q_hz=tuned)
-    return {"files": ["export/fd_controller.h", "export/fd_controller.c"],
-            "text": (f"PD 5/0.1 + EA-FOB at the tuned {tuned:.3g} Hz, exp-soft environment, Tustin at 2 kHz, emitted "
-                     "as C99 (float32 delta-operator sections); `forecast-design export --check-arm` runs it on an "
-                     "emulated Cortex-M4."),
-            "summary": {"w_q_hz": tuned, "sha256": result.digest}}
+                               env=env, w_q_hz=tuned)
+    return {"files": ["export/fd_controller.h", "export/fd_controller.c", "export_tune_q.json"],
+            "text": (f"PD 5/0.1 + EA-FOB at {tuned:.3g} Hz, the cutoff tuned for the {env} environment it is "
+                     f"exported for (worst disk-margin ratio {tuning.worst_ratio:.3f} >= 0.9 of the plant's own), "
+                     "Tustin at 2 kHz, emitted as C99 (float32 delta-operator sections); "
+                     "`forecast-design export --check-arm` runs it on an emulated Cortex-M4."),
+            "summary": {"w_q_hz": tuned, "environment": env, "worst_ratio": tuning.worst_ratio,
+                        "sha256": result.digest}}
 
 
 _STEPS: list[tuple[str, str, Callable[[Path], dict[str, Any]]]] = [
@@ -205,6 +214,6 @@ def run_pipeline(out_dir: str | Path = "report", *, progress: Callable[[str], No
         for f in info["files"]:
             lines.append(f"![{f}]({f})" if f.endswith(".png") else f"- [{f}]({f})")
         lines += ["", "```json", json.dumps(info["summary"], indent=2), "```", ""]
-    (out / "index.md").write_text("\n".join(lines))
+    atomic_write(out / "index.md", "\n".join(lines))
     _dump(out / "summary.json", result.to_mapping())
     return result

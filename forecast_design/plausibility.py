@@ -55,6 +55,8 @@ from typing import Any, Iterable, Mapping
 
 import numpy as np
 
+from .errors import ParameterError, SolverError
+
 __all__ = [
     "STATUSES",
     "DATASHEET_TOLERANCE",
@@ -68,6 +70,11 @@ __all__ = [
     "friction_bound",
     "effect_bound",
     "not_identified",
+    "PHYSICAL_RANGES",
+    "COMPUTATION_LIMITS",
+    "check_physical",
+    "check_limit",
+    "require_no_nan",
 ]
 
 #: Statuses of a fitted number, best first.
@@ -428,3 +435,136 @@ def effect_bound(name: str, scales: LogScales) -> Bound | None:
     if name.endswith("_scale"):
         return Bound(0.1, 10.0, "the real environment within a factor 10 of the declared one")
     return None
+
+
+# --- documented ranges of the inputs ----------------------------------------------------------------------
+#
+# The ranges above judge *fitted* numbers against a log. The ranges below bound what a user may
+# *give*: the nominal model's physical parameters and the sizes of a computation. They are wide (about
+# six decades and more around the Forecast testbed's values of Table 1 and the presets; a nearly
+# held output may take J_e = 1e9), so any real SEA passes;
+# what they reject are the values that give NaN/inf or hang (J_m = 1e308, k = 1e300, w_q = 1e-300 Hz,
+# 1e8 substeps). One home: params.py (Testbed, Environment, Compensator), the scenario loader, the
+# runtime and the CLI read them from here.
+
+#: Plausible physical parameters: name -> (lowest, highest, unit). ``J_m`` and ``k`` must be > 0, the
+#: rest >= 0; ``w_q_hz`` is a Q-filter cutoff, ``rate_hz`` a control/sampling rate.
+PHYSICAL_RANGES: Mapping[str, tuple[float, float, str]] = {
+    "J_m": (1e-6, 1e6, "kg m^2"),
+    "d_m": (0.0, 1e6, "N m s/rad"),
+    "k": (1e-3, 1e9, "N m/rad"),
+    "J_e": (0.0, 1e10, "kg m^2"),
+    "d_e": (0.0, 1e10, "N m s/rad"),
+    "k_e": (0.0, 1e10, "N m/rad"),
+    "J_l": (0.0, 1e6, "kg m^2"),
+    "d_l": (0.0, 1e6, "N m s/rad"),
+    "w_q_hz": (1e-3, 1e5, "Hz"),
+    "rate_hz": (1.0, 1e6, "Hz"),
+}
+
+#: Sizes of a computation a user may ask for: name -> (lowest, highest, what it bounds).
+COMPUTATION_LIMITS: Mapping[str, tuple[int, int, str]] = {
+    "delay_samples": (0, 100, "computation delay of the sampled loop [samples] (50 ms at 2 kHz)"),
+    "q_order": (1, 8, "order of the Q filter"),
+    "random_environments": (1, 1000, "environments of random:N"),
+    "substeps": (1, 1000, "RK4 substeps per control period"),
+    "simulation_samples": (1, 10_000_000, "samples of one simulation (duration_s x rate_hz)"),
+    "seed": (0, 2**63 - 1, "random seed"),
+}
+
+
+def check_physical(owner: str, name: str, value: float) -> float:
+    """Check a finite number against :data:`PHYSICAL_RANGES`; ParameterError naming it and the range.
+
+    Parameters
+    ----------
+    owner : str
+        Where the number lives, e.g. ``"[testbed]"`` (goes first in the message).
+    name : str
+        A key of :data:`PHYSICAL_RANGES`.
+    value : float
+        The candidate (already known to be a finite number).
+
+    Returns
+    -------
+    float
+        ``value``.
+    """
+    lo, hi, unit = PHYSICAL_RANGES[name]
+    if not lo <= value <= hi:
+        raise ParameterError(f"{owner} {name} = {value!r} is outside its plausible range [{lo:g}, {hi:g}] {unit}",
+                             name=name, value=value)
+    return value
+
+
+def check_limit(option: str, name: str, value: Any) -> int:
+    """Check an integer size against :data:`COMPUTATION_LIMITS`; ParameterError naming ``option``.
+
+    Parameters
+    ----------
+    option : str
+        How the user wrote it (``"--delay-samples"``, ``"[simulation] substeps"``).
+    name : str
+        A key of :data:`COMPUTATION_LIMITS`.
+    value : int
+        The candidate.
+
+    Returns
+    -------
+    int
+        ``value`` as an int.
+    """
+    lo, hi, what = COMPUTATION_LIMITS[name]
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not lo <= int(value) <= hi:
+        raise ParameterError(f"{option} must be an integer in [{lo}, {hi}] ({what}), got {value!r}",
+                             name=name, value=value)
+    return int(value)
+
+
+def require_no_nan(result: Any, what: str) -> Any:
+    """Refuse a result holding a NaN anywhere (nested mappings, sequences, numpy arrays).
+
+    An infinite value can be an answer (a gain margin of +inf dB); a NaN never is. Every verb
+    that prints numbers passes its result through this before exiting 0.
+
+    Parameters
+    ----------
+    result : object
+        The result's JSON mapping (or any nesting of mappings, sequences, numbers, arrays).
+    what : str
+        The command or function, for the message.
+
+    Returns
+    -------
+    object
+        ``result`` unchanged.
+
+    Raises
+    ------
+    SolverError
+        One line naming the first key path that holds a NaN.
+    """
+    def walk(obj: Any, path: str) -> str | None:
+        if isinstance(obj, Mapping):
+            items: Iterable = ((f"{path}.{k}" if path else str(k), v) for k, v in obj.items())
+        elif isinstance(obj, (list, tuple)):
+            items = ((f"{path}[{i}]", v) for i, v in enumerate(obj))
+        elif isinstance(obj, np.ndarray):
+            if obj.dtype.kind in "fc" and np.isnan(obj).any():
+                return path or "result"
+            return None
+        elif isinstance(obj, (float, complex, np.floating, np.complexfloating)):
+            return (path or "result") if (obj != obj) else None
+        else:
+            return None
+        for sub, value in items:
+            found = walk(value, sub)
+            if found:
+                return found
+        return None
+
+    found = walk(result, "")
+    if found:
+        raise SolverError(f"{what}: the result holds NaN at {found}: the parameters are outside what the "
+                          "models evaluate reliably (see the plausible ranges in docs/reliability.md)")
+    return result

@@ -31,7 +31,9 @@ from .loops.response import (LoopResponse, loop_response, observer_responses, q_
                              sensitivity_terms)
 from .margins import disk_margin
 from .errors import ParameterError, SolverError
-from .params import Compensator, Design, Environment, PDController, environment_preset
+from .plausibility import check_limit, check_physical
+from .environments import resolve_environments, resolve_testbed
+from .params import Compensator, Design, Environment, PDController
 
 __all__ = ["TuningResult", "environment_set", "tune_q", "tune_q_shape", "worst_case_ratio"]
 
@@ -52,6 +54,10 @@ class _Setting:
     sampled: bool = False
     rate_hz: float = 2000.0
     delay_samples: int = 1
+
+    def __post_init__(self) -> None:
+        check_physical("tuning", "rate_hz", self.rate_hz)
+        check_limit("delay_samples", "delay_samples", self.delay_samples)
 
     def grid(self) -> np.ndarray:
         """Constraint grid [rad/s]: 1e-2 ... 3e4, or up to just below Nyquist when sampled."""
@@ -104,6 +110,9 @@ class TuningResult:
         Damping ratio of the 2nd-order Q (shape mode only) [-].
     solver : dict
         casadi/ipopt return status and iteration counts.
+    at_bound : str or None
+        The end of the search band (or of the Q damping range) the answer sits on, in words;
+        the true optimum may lie beyond it. None when the answer is inside.
     """
 
     observer: str
@@ -119,6 +128,7 @@ class TuningResult:
     plants: int
     q_damping: float | None = None
     solver: dict = field(default_factory=dict)
+    at_bound: str | None = None    # the search-range end the answer sits on, in words (None: inside)
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready mapping (the ``tune-q`` output)."""
@@ -138,53 +148,39 @@ class TuningResult:
         }
         if self.q_damping is not None:
             out["q_damping"] = self.q_damping
+        out["at_bound"] = self.at_bound
         return out
 
 
-def environment_set(names: Sequence[str] | str, *, uncertainty: float = 0.0,
-                    seed: int = 0) -> list[tuple[str, Environment, Environment]]:
-    """True/believed environment pairs for a named set, with parametric uncertainty.
+def environment_set(names: Any, *, uncertainty: float = 0.0, seed: int = 0,
+                    testbed: Any = None) -> list[tuple[str, Environment, Environment]]:
+    """True/believed environment pairs for an environment set, with parametric uncertainty.
 
     Parameters
     ----------
-    names : str or sequence of str
-        Preset names (comma-separated in a string), or ``random:N`` for N
-        environments drawn log-uniformly (k_e in [0.1, 1000] N m/rad,
-        J_e in [1e-3, 1] kg m^2, critically damped d_e) with ``seed``.
+    names : str, Environment, EnvironmentSet, path or iterable
+        Anything :func:`forecast_design.environments.resolve_environments` accepts: preset
+        names (comma-separated in a string), ``random:N`` (N environments drawn log-uniformly,
+        k_e in [0.1, 1000] N m/rad, J_e in [1e-3, 1] kg m^2, critically damped d_e, with
+        ``seed``), inline ``k_e=..,J_e=..`` values, an environment-set TOML file, objects.
     uncertainty : float
         Relative range u [-] of the true J, d and k_e: the 8 vertices of
         [1 - u, 1 + u]^3 and the nominal point; the observer keeps the nominal.
     seed : int
         Seed of ``random:N``.
+    testbed : Testbed, str or None
+        The testbed, for link defaults (see :func:`~forecast_design.environments.resolve_environments`).
 
     Returns
     -------
     list of (label, true Environment, believed Environment)
     """
-    if isinstance(names, str):
-        names = [n.strip() for n in names.split(",") if n.strip()]
-    if not names:
-        raise ParameterError("the environment set is empty", name="envs", value=names)
     if not (0.0 <= uncertainty < 1.0):
         raise ParameterError(f"uncertainty must be in [0, 1), got {uncertainty!r}", name="uncertainty",
                              value=uncertainty)
-    nominal: list[tuple[str, Environment]] = []
-    for name in names:
-        if name.startswith("random:"):
-            try:
-                count = int(name.split(":", 1)[1])
-            except ValueError:
-                raise ParameterError(f"'{name}': expected random:N with an integer N", name="envs",
-                                     value=name) from None
-            rng = np.random.default_rng(seed)
-            for i in range(count):
-                k_e = float(10 ** rng.uniform(-1, 3))
-                J_e = float(10 ** rng.uniform(-3, 0))
-                nominal.append((f"random{i}", Environment(J_e=J_e, d_e=2 * math.sqrt(k_e * J_e), k_e=k_e)))
-        else:
-            nominal.append((name, environment_preset(name)))
+    envset = resolve_environments(names, testbed=resolve_testbed(testbed), seed=seed)
     out = []
-    for label, env in nominal:
+    for label, env in envset:
         out.append((label, env, env))
         if uncertainty > 0.0 and not env.locked:
             for fj, fd, fk in itertools.product((1 - uncertainty, 1 + uncertainty), repeat=3):
@@ -274,7 +270,8 @@ def _exact_ratios(plants: Sequence[_Plant], compensator: Compensator, setting: _
 def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("soft", "stiff"), *,
                      uncertainty: float = 0.0, controller: PDController = PDController(),
                      break_at: str = "controller", sigma: float = 0.0, sampled: bool = False,
-                     rate_hz: float = 2000.0, delay_samples: int = 1, seed: int = 0) -> tuple[float, str]:
+                     rate_hz: float = 2000.0, delay_samples: int = 1, seed: int = 0,
+                     testbed: Any = None) -> tuple[float, str]:
     """Exact worst ratio alpha_observer / alpha_plant over an environment set.
 
     Parameters
@@ -299,6 +296,8 @@ def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("sof
         Computation delay when ``sampled`` [samples].
     seed : int
         Seed of ``random:N`` sets.
+    testbed : Testbed, str or None
+        The testbed (:func:`~forecast_design.environments.resolve_testbed`; None: Table 1).
 
     Returns
     -------
@@ -306,25 +305,25 @@ def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("sof
         The worst ratio [-] and the label of the plant attaining it.
     """
     setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
-    plants = _plants(compensator, envs, uncertainty, setting, seed)
+    plants = _plants(compensator, envs, uncertainty, setting, seed, testbed=testbed)
     ratios, _, _ = _exact_ratios(plants, compensator, setting)
     i = int(np.argmin(ratios))
     return float(ratios[i]), plants[i].label
 
 
 def _plants(compensator: Compensator, envs, uncertainty: float, setting: _Setting, seed: int = 0,
-            progress: Callable[[int, int], None] | None = None) -> list[_Plant]:
+            progress: Callable[[int, int], None] | None = None, testbed: Any = None) -> list[_Plant]:
     if not compensator.is_observer:
         raise ParameterError(f"tuning needs an observer kind (ea-fob, lo-dob, ld-dob, motor-fob), "
                              f"got {compensator.kind!r}", name="observer", value=compensator.kind)
     if setting.break_at not in ("controller", "plant-input"):
         raise ParameterError(f"break_at must be 'controller' or 'plant-input', got {setting.break_at!r}",
                              name="break_at", value=setting.break_at)
-    base = Design()
+    base = Design(testbed=resolve_testbed(testbed))
     w = setting.grid()
     cache: dict = {}
     alone: dict = {}
-    pairs = environment_set(envs, uncertainty=uncertainty, seed=seed)
+    pairs = environment_set(envs, uncertainty=uncertainty, seed=seed, testbed=base.testbed)
     out = []
     for n, (label, true, bel) in enumerate(pairs):
         true_design = dataclasses.replace(base, environment=true)
@@ -453,7 +452,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
            q_family: str = "butterworth", q_order: int = 2, controller: PDController = PDController(),
            break_at: str = "controller", sigma: float = 0.0, scan_points: int = 80, seed: int = 0,
            sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1, scan: str = "bounded",
-           progress: Callable[[int, int], None] | None = None) -> TuningResult:
+           progress: Callable[[int, int], None] | None = None, testbed: Any = None) -> TuningResult:
     """Largest Q cutoff keeping the disk margin near the plant's own in every environment.
 
     Parameters
@@ -495,6 +494,8 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
         scan's); ``'exact'``: exact margins at every scan point and plant.
     progress : callable, optional
         ``progress(done, total)`` while the plant set is prepared and the scan runs.
+    testbed : Testbed, str or None
+        The testbed (:func:`~forecast_design.environments.resolve_testbed`; None: Table 1).
 
     Returns
     -------
@@ -526,6 +527,8 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     """
     if not (0.0 < band_hz[0] < band_hz[1]):
         raise ParameterError(f"band must satisfy 0 < lo < hi [Hz], got {band_hz}", name="band", value=band_hz)
+    for end in band_hz:   # a cutoff of 1e-300 Hz gives w_q = nan, not an answer
+        check_physical("band", "w_q_hz", float(end))
     if not (0.0 < min_ratio <= 1.0):
         raise ParameterError(f"min_ratio must be in (0, 1], got {min_ratio}", name="min_ratio", value=min_ratio)
     if scan not in ("bounded", "exact"):
@@ -535,7 +538,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
                              name="band", value=band_hz)
     setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
     base = Compensator(kind=observer, w_q_hz=band_hz[0], q_family=q_family, q_order=q_order)
-    plants = _plants(base, envs, uncertainty, setting, seed)
+    plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed)
     coeffs = _q_polynomial(base)
     evaluations = len({p.true_design for p in plants})    # plant-alone margins
     threshold = min_ratio * (1.0 - _FEAS_RTOL)
@@ -635,6 +638,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
         worst_environment=plants[worst].label if not math.isnan(answer) else "",
         feasible=feasible, evaluations=evaluations, scan_w_q_hz=scan_best, agrees_with_scan=agrees,
         min_ratio=min_ratio, band_hz=(float(band_hz[0]), float(band_hz[1])), plants=len(plants), solver=info,
+        at_bound=_at_bound(answer, band_hz, "band", "Hz") if feasible else None,
     )
 
 
@@ -642,7 +646,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
                  w_q_hz: float = 10.0, uncertainty: float = 0.0, damping_range: tuple[float, float] = (0.3, 2.0),
                  controller: PDController = PDController(), break_at: str = "controller",
                  sigma: float = 0.0, seed: int = 0, sampled: bool = False, rate_hz: float = 2000.0,
-                 delay_samples: int = 1) -> TuningResult:
+                 delay_samples: int = 1, testbed: Any = None) -> TuningResult:
     """Maximise the worst-case margin ratio at a fixed Q bandwidth over the Q damping.
 
     Parameters
@@ -672,6 +676,8 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
         Sampling rate when ``sampled`` [Hz].
     delay_samples : int
         Computation delay when ``sampled`` [samples].
+    testbed : Testbed, str or None
+        The testbed (:func:`~forecast_design.environments.resolve_testbed`; None: Table 1).
 
     Returns
     -------
@@ -686,7 +692,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
     """
     setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
     base = Compensator(kind=observer, w_q_hz=w_q_hz, q_family="butterworth", q_order=2)
-    plants = _plants(base, envs, uncertainty, setting, seed)
+    plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed)
     w_q = 2 * math.pi * w_q_hz
     import casadi as ca
 
@@ -740,4 +746,13 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
         feasible=bool(ratios.min() > 0.0), evaluations=len(plants) * (len(zetas) + 2),
         scan_w_q_hz=w_q_hz, agrees_with_scan=bool(ratios.min() >= best_scan * 0.98), min_ratio=0.0,
         band_hz=(w_q_hz, w_q_hz), plants=len(plants), q_damping=zeta, solver=info,
+        at_bound=_at_bound(zeta, damping_range, "Q damping range", ""),
     )
+
+
+def _at_bound(value: float, bounds: tuple[float, float], what: str, unit: str) -> str | None:
+    """Which end of a search range an answer sits on (within 0.1 %), in words, or None."""
+    for end, name in zip(bounds, ("lower", "upper")):
+        if abs(value - end) <= 1e-3 * abs(end):
+            return f"{what} {name} end {end:g}{' ' + unit if unit else ''}"
+    return None

@@ -138,10 +138,12 @@ d, exp = diagnoses["coulomb"]
 print(d.to_mapping()["location"]["summary"])
 
 # %%
+from forecast_design.gap.views import diagnosis_views
 from forecast_design.plotting.gap import plot_replay, plot_residual_operating
 
-plot_residual_operating(d, "coulomb_speed_angle.png")
-plot_replay(d, "coulomb_replay.png")
+views = diagnosis_views(d)     # what the plots draw is computed here; the plotting only draws
+plot_residual_operating(views, "coulomb_speed_angle.png")
+plot_replay(views, "coulomb_replay.png")
 img = plt.imread("coulomb_replay.png")
 plt.figure(figsize=(9, 5.5))
 plt.imshow(img)
@@ -154,7 +156,7 @@ plt.show()
 
 # %%
 d_cog, _ = diagnoses["cogging"]
-plot_residual_operating(d_cog, "cogging_speed_angle.png")
+plot_residual_operating(diagnosis_views(d_cog), "cogging_speed_angle.png")
 plt.figure(figsize=(10, 4))
 plt.imshow(plt.imread("cogging_speed_angle.png"))
 plt.axis("off")

@@ -421,5 +421,26 @@ def test_disk_margin_to_mapping_is_strict_json():
 def test_disk_margin_rejects_bad_inputs():
     with pytest.raises(ParameterError, match="sigma"):
         disk_margin(SEILER_L, float("nan"))
-    with pytest.raises(ParameterError, match="RationalTF"):
-        disk_margin(SEILER_L.to_control())
+    with pytest.raises(ParameterError, match="RationalTF or a python-control"):
+        disk_margin("25/(s^3+10s^2+10s+10)")
+    with pytest.raises(ParameterError, match="skew or its alias sigma, not both"):
+        disk_margin(SEILER_L, 0.5, sigma=-0.5)
+
+
+def test_disk_margin_accepts_python_control_models_and_the_skew_name():
+    tf = SEILER_L.to_control()
+    ref = disk_margin(SEILER_L, 0.3)
+    # a control.TransferFunction, a control.StateSpace realisation and the round trip give the same margin
+    for L in (tf, control.ss(tf)):
+        dm = disk_margin(L, skew=0.3)
+        assert dm.alpha == pytest.approx(ref.alpha, rel=1e-9) and dm.skew == 0.3
+    back = RationalTF.from_control(tf).normalized()
+    assert (back.num, back.den, back.dt) == (SEILER_L.normalized().num, SEILER_L.normalized().den, None)
+    assert disk_margin(SEILER_L, sigma=0.3) == ref
+    # python-control's own disk margin of this stable loop (balanced) agrees with ours
+    alpha_pc = control.disk_margins(tf, np.logspace(-2, 2, 4000), skew=0.0)[0]
+    assert float(np.min(alpha_pc)) == pytest.approx(disk_margin(tf).alpha, rel=1e-4)
+    mapping = disk_margin(tf).to_mapping()
+    assert mapping["disk_margin"] == mapping["alpha"]
+    assert mapping["phase_margins_deg"] == [-mapping["phase_margin_deg"], mapping["phase_margin_deg"]]
+    assert mapping["frequency_hz"] == pytest.approx(mapping["frequency_rad_s"] / (2 * np.pi), rel=1e-15)

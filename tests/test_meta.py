@@ -13,10 +13,10 @@ PACKAGE = ROOT / "forecast_design"
 
 # Lower layers never import higher ones (STYLE section 9, adapted to this layout).
 LAYERS = {
-    "errors": 0, "params": 0, "effects": 0, "experiment": 0, "lti": 0, "__init__": 0, "plausibility": 0, "polynomials": 0, "margins": 0,
+    "errors": 0, "params": 0, "environments": 0, "effects": 0, "experiment": 0, "experiment_io": 0, "fileio": 0, "margins_batch": 0, "lti": 0, "__init__": 0, "plausibility": 0, "polynomials": 0, "margins": 0,
     "symbolic": 1, "friction": 1, "discrete": 1,
-    "analysis": 2, "loops": 2, "simulation": 2, "export": 2, "independent": 2,
-    "tuning": 3, "gap": 3, "reproduce": 3,
+    "analysis": 2, "executor": 2, "loops": 2, "simulation": 2, "export": 2, "independent": 2,
+    "tuning": 3, "tradeoff": 3, "gap": 3, "reproduce": 3, "benchmark": 3,
     "plotting": 4, "runtime": 4, "reporting": 4,
     "pipeline": 5, "cli": 6, "__main__": 6,
 }
@@ -60,7 +60,7 @@ PUBLIC_MODULES = [
     "forecast_design", "forecast_design.experiment", "forecast_design.symbolic", "forecast_design.analysis", "forecast_design.margins", "forecast_design.loops", "forecast_design.reporting",
     "forecast_design.tuning", "forecast_design.friction", "forecast_design.simulation", "forecast_design.gap",
     "forecast_design.export", "forecast_design.runtime", "forecast_design.reproduce", "forecast_design.pipeline",
-    "forecast_design.independent",
+    "forecast_design.independent", "forecast_design.tradeoff",
 ]
 
 

@@ -100,13 +100,30 @@ def test_fig7_rejects_unknown_and_bad_choices():
 # --- Table 3 ------------------------------------------------------------------------------------
 
 
-def test_table3_eafob_is_at_least_as_repeatable_as_sfm_and_closer_to_frictionless(table3):
+def test_table3_shows_the_papers_pattern_within_stated_tolerances(table3):
+    # Table 3: the compensated loops are repeatable (paper 0.98-0.99; tolerance 0.02), the EA-FOB
+    # is the closest to the frictionless response in both environments, and in the soft environment
+    # PD alone is by far the least repeatable (paper 0.73; tolerance 0.15)
     for env in ("exp-soft", "locked"):
         e, s, n = (table3.row(env, k) for k in ("ea-fob", "sfm", "none"))
-        assert e.xcorr >= s.xcorr
+        assert e.xcorr == pytest.approx(e.paper_xcorr, abs=0.02)
+        assert s.xcorr == pytest.approx(s.paper_xcorr, abs=0.02)
         assert e.mae < s.mae and e.mae < n.mae
-        assert e.xcorr > 0.98  # paper 0.99
-        assert e.mae < 0.02    # paper 0.008 / 0.01
+        assert e.mae <= e.paper_mae + 0.002                    # paper 0.008 / 0.01
+        assert s.mae <= s.paper_mae + 0.005                    # paper 0.05 / 0.02
+    soft = {k: table3.row("exp-soft", k) for k in ("none", "sfm", "ea-fob")}
+    assert soft["none"].xcorr == pytest.approx(0.73, abs=0.15)
+    assert soft["none"].xcorr < soft["sfm"].xcorr - 0.2 and soft["none"].xcorr < soft["ea-fob"].xcorr - 0.2
+
+
+def test_table3_locked_pd_deviation_is_stated(table3):
+    # known deviation: with the output locked, the virtual testbed's PD alone is about as repeatable
+    # as the compensated loops (paper 0.90); the explanation must say so rather than claim the pattern
+    n = table3.row("locked", "none")
+    least = n.xcorr < min(table3.row("locked", k).xcorr for k in ("sfm", "ea-fob"))
+    assert least or "locked: deviation: PD alone" in table3.explanation
+    for r in table3:
+        assert f"{r.environment}/{r.compensator}: xcorr {r.xcorr:.3f} (paper {r.paper_xcorr:.2f})" in table3.explanation
 
 
 def test_table3_rows_are_the_issue_json(table3):

@@ -304,9 +304,11 @@ def test_too_few_substeps_for_a_steep_coulomb_raise():
 
 def test_bad_options_raise():
     d = Design.nominal("locked")
-    with pytest.raises(ParameterError, match="sfm_params"):
+    with pytest.raises(ParameterError, match="'sfm' needs identified friction"):
         simulate(d.with_environment("locked").__class__(compensator=Compensator(kind="sfm")),
                  reference=Step(), duration_s=0.1)
+    with pytest.raises(ParameterError, match="compensator is 'none'; it applies to 'sfm'"):
+        simulate(d, reference=Step(), duration_s=0.1, sfm_params={"viscous": 0.1, "coulomb": 0.2})
     with pytest.raises(ParameterError, match="reference must give 200 samples"):
         simulate(d, reference=np.zeros(10), duration_s=0.1)
     with pytest.raises(ParameterError, match="given 2 times"):

@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import sys
 from typing import Any, Callable, Sequence
 
 from .. import __version__
 from ..errors import ForecastError
+from ..plausibility import require_no_nan
 from ..params import BREAK_POINTS, COMPENSATOR_KINDS, OBSERVER_KINDS, Q_FAMILIES
 
 __all__ = ["main"]
@@ -20,7 +22,6 @@ class _ArgumentParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> None:  # pragma: no cover - exercised via main()
         self.exit(2, f"{self.prog}: error: {message}\n")
-
 
 
 @contextlib.contextmanager
@@ -98,27 +99,28 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 # --- shared option helpers -------------------------------------------------
 
-
-def _design_from_args(args: argparse.Namespace, *, env_name: str | None = None):
-    """The design named by --experiment (its nominal model) or --env (a preset)."""
-    from ..params import Design
-
-    if getattr(args, "experiment", None):
-        from ..experiment import load_experiment
-
-        return load_experiment(args.experiment).design
-    return Design.nominal(env_name or "soft")
+from ._options import (  # noqa: E402  (the shared option helpers; verb modules import them from here)
+    _add_environment_options,
+    _add_json_option,
+    _add_skew_option,
+    _compensator_from_args,
+    _design_from_args,
+    _environments_from_args,
+    _float_range,
+    _friction_from_file,
+    _json_positional,
+    _note,
+    _one_environment_from_args,
+    _testbed_from_args,
+)
 
 
 # --- tf ---------------------------------------------------------------------
 
 
 def _configure_tf(p: argparse.ArgumentParser) -> None:
-    src = p.add_mutually_exclusive_group()
-    src.add_argument("--env", action="append", metavar="NAME",
-                     help="environment preset (repeat to overlay in --plot); default soft")
-    src.add_argument("--experiment", metavar="FILE.toml", help="use the nominal model of an experiment")
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    _add_environment_options(p, default="soft", many=True)
+    _add_json_option(p, "P, EA, LO, LD (one object, or one per environment)")
     p.add_argument("--plot", metavar="OUT.png", help="Bode plot of P and the nominal plants")
 
 
@@ -126,11 +128,10 @@ def _configure_tf(p: argparse.ArgumentParser) -> None:
 def _cmd_tf(args: argparse.Namespace) -> int:
     from ..symbolic import transfer_functions
 
-    names = args.env or [None]
-    designs = [(name or "soft", _design_from_args(args, env_name=name)) for name in names]
-    if args.experiment:
-        designs = [(args.experiment, designs[0][1])]
+    testbed = _testbed_from_args(args)
+    designs = _environments_from_args(args).designs(testbed)
     results = [(label, transfer_functions(design)) for label, design in designs]
+    require_no_nan({label: tfs.to_mapping() for label, tfs in results}, "tf")
     if args.plot:
         from ..plotting.bode import plot_bode
 
@@ -138,9 +139,10 @@ def _cmd_tf(args: argparse.Namespace) -> int:
                   for label, tfs in results for key in ("P", "EA", "LO", "LD")]
         plot_bode(curves, args.plot)
     if args.json:
-        _print_json(results[0][1].to_mapping() if len(results) == 1
+        _write_json(args.json, results[0][1].to_mapping() if len(results) == 1
                     else {label: tfs.to_mapping() for label, tfs in results})
-        return 0
+        if args.json == "-":
+            return 0
     for label, tfs in results:
         print(f"environment: {label}")
         for key, value in tfs.to_mapping().items():
@@ -169,10 +171,9 @@ def _write_json(target: str, obj: Any) -> None:
     if target == "-":
         _print_json(obj)
         return
-    from pathlib import Path
+    from ..fileio import atomic_write
 
-    Path(target).parent.mkdir(parents=True, exist_ok=True)
-    Path(target).write_text(json.dumps(obj, indent=2) + "\n")
+    atomic_write(target, json.dumps(obj, indent=2) + "\n")
 
 
 def _reproduce_fig6(args: argparse.Namespace) -> int:
@@ -256,17 +257,10 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 # --- tune-q ---------------------------------------------------------------------
 
 
-def _float_range(text: str) -> float:
-    value = float(text)
-    if value != value:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}")
-    return value
-
-
 def _configure_tune_q(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--observer", required=True, choices=OBSERVER_KINDS)
-    p.add_argument("--envs", default="soft,stiff",
-                   help="comma-separated presets, or random:N (default soft,stiff)")
+    p.add_argument("--compensator", "--observer", dest="observer", required=True, choices=OBSERVER_KINDS,
+                   help="the observer whose Q cutoff is tuned")
+    _add_environment_options(p, default="soft,stiff", many=True)
     p.add_argument("--uncertainty", type=_float_range, default=0.0, metavar="FRACTION",
                    help="relative range of the true J, d, k_e (vertices of the box)")
     p.add_argument("--min-ratio", type=_float_range, default=0.9,
@@ -286,6 +280,9 @@ def _configure_tune_q(p: argparse.ArgumentParser) -> None:
     p.add_argument("--delay-samples", type=int, default=1, help="--sampled: computation delay [samples]")
     p.add_argument("--exact-scan", action="store_true", help="verify with a full exact scan (slow)")
     p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write JSON to OUT (or stdout)")
+    p.add_argument("--plot", metavar="OUT.png",
+                   help="draw the trade-off: worst-case margin ratio and friction-rejection bandwidth "
+                        "against the cutoff, per observer, with the chosen cutoff (JSON key 'tradeoff')")
 
 
 @_command("tune-q", "choose the Q-filter cutoff by optimisation (casadi) over a set of environments",
@@ -293,18 +290,25 @@ def _configure_tune_q(p: argparse.ArgumentParser) -> None:
 def _cmd_tune_q(args: argparse.Namespace) -> int:
     from ..tuning import tune_q, tune_q_shape
 
+    # random:N is expanded here with --seed; the set (an EnvironmentSet) is what tune_q receives
+    args.envs = _environments_from_args(args, seed=args.seed)
+    testbed = _testbed_from_args(args)
     if args.max_margin is not None:
         result = tune_q_shape(args.observer, args.envs, w_q_hz=args.max_margin, uncertainty=args.uncertainty,
                               break_at=args.break_at, seed=args.seed, sampled=args.sampled, rate_hz=args.rate_hz,
-                              delay_samples=args.delay_samples)
+                              delay_samples=args.delay_samples, testbed=testbed)
     else:
         with _progress_bar("exact scan", "cutoff") as progress:
             result = tune_q(args.observer, args.envs, uncertainty=args.uncertainty, min_ratio=args.min_ratio,
                             band_hz=tuple(args.band), q_family=args.q_family, q_order=args.q_order,
                             break_at=args.break_at, seed=args.seed, progress=progress, sampled=args.sampled,
                             rate_hz=args.rate_hz, delay_samples=args.delay_samples,
-                            scan="exact" if args.exact_scan else "bounded")
-    mapping = result.to_mapping()
+                            scan="exact" if args.exact_scan else "bounded", testbed=testbed)
+    mapping = require_no_nan(result.to_mapping(), "tune-q")
+    if args.plot:
+        from ._tradeoff_plot import plot_tune_q_tradeoff
+
+        mapping["tradeoff"] = plot_tune_q_tradeoff(args, result, args.envs)
     if args.json:
         _write_json(args.json, mapping)
     if args.json != "-":
@@ -312,6 +316,13 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
         print(f"{result.observer}: w_q = {result.w_q_hz:.4g} Hz{extra}, worst ratio {result.worst_ratio:.4f} "
               f"({result.worst_environment}), feasible {result.feasible}; scan best {result.scan_w_q_hz:.4g} Hz, "
               f"agrees {result.agrees_with_scan}; {result.plants} plants, {result.evaluations} evaluations")
+    if result.at_bound:
+        option = "--band" if result.q_damping is None else "the damping range"
+        print(f"forecast-design: warning: the answer sits on the {result.at_bound}: the best value may lie "
+              f"beyond it (widen {option} to find out)", file=sys.stderr)
+    if not result.feasible:
+        print(f"forecast-design: warning: no cutoff in the band meets min-ratio {result.min_ratio:g} in every "
+              f"environment", file=sys.stderr)
     return 0
 
 
@@ -320,17 +331,17 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
 
 def _configure_pipeline(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="report", metavar="DIR", help="report folder (default report/)")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    _add_json_option(p, "the summary")
 
 
 @_command("pipeline", "run the whole design pipeline on bundled defaults into a report folder", _configure_pipeline)
 def _cmd_pipeline(args: argparse.Namespace) -> int:
     from ..pipeline import run_pipeline
 
-    result = run_pipeline(args.out, progress=None if args.json else lambda step: print(f"[{step}]", flush=True))
+    result = run_pipeline(args.out, progress=None if args.json == "-" else lambda step: print(f"[{step}]", flush=True))
     if args.json:
-        _print_json(result.to_mapping())
-    else:
+        _write_json(args.json, result.to_mapping())
+    if args.json != "-":
         print(f"report: {result.out_dir / 'index.md'}")
     return 0
 
@@ -415,8 +426,11 @@ def _cmd_identify(args: argparse.Namespace) -> int:
         from ..friction import fit_data
         from ..plotting.friction import plot_friction_fit
 
-        plot_friction_fit(fit, fit_data(fit, log), args.plot)
+        plot_friction_fit(fit, fit_data(fit, log), args.plot, prismatic=getattr(log, "prismatic", False))
     mapping = fit.to_mapping()
+    from ..friction.logs import parameter_unit    # units follow the log: N, m for a prismatic axis
+
+    mapping["units"] = {name: parameter_unit(name, getattr(log, "prismatic", False)) for name in mapping["params"]}
     if args.json:
         _write_json(args.json, mapping)
     if args.json != "-":
@@ -430,7 +444,8 @@ def _cmd_identify(args: argparse.Namespace) -> int:
             std = mapping["std"].get(name)
             shown = f"+- {std:.3g}" if std is not None else "(no interval)"
             status = mapping["status"][name]["status"]
-            print(f"  {name:<20} {value: .6g}  {shown}" + ("" if status == "identified" else f"  [{status}]"))
+            print(f"  {name:<20} {value: .6g}  {shown} {mapping['units'][name]}"
+                  + ("" if status == "identified" else f"  [{status}]"))
         if "validation" in mapping:
             print(f"validation: relative error {mapping['validation']['relative_error_percent']:.3f} %")
         if mapping["identifiability"] != "identified":
@@ -450,31 +465,51 @@ _COMPENSATOR_CHOICES = COMPENSATOR_KINDS
 
 def _configure_export(p: argparse.ArgumentParser) -> None:
     p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D", help="force controller (default pd:5:0.1)")
-    p.add_argument("--compensator", default="none", choices=_COMPENSATOR_CHOICES)
-    p.add_argument("--env", default="exp-soft", metavar="NAME", help="environment preset (default exp-soft)")
+    p.add_argument("--compensator", "--observer", dest="compensator", default="none", choices=_COMPENSATOR_CHOICES)
+    _add_environment_options(p, default="exp-soft", many=False)
+    p.add_argument("--friction", metavar="F.json", help="identified friction for --compensator sfm "
+                                                        "(the file identify --model sfm --json F.json writes)")
+    p.add_argument("--tau-max", type=_float_range, default=float("inf"), metavar="N_M",
+                   help="command saturation |tau_m| <= TAU_MAX [N m] (default: none)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz] (default 10)")
     p.add_argument("--method", default="tustin", help="discretisation: tustin (default), zoh, backward-euler")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0, help="control rate [Hz] (default 2000)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for fd_controller.h / fd_controller.c")
     p.add_argument("--check-arm", action="store_true",
                    help="cross-compile for the Cortex-M4, run on qemu (mps2-an386), compare with the host build")
-    p.add_argument("--json", action="store_true", help="print the export summary as JSON")
+    _add_json_option(p, "the export summary")
+    from ._firmware import _add_firmware_options
+
+    _add_firmware_options(p)
 
 
 @_command("export", "export the controller and compensator as C99 for the Nucleo F446RE (2 kHz)", _configure_export)
 def _cmd_export(args: argparse.Namespace) -> int:
+    import math
+
+    from ..errors import ParameterError
     from ..export.c import export_controller
 
-    result = export_controller(out_dir=args.out, controller=args.controller, compensator=args.compensator,
-                               env=args.env, w_q_hz=args.w_q_hz, rate_hz=args.rate_hz, method=args.method)
+    if not (args.tau_max > 0.0):
+        raise ParameterError(f"--tau-max must be > 0 [N m], got {args.tau_max:g}", name="tau_max")
+    _, env = _one_environment_from_args(args, "export")
+    comp = _compensator_from_args(args)
+    if args.firmware:
+        from ._firmware import _cmd_export_firmware
+
+        return _cmd_export_firmware(args, env, comp)
+    result = export_controller(out_dir=args.out, controller=args.controller,
+                               compensator=comp if comp is not None else "none", env=env,
+                               testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz,
+                               method=args.method, tau_max=args.tau_max if math.isfinite(args.tau_max) else math.inf)
     mapping = result.to_mapping()
     if args.check_arm:
         from ..export.toolchain import check_on_cortex_m4
 
         mapping["cortex_m4"] = check_on_cortex_m4(args.out)
     if args.json:
-        _print_json(mapping)
-    else:
+        _write_json(args.json, mapping)
+    if args.json != "-":
         print(f"wrote {result.header} and {result.source} (sha256 {result.digest[:12]})")
         if args.check_arm:
             m4 = mapping["cortex_m4"]
@@ -488,26 +523,40 @@ def _configure_emulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fault", action="append", default=[], metavar="KIND:VALUE",
                    help="inject faults: flip:P, drop:P (probabilities), disconnect:N (samples), seed:S")
     p.add_argument("--realtime", action="store_true", help="pace the sample stream in real time")
-    p.add_argument("--env", default="exp-soft", metavar="NAME", help="virtual testbed environment")
+    p.add_argument("--scenario", metavar="SCENARIO.toml",
+                   help="the virtual hardware of a simulation scenario: its testbed, environment and [truth] "
+                        "effects (friction, cogging, ...; docs/scenario.md)")
+    _add_environment_options(p, default="exp-soft", many=False)
 
 
 @_command("emulate", "emulate the board on a pseudo-terminal (prints its path, serves until terminated)",
           _configure_emulate)
 def _cmd_emulate(args: argparse.Namespace) -> int:
-    from ..params import Design
+    from ..errors import ParameterError
     from ..runtime import emulate, parse_fault
 
-    return emulate(faults=parse_fault(args.fault), design=Design.nominal(args.env), realtime=args.realtime)
+    faults = parse_fault(args.fault)
+    if args.scenario:
+        from ..simulation.scenario import load_scenario
+
+        if args.env or args.testbed or args.experiment:
+            raise ParameterError("give --scenario or --env/--testbed/--experiment, not both (the scenario holds "
+                                 "the testbed and the environment)", name="scenario")
+        scenario = load_scenario(args.scenario)
+        return emulate(faults=faults, design=scenario.design, effects=scenario.effects, realtime=args.realtime)
+    return emulate(faults=faults, design=_design_from_args(args), realtime=args.realtime)
 
 
 def _configure_run(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", required=True, help="serial port (device path, pty, or a pyserial URL)")
     p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D")
-    p.add_argument("--compensator", default="none", choices=_COMPENSATOR_CHOICES)
+    p.add_argument("--compensator", "--observer", dest="compensator", default="none", choices=_COMPENSATOR_CHOICES)
+    p.add_argument("--friction", metavar="F.json", help="identified friction for --compensator sfm (identify --json)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0)
-    p.add_argument("--env", default="exp-soft", metavar="NAME")
+    _add_environment_options(p, default="exp-soft", many=False, testbed=False)
     p.add_argument("--reference", default="square:0.2:0.5", metavar="KIND:ARGS",
-                   help="force reference, e.g. square:AMP:PERIOD, step:AMP, sine:AMP:FREQ")
+                   help="force reference: square:AMP:PERIOD, sine:AMP:PERIOD or step:AMP[:DELAY] (N m, s); "
+                        "sine:0.2:0.5 is 0.2 N m at 2 Hz")
     p.add_argument("--duration", type=_float_range, default=5.0, help="run length [s]")
     p.add_argument("--timeout", type=_float_range, default=1.0, help="serial silence that counts as a disconnect [s]")
     p.add_argument("--out", required=True, metavar="RUN.toml", help="recorded experiment")
@@ -519,9 +568,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from ..runtime import LinkError, run_on_port
 
     try:
+        comp = _compensator_from_args(args)
         result = run_on_port(args.port, out=args.out, reference=args.reference, duration=args.duration,
-                             controller=args.controller, compensator=args.compensator, w_q_hz=args.w_q_hz,
-                             env=args.env, timeout=args.timeout)
+                             controller=args.controller, compensator=comp if comp is not None else "none",
+                             w_q_hz=args.w_q_hz, env=_one_environment_from_args(args, "run")[1],
+                             timeout=args.timeout)
         summary = result.to_mapping()
     except LinkError as exc:
         if args.json and getattr(exc, "summary", None):
@@ -552,7 +603,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
     experiment = load_experiment(args.experiment)
     diagnosis = diagnose(experiment)
-    mapping = diagnosis.to_mapping()
+    mapping = require_no_nan(diagnosis.to_mapping(), "diagnose")
     if args.report:
         write_report(diagnosis, experiment, args.report)
     if args.json:
@@ -585,6 +636,8 @@ def _configure_bench_gap(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--duration", type=_float_range, default=10.0, help="length of each generated log [s]")
     p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the logs on a Dask cluster (tcp://HOST:PORT) instead of local processes")
     p.add_argument("--hard", type=int, default=0, metavar="N",
                    help="also N logs per non-identifiable scenario (scored for honest caveats)")
     p.add_argument("--pairs", type=int, default=0, metavar="N", help="also N logs per two-effect combination")
@@ -605,7 +658,7 @@ def _cmd_bench_gap(args: argparse.Namespace) -> int:
     with _progress_bar("bench-gap", "log", enabled=args.json != "-") as progress:
         result = benchmark(per_effect=args.per_effect, seed=args.seed, workers=args.workers,
                            duration_s=args.duration, hard=args.hard, pairs=args.pairs, progress=progress,
-                           generator=args.generator, magnitude_scale=args.scale)
+                           generator=args.generator, magnitude_scale=args.scale, scheduler=args.scheduler)
     if args.json:
         _write_json(args.json, result.to_mapping())
     if args.json != "-":
@@ -629,9 +682,17 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
 @_command("simulate", "simulate the testbed (friction, effects, controller at 2 kHz) into an experiment",
           _configure_simulate)
 def _cmd_simulate(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..fileio import check_writable, refuse_overwriting
     from ..simulation.scenario import load_scenario
     from ..simulation.run import save_simulation
 
+    out = Path(args.out)  # save_simulation writes RUN.toml, RUN.csv, RUN.truth.json, RUN.truth.csv
+    refuse_overwriting([out, out.with_suffix(".csv"), out.with_name(out.stem + ".truth.json"),
+                        out.with_name(out.stem + ".truth.csv")] + ([args.plot] if args.plot else []),
+                       [args.scenario])
+    check_writable(out)
     result = load_scenario(args.scenario).run()
     paths = save_simulation(result, args.out)
     if args.plot:
@@ -650,35 +711,40 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _configure_margins(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--env", default="soft", metavar="NAME", help="true environment preset (default soft)")
-    p.add_argument("--observer", default="none", choices=_COMPENSATOR_CHOICES)
+    _add_environment_options(p, default="soft", many=False, believed=True)
+    p.add_argument("--compensator", "--observer", dest="observer", default="none", choices=_COMPENSATOR_CHOICES,
+                   help="compensator/observer in the loop (default none)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz]")
     p.add_argument("--q-family", default="butterworth", choices=Q_FAMILIES)
-    p.add_argument("--believed", metavar="NAME", help="environment the observer believes in (default: the true one)")
     p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D")
     p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
     p.add_argument("--sampled", action="store_true", help="sampled-data loop at --rate-hz")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0)
     p.add_argument("--delay-samples", type=int, default=1)
-    p.add_argument("--sigma", type=_float_range, default=0.0, help="disk skew (0 balanced)")
-    p.add_argument("--json", action="store_true", help="print the margins as JSON")
+    _add_skew_option(p)
+    _add_json_option(p, "the margins")
     p.add_argument("--plot", metavar="OUT.png", help="frequency-dependent disk margin")
 
 
-@_command("margins", "disk margins of one force loop (environment, observer, knowledge error)", _configure_margins)
+@_command("margins", "disk margins of one force loop (environment, observer, knowledge error); exit 1 if unstable",
+          _configure_margins)
 def _cmd_margins(args: argparse.Namespace) -> int:
     from ..analysis import loop_margins
-    from ..params import parse_controller
-    from ..params import Compensator, Design
+    from ..environments import resolve_environments
+    from ..params import Compensator, Design, parse_controller
 
-    design = Design.nominal(args.env)
+    env_name, env = _one_environment_from_args(args, "margins")
+    design = Design(testbed=_testbed_from_args(args), environment=env)
     comp = None if args.observer == "none" else Compensator(kind=args.observer, w_q_hz=args.w_q_hz,
                                                             q_family=args.q_family)
-    believed = Design.nominal(args.believed) if args.believed else None
+    believed = None
+    if args.believed:
+        believed_env = resolve_environments(args.believed, testbed=design.testbed).single("--believed")[1]
+        believed = Design(testbed=design.testbed, environment=believed_env)
     controller = parse_controller(args.controller)
     dm = loop_margins(design, comp, believed=believed, controller=controller, break_at=args.break_at,
                       sampled=args.sampled, rate_hz=args.rate_hz, delay_samples=args.delay_samples, sigma=args.sigma)
-    if args.plot:
+    if args.plot and dm.stable:
         import numpy as np
 
         from ..analysis import disk_margin_curve, sampled_force_loop
@@ -690,12 +756,22 @@ def _cmd_margins(args: argparse.Namespace) -> int:
                 if args.sampled else force_loop(design, comp, **kwargs))
         top = np.pi * args.rate_hz if args.sampled else 1e4
         plot_disk_margin_curve(disk_margin_curve(loop.L, np.geomspace(1e-2, top, 800), args.sigma), args.plot)
+    mapping = require_no_nan({**dm.to_mapping(), "environment": env_name, "compensator": args.observer}, "margins")
     if args.json:
-        _print_json(dm.to_mapping())
-    else:
+        _write_json(args.json, mapping)
+    if not dm.stable:
+        loop = f"{args.observer} at {args.w_q_hz:g} Hz" if comp is not None else "the plain PD loop"
+        print(f"the closed loop is UNSTABLE ({loop}, environment {env_name}): no margin; "
+              "disk margin 0" + (", no plot written" if args.plot else ""),
+              file=sys.stderr if args.json == "-" else sys.stdout)
+        return 1
+    if args.json != "-":
         lo, hi = dm.gain_margin_db
-        print(f"disk margin {dm.alpha:.4f} (stable {dm.stable}): gain [{lo:.3f}, {hi:.3f}] dB, phase "
-              f"{dm.phase_margin_deg:.2f} deg at {dm.frequency_rad_s:.4g} rad/s; delay margin {dm.delay_margin_s:.4g} s")
+        print(f"disk margin {dm.alpha:.4f} (stable): gain [{lo:.3f}, {hi:.3f}] dB, phase "
+              f"+-{dm.phase_margin_deg:.2f} deg at {dm.frequency_rad_s / (2 * 3.141592653589793):.4g} Hz "
+              f"({dm.frequency_rad_s:.4g} rad/s); delay margin {dm.delay_margin_s:.4g} s")
+        if args.plot:
+            print(f"plot: {args.plot}")
     return 0
 
 

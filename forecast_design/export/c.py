@@ -10,6 +10,7 @@ upload all run this one description.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import string
@@ -23,7 +24,9 @@ import numpy as np
 
 from .. import __version__
 from ..errors import ExportError, ParameterError
-from ..params import Compensator, Design, PDController, parse_controller, resolve_design
+from ..fileio import atomic_write_set
+from ..environments import resolve_environments, resolve_testbed
+from ..params import Compensator, Design, PDController, parse_controller, require_design, resolve_design
 from ..discrete import METHODS, DiscreteFilter
 
 __all__ = [
@@ -165,6 +168,8 @@ class ProgramStep:
         self._sfm_harm = None if sfm is None else np.asarray(sfm.harm, dtype=dtype)
         self._sfm_eval = None if sfm is None else _sfm_formula()
         self.tau_m_prev = 0.0
+        self.u = 0.0    # the last step's controller output [N m] (fd_state.u)
+        self.hat = 0.0  # the last step's friction estimate [N m] (fd_state.hat)
 
     def reset(self) -> None:
         """Back to rest, as ``fd_init``."""
@@ -173,6 +178,7 @@ class ProgramStep:
         if self._velocity is not None:
             self._velocity.reset()
         self.tau_m_prev = 0.0
+        self.u = self.hat = 0.0
 
     def _sfm(self, theta):
         # the simulator's own SFM formula, run un-compiled on this program's dtype
@@ -206,6 +212,7 @@ class ProgramStep:
         if self._velocity is not None:
             sums["hat"] = f(sums["hat"] + self._sfm(theta))
         tau_m = f(sums["u"] + sums["hat"])
+        self.u, self.hat = float(sums["u"]), float(sums["hat"])
         lim = self.program.tau_max
         if math.isfinite(lim):
             tau_m = f(min(max(tau_m, f(-lim)), f(lim)))
@@ -414,8 +421,9 @@ def build_program(design: Design, *, rate_hz: float = 2000.0, method: str = "tus
     method : str
         Discretisation method of the controller and observer filters (default ``tustin``).
     sfm_params : Mapping[str, float], optional
-        Identified SFM parameters (``viscous``, ``coulomb``, ``offset``,
-        ``sin<i>``...); required for compensator ``sfm``.
+        Kept for one release: prefer ``Compensator(kind="sfm", friction=...)``. Identified
+        SFM parameters (``viscous``, ``coulomb``, ``offset``, ``sin<i>``...) that replace
+        the compensator's own (:meth:`Design.with_friction`).
     tau_max : float
         Command saturation [N m] (``inf``: none).
 
@@ -434,6 +442,7 @@ def build_program(design: Design, *, rate_hz: float = 2000.0, method: str = "tus
 
     if design.controller is None:
         raise ParameterError("export needs a controller (e.g. pd:5:0.1)", name="controller", value=None)
+    design = design.with_friction(sfm_params)   # the compensator carries its identified friction
     if not tau_max > 0.0:
         raise ParameterError(f"tau_max must be > 0 [N m], got {tau_max!r}", name="tau_max", value=tau_max)
     channels = [Channel("pd", "error", DiscretePD(design.controller, rate_hz, method=method).sos, "u")]
@@ -447,14 +456,9 @@ def build_program(design: Design, *, rate_hz: float = 2000.0, method: str = "tus
             if any(c != 0.0 for c in tf.num):
                 channels.append(Channel(name, source, sos, "hat"))
     elif comp.kind == "sfm":
-        if sfm_params is None:
-            sfm_params = comp.friction_params
-        if sfm_params is None:
-            raise ParameterError("compensator sfm needs identified parameters (sfm_params: viscous, coulomb, ...)",
-                                 name="sfm_params", value=None)
-        sc = SfmCompensator(sfm_params, rate_hz)
+        sc = SfmCompensator(comp.require_friction(), rate_hz)
         sfm = SfmBlock(sc.velocity_sos, tuple(sc.coefficients.coef), sc.coefficients.harm)
-    info = _provenance(design, rate_hz, method, sfm_params, tau_max)
+    info = _provenance(design, rate_hz, method, comp.friction_params, tau_max)
     return ControllerProgram(float(rate_hz), method, tuple(channels), None, info, sfm, float(tau_max))
 
 
@@ -581,22 +585,18 @@ def emit_c(program: ControllerProgram, out_dir: str | Path) -> tuple[Path, Path]
     }
     header = _render("fd_controller.h.in", **values)
     source = _render("fd_controller.c.in", **values)
-    out.mkdir(parents=True, exist_ok=True)
     h_path, c_path = out / "fd_controller.h", out / "fd_controller.c"
-    for path, text in ((h_path, header), (c_path, source)):
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(text, encoding="utf-8")
-        tmp.replace(path)
+    atomic_write_set({h_path: header, c_path: source})
     return h_path, c_path
 
 
 def export_controller(design: Design | None = None, out_dir: str | Path = ".", *,
                       controller: PDController | str | None = None,
                       compensator: Compensator | str | None = None,
-                      env: str | None = None, w_q_hz: float | None = None,
+                      env: Any = None, w_q_hz: float | None = None,
                       rate_hz: float = 2000.0, method: str = "tustin",
                       sfm_params: Mapping[str, float] | None = None,
-                      tau_max: float = math.inf) -> ExportResult:
+                      tau_max: float = math.inf, testbed: Any = None) -> ExportResult:
     """Discretise a design's force controller and compensator and emit C99.
 
     Parameters
@@ -609,8 +609,10 @@ def export_controller(design: Design | None = None, out_dir: str | Path = ".", *
         Overrides the design's controller (``"pd:5:0.1"`` accepted); default P = 5, D = 0.1.
     compensator : Compensator or str, optional
         Overrides the compensator (a kind string such as ``"ea-fob"`` accepted).
-    env : str, optional
-        Environment preset name overriding the design's environment.
+    env : Environment, str or EnvironmentSet, optional
+        The one environment the observer is built for, overriding the design's: an
+        Environment, a preset name, inline ``k_e=..,J_e=..`` values or a file holding one
+        (:func:`~forecast_design.environments.resolve_environments`; a set of several is an error).
     w_q_hz : float, optional
         Q-filter cutoff override [Hz].
     rate_hz : float
@@ -621,6 +623,8 @@ def export_controller(design: Design | None = None, out_dir: str | Path = ".", *
         Identified SFM parameters (compensator ``sfm`` only).
     tau_max : float
         Command saturation [N m]; ``inf`` (default) for none.
+    testbed : Testbed, str or None
+        Testbed overriding the design's (:func:`~forecast_design.environments.resolve_testbed`).
 
     Returns
     -------
@@ -635,6 +639,13 @@ def export_controller(design: Design | None = None, out_dir: str | Path = ".", *
     if method not in METHODS:
         raise ParameterError(f"export method must be one of {', '.join(METHODS)}, got {method!r}",
                              name="method", value=method)
+    if design is not None:
+        require_design(design, "export_controller")
+    if testbed is not None:
+        design = dataclasses.replace(resolve_design(design), testbed=resolve_testbed(testbed))
+    if env is not None:
+        tb = design.testbed if design is not None else None
+        env = resolve_environments(env, testbed=tb).single("export")[1]
     design = resolve_design(design, controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz)
     program = build_program(design, rate_hz=rate_hz, method=method, sfm_params=sfm_params, tau_max=tau_max)
     h, c = emit_c(program, out_dir)

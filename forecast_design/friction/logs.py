@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 from dataclasses import dataclass
@@ -11,8 +10,78 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ExperimentFormatError
+from ..experiment_io import clip, read_csv_table, read_regular_file
 
-__all__ = ["AxisLog", "load_axis_csv"]
+__all__ = ["AxisLog", "load_axis_csv", "axis_units", "parameter_unit", "prismatic_from_columns"]
+
+
+def axis_units(prismatic: bool) -> dict[str, str]:
+    """Units of an axis' quantities: N, m, m/s for a prismatic (linear) axis such as the EMPS
+    benchmark; N m, rad, rad/s for a rotary one such as the SEA's motor.
+
+    Parameters
+    ----------
+    prismatic : bool
+        A linear axis.
+
+    Returns
+    -------
+    dict
+        ``force``, ``position``, ``velocity``, ``acceleration``, ``inertia`` unit strings.
+    """
+    if prismatic:
+        return {"force": "N", "position": "m", "velocity": "m/s", "acceleration": "m/s^2", "inertia": "kg"}
+    return {"force": "N m", "position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2",
+            "inertia": "kg m^2"}
+
+
+def parameter_unit(name: str, prismatic: bool) -> str:
+    """Unit of a fitted friction parameter on a prismatic or rotary axis.
+
+    Parameters
+    ----------
+    name : str
+        Parameter name as :mod:`forecast_design.friction` gives it (``viscous``, ``coulomb``,
+        ``inertia``, ``stribeck_velocity``, ``sigma0``, ``sin1``, ...).
+    prismatic : bool
+        A linear axis (N, m) instead of a rotary one (N m, rad).
+
+    Returns
+    -------
+    str
+        The unit, e.g. ``'N s/m'`` for ``viscous`` on a prismatic axis.
+    """
+    u = axis_units(prismatic)
+    f, x, v = u["force"], u["position"], u["velocity"]
+    if name == "inertia":
+        return u["inertia"]
+    if name.startswith("viscous") or name == "sigma2":
+        return f"{f} s/{x}"
+    if name == "stribeck_velocity":
+        return v
+    if name == "sigma0":
+        return f"{f}/{x}"
+    if name == "sigma1":
+        return f"{f} s/{x}"
+    return f    # coulomb, static, offset, harmonics: forces
+
+
+def prismatic_from_columns(position: str, force: str) -> bool:
+    """Whether column names say the axis is prismatic: a position in ``_m``/``_mm`` or a force in ``_N``.
+
+    Parameters
+    ----------
+    position, force : str
+        Column names; the experiment format puts the unit last (``qm_m``, ``force_N``,
+        ``theta_rad``, ``tau_m_N_m``).
+
+    Returns
+    -------
+    bool
+        True for metres or newtons (not newton metres).
+    """
+    pos = position.lower()
+    return pos.endswith(("_m", "_mm")) or (force.endswith("_N") and not force.endswith("_N_m"))
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -31,6 +100,8 @@ class AxisLog:
         Sample rate [Hz].
     source : str
         File the log came from.
+    prismatic : bool
+        A linear axis: position [m], force [N] (units follow the log in plots and printouts).
     """
 
     t: np.ndarray
@@ -38,16 +109,22 @@ class AxisLog:
     force: np.ndarray
     rate_hz: float
     source: str
+    prismatic: bool = False
 
 
 def load_axis_csv(path: str | os.PathLike[str], *, time: str, position: str, force: str,
-                  rate_hz: float | None = None, scale_force: float = 1.0) -> AxisLog:
+                  rate_hz: float | None = None, scale_force: float = 1.0,
+                  prismatic: bool | None = None) -> AxisLog:
     """Read time, position and force columns from a CSV file with a header row.
 
     Parameters
     ----------
     path : str or path-like
-        The CSV file (comma separated, one header row).
+        The CSV file (comma separated, one header row; a regular file). Read by the
+        toolbox's one CSV reader (:func:`forecast_design.experiment_io.read_csv_table`):
+        a byte-order mark, CRLF line ends and blank lines at the end are accepted; every
+        row has the header's number of fields and the three named columns hold numbers
+        (other columns are not read). The file is memory-mapped; about 24 bytes per row.
     time : str
         Name of the time column [s].
     position : str
@@ -59,6 +136,9 @@ def load_axis_csv(path: str | os.PathLike[str], *, time: str, position: str, for
         ``1 / rate_hz`` within 1 %. Default: 1 / mean time step.
     scale_force : float
         Factor applied to the force column (e.g. a drive gain in [N/V]).
+    prismatic : bool, optional
+        A linear axis (N, m) rather than a rotary one (N m, rad); default: from the column
+        names' unit suffixes (:func:`prismatic_from_columns`, e.g. EMPS' ``qm_m``, ``force_N``).
 
     Returns
     -------
@@ -73,41 +153,21 @@ def load_axis_csv(path: str | os.PathLike[str], *, time: str, position: str, for
     """
     p = Path(path)
     label = str(p)
-    try:
-        with p.open(newline="") as fh:
-            reader = csv.reader(fh)
-            try:
-                header = [h.strip() for h in next(reader)]
-            except StopIteration:
-                raise ExperimentFormatError(f"{label}: empty file, expected a header row", path=label,
-                                            key="header") from None
-            rows = list(reader)
-    except OSError as exc:
-        raise ExperimentFormatError(f"{label}: cannot read: {exc.strerror or exc}", path=label) from None
     wanted = {"time": time, "position": position, "force": force}
-    idx: dict[str, int] = {}
+    header, columns = read_csv_table(read_regular_file(p, label, mapped=True), label, required=(),
+                                     usecols=wanted.values())
     for role, name in wanted.items():
         if name not in header:
             raise ExperimentFormatError(
-                f"{label}: {role} column '{name}' missing; columns are: {', '.join(header)}",
+                f"{label}: {role} column '{name}' missing; columns are: {clip(', '.join(header))}",
                 path=label, key=name)
-        idx[role] = header.index(name)
-    out = {role: np.empty(len(rows)) for role in wanted}
-    for i, row in enumerate(rows):
-        line = i + 2
-        for role, j in idx.items():
-            name = wanted[role]
-            try:
-                value = float(row[j])
-            except (IndexError, ValueError):
-                cell = row[j] if j < len(row) else "<missing>"
-                raise ExperimentFormatError(
-                    f"{label}: line {line}: column '{name}' is not a number: {cell!r}",
-                    path=label, key=name) from None
-            if not math.isfinite(value):
-                raise ExperimentFormatError(f"{label}: line {line}: column '{name}' is {value!r}",
-                                            path=label, key=name)
-            out[role][i] = value
+    out = {role: columns[name] for role, name in wanted.items()}
+    # The first non-finite value over the three columns, naming its line (header = line 1).
+    bad = [(int(idx[0]), role) for role, a in out.items() if (idx := np.flatnonzero(~np.isfinite(a))).size]
+    if bad:
+        i, role = min(bad)
+        raise ExperimentFormatError(f"{label}: line {i + 2}: column '{wanted[role]}' is {float(out[role][i])!r}",
+                                    path=label, key=wanted[role])
     t = out["time"]
     if t.size < 2:
         raise ExperimentFormatError(f"{label}: need at least 2 rows, got {t.size}", path=label, key=time)
@@ -136,4 +196,5 @@ def load_axis_csv(path: str | os.PathLike[str], *, time: str, position: str, for
         a.flags.writeable = False
         arrays[name] = a
     return AxisLog(t=arrays["t"], position=arrays["position"], force=arrays["force"], rate_hz=rate,
-                   source=label)
+                   source=label,
+                   prismatic=prismatic_from_columns(position, force) if prismatic is None else bool(prismatic))

@@ -45,9 +45,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -56,10 +54,12 @@ import numpy as np
 from .. import effects as fx
 from ..effects import Effect
 from ..errors import ParameterError
+from ..executor import available_workers, make_executor
 from ..params import Design, PDController, environment_preset
+from ..plausibility import check_limit
 
 __all__ = ["BenchCase", "BenchResult", "benchmark", "draw_case", "run_case", "make_log", "identifiability",
-           "BENCH_WORDS", "PAIRS", "MAX_ATTEMPTS"]
+           "BENCH_WORDS", "PAIRS", "MAX_ATTEMPTS", "available_workers"]
 
 #: Effect words of the benchmark: every vocabulary word, ``none`` included.
 BENCH_WORDS: tuple[Effect, ...] = tuple(Effect)
@@ -618,17 +618,10 @@ def run_case(job: tuple) -> BenchCase:
                      caveats=diag.caveats, attempts=spec.attempt + 1)
 
 
-def available_workers() -> int:
-    """Cores this process may run on [-]."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
-
-
 def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *, duration_s: float = 10.0,
               words: Sequence[Effect] = BENCH_WORDS, hard: int = 0, pairs: int = 0,
               progress: Callable[[int, int], None] | None = None, generator: str = "testbed",
-              magnitude_scale: float = 1.0) -> BenchResult:
+              magnitude_scale: float = 1.0, scheduler: str | None = None) -> BenchResult:
     """Run the withheld-effect benchmark.
 
     Parameters
@@ -656,6 +649,9 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
         last 5-20 s, so ``duration_s`` does not apply; the hard and pairs suites are the testbed's).
     magnitude_scale : float
         Fraction of the typical effect magnitudes (independent generator only) [-].
+    scheduler : str, optional
+        Dask scheduler address ``tcp://HOST:PORT``: run the logs on that cluster
+        (:mod:`forecast_design.executor`) instead of local processes.
 
     Returns
     -------
@@ -665,6 +661,7 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
     for name, value, lo in (("per_effect", per_effect, 0), ("hard", hard, 0), ("pairs", pairs, 0)):
         if isinstance(value, bool) or not isinstance(value, int) or value < lo:
             raise ParameterError(f"{name} must be an integer >= {lo}, got {value!r}", name=name, value=value)
+    check_limit("seed", "seed", seed)
     if generator not in ("testbed", "independent"):
         raise ParameterError(f"generator must be 'testbed' or 'independent', got {generator!r}", name="generator",
                              value=generator)
@@ -681,19 +678,10 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
     if not jobs:
         raise ParameterError("the benchmark has no logs: per_effect, hard and pairs are all 0", name="per_effect",
                              value=per_effect)
-    n_workers = workers if workers is not None else available_workers()
     t0 = time.perf_counter()
-    cases: list[BenchCase] = []
-    report = progress if callable(progress) else (lambda done, total: None)
-    if n_workers <= 1:
-        for job in jobs:
-            cases.append(run_case(job))
-            report(len(cases), len(jobs))
-    else:
-        with ProcessPoolExecutor(max_workers=n_workers) as pool:
-            for case in pool.map(run_case, jobs):
-                cases.append(case)
-                report(len(cases), len(jobs))
+    with make_executor(scheduler, workers) as executor:
+        n_workers = executor.workers
+        cases = executor.map(run_case, jobs, progress=progress if callable(progress) else None)
     return BenchResult(cases=tuple(cases), per_effect=per_effect, seed=seed,
                        elapsed_s=time.perf_counter() - t0, workers=n_workers, generator=generator,
                        magnitude_scale=float(magnitude_scale))

@@ -49,6 +49,7 @@ and compares ``theta`` and ``tau_s`` with the log.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -56,6 +57,7 @@ import numpy as np
 from scipy import stats
 
 from ..effects import Effect
+from ..errors import ParameterError
 from ..experiment import Experiment
 from .candidates import (
     CANDIDATE_EFFECTS,
@@ -419,6 +421,10 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
     ExperimentFormatError
         If a signal is not finite (an in-memory log; files are checked on load).
     """
+    if not isinstance(experiment, Experiment):
+        hint = " (load it first: load_experiment(path))" if isinstance(experiment, (str, os.PathLike)) else ""
+        raise ParameterError(f"diagnose needs an Experiment{hint}, got {type(experiment).__name__}",
+                             name="experiment", value=experiment)
     data = prepare_gap_data(experiment, options)
     opts = data.options
     base = fit_baseline(data)

@@ -20,6 +20,7 @@ from ..errors import ParameterError
 from ..lti import RationalTF
 from ..margins import STABILITY_TOLERANCE, DiskMargin, check_skew, disk_margin_from_polynomials
 from ..params import Compensator, Design, PDController
+from ..plausibility import check_limit, check_physical
 
 __all__ = ["SampledForceLoop", "sampled_force_loop", "ZohPlant", "zoh_plant", "to_w"]
 
@@ -339,9 +340,8 @@ def sampled_force_loop(
             or not math.isfinite(rate_hz):
         raise ParameterError(f"rate_hz must be a finite number > 0 [Hz], got {rate_hz!r}",
                              name="rate_hz", value=rate_hz)
-    if isinstance(delay_samples, bool) or not isinstance(delay_samples, int) or delay_samples < 0:
-        raise ParameterError(f"delay_samples must be an integer >= 0, got {delay_samples!r}",
-                             name="delay_samples", value=delay_samples)
+    check_limit("delay_samples", "delay_samples", delay_samples)
+    check_physical("sampled loop", "rate_hz", rate_hz)
     if not isinstance(controller, PDController):
         raise ParameterError(f"controller must be a PDController, got {type(controller).__name__}",
                              name="controller", value=controller)

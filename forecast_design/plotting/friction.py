@@ -8,12 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from ..friction.identify import FrictionFit, IdentificationData, predict_data
+from ..friction.logs import axis_units
 from . import save_figure
 
 __all__ = ["plot_friction_fit"]
 
 
-def plot_friction_fit(fit: FrictionFit, data: IdentificationData, path: str | os.PathLike[str]) -> Path:
+def plot_friction_fit(fit: FrictionFit, data: IdentificationData, path: str | os.PathLike[str], *,
+                      prismatic: bool = False) -> Path:
     """Measured vs estimated friction against time and against velocity (like the paper's Fig. 9).
 
     Parameters
@@ -24,6 +26,8 @@ def plot_friction_fit(fit: FrictionFit, data: IdentificationData, path: str | os
         Prepared log, e.g. ``fit_data(fit, t, position, force)``.
     path : str or path-like
         PNG file to write.
+    prismatic : bool
+        Label a linear axis in N and m/s (e.g. EMPS, ``AxisLog.prismatic``) instead of N m and rad/s.
 
     Returns
     -------
@@ -51,13 +55,14 @@ def plot_friction_fit(fit: FrictionFit, data: IdentificationData, path: str | os
     ax_t.plot(t, y, color="black", lw=0.8, label=r"measured $\tau_{frc}$")
     ax_t.plot(t, y_hat, color="tab:blue", lw=0.8, ls="--", label=r"estimated $\hat\tau_{frc}$")
     ax_t.set_xlabel("time [s]")
-    ax_t.set_ylabel("friction [N m]")
+    units = axis_units(prismatic)
+    ax_t.set_ylabel(f"friction [{units['force']}]")
     ax_t.legend(loc="best")
     ax_t.set_title(f"{fit.model.name}: fit {fit.fit_percent_estimation:.2f} %")
     order = np.argsort(data.velocity, kind="stable")
     ax_v.plot(data.velocity, y, ".", color="black", ms=1.5, alpha=0.4, label="measured")
     ax_v.plot(data.velocity[order], y_hat[order], ".", color="tab:blue", ms=1.5, label="estimated")
-    ax_v.set_xlabel("velocity [rad/s]")
-    ax_v.set_ylabel("friction [N m]")
+    ax_v.set_xlabel(f"velocity [{units['velocity']}]")
+    ax_v.set_ylabel(f"friction [{units['force']}]")
     ax_v.legend(loc="best")
     return save_figure(fig, path, dpi=120)

@@ -1,16 +1,28 @@
-"""Plots of the sim-to-real gap diagnosis (matplotlib, Agg backend, imported lazily)."""
+"""Plots of the sim-to-real gap diagnosis (matplotlib, Agg backend, imported lazily).
+
+Every function draws a :class:`forecast_design.gap.views.DiagnosisViews` (computed by
+:func:`forecast_design.gap.views.diagnosis_views`); nothing is computed here. "Before" (the
+calibrated nominal model) is drawn wherever "after" (with the verdict effect) is, in the same
+colours in every plot.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from ..errors import ParameterError
 from . import save_figure
 
 __all__ = ["plot_residual_time", "plot_residual_spectrum", "plot_residual_operating", "plot_before_after",
-           "plot_replay"]
+           "plot_replay", "BEFORE_COLOUR", "AFTER_COLOUR", "MEASURED_COLOUR"]
+
+BEFORE_COLOUR = "#1f77b4"     # nominal model (calibrated): "before"
+AFTER_COLOUR = "#ff7f0e"      # with the verdict effect: "after"
+MODEL_COLOUR = "#2ca02c"      # the effect's own prediction
+MEASURED_COLOUR = "black"
+LOW_COHERENCE = "0.85"        # grey of untrusted frequency bands
 
 
 def _plt():
@@ -22,22 +34,24 @@ def _plt():
     return plt
 
 
-def _split(diag: Any, r: np.ndarray) -> dict[str, np.ndarray]:
-    m = diag.data.t.size
-    return {eq: r[i * m:(i + 1) * m] for i, eq in enumerate(diag.data.equations)}
+def _labels(views) -> tuple[str, str]:
+    return "before: nominal (calibrated)", f"after: with {views.effect}"
 
 
-def _after(diag: Any):
-    return diag.fits.get(str(diag.effect)) if str(diag.effect) != "none" else None
+def _dropped_note(fig, views) -> None:
+    if views.dropped:
+        text = ", ".join(f"{eq} (RMS {rms:.2g} N m)" for eq, rms in views.dropped.items())
+        fig.text(0.01, 0.005, f"Not drawn, numerical noise only: {text}", fontsize=7, color="0.35",
+                 ha="left", va="bottom")
 
 
-def plot_residual_time(diag: Any, path: str | Path) -> Path:
-    """Residual of the calibrated nominal model over time, hot windows shaded.
+def plot_residual_time(views, path: str | Path) -> Path:
+    """Residual of each drawn equation over time, before and after, hot windows shaded.
 
     Parameters
     ----------
-    diag : Diagnosis
-        A diagnosis.
+    views : DiagnosisViews
+        From :func:`forecast_design.gap.views.diagnosis_views`.
     path : str or Path
         PNG file to write.
 
@@ -47,32 +61,35 @@ def plot_residual_time(diag: Any, path: str | Path) -> Path:
         The file written.
     """
     plt = _plt()
-    data = diag.data
-    before = _split(diag, diag.baseline.residual)
-    fit = _after(diag)
-    after = _split(diag, fit.residual) if fit is not None else None
-    fig, axes = plt.subplots(len(before), 1, figsize=(9, 2.6 * len(before)), sharex=True, squeeze=False)
-    for ax, (eq, r) in zip(axes[:, 0], before.items()):
-        ax.plot(data.t, r, lw=0.7, label="nominal (calibrated)")
-        if after is not None:
-            ax.plot(data.t, after[eq], lw=0.7, label=f"with {diag.effect}")
-        for t0, t1 in diag.location.time_windows_s:
+    before_label, after_label = _labels(views)
+    eqs = views.equations
+    fig, axes = plt.subplots(len(eqs), 1, figsize=(9, 2.6 * len(eqs) + 0.4), sharex=True, squeeze=False)
+    for ax, eq in zip(axes[:, 0], eqs):
+        ax.plot(views.t, views.before[eq], lw=0.7, color=BEFORE_COLOUR, label=before_label, gid=f"before|{eq}")
+        if eq in views.after:
+            ax.plot(views.t, views.after[eq], lw=0.7, color=AFTER_COLOUR, label=after_label, gid=f"after|{eq}")
+        for t0, t1 in views.time_windows_s:
             ax.axvspan(t0, t1, color="tab:red", alpha=0.12)
         ax.set_ylabel(f"{eq} residual [N m]")
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(loc="upper right", fontsize=8)
     axes[0, 0].set_title("Equation error over time (shaded: windows with most residual energy)")
     axes[-1, 0].set_xlabel("t [s]")
+    _dropped_note(fig, views)
     return save_figure(fig, path)
 
 
-def plot_residual_spectrum(diag: Any, path: str | Path) -> Path:
-    """Welch PSD of the residual before/after, and empirical vs nominal tau_m -> tau_s response.
+def plot_residual_spectrum(views, path: str | Path) -> Path:
+    """Residual PSD before/after (top); measured vs nominal tau_m -> tau_s response beside its coherence.
+
+    Frequencies where the coherence is below the views' threshold are greyed out in both
+    bottom panels and the measured points there are drawn hollow: the measurement does not
+    support a comparison with the linear model there.
 
     Parameters
     ----------
-    diag : Diagnosis
-        A diagnosis.
+    views : DiagnosisViews
+        From :func:`forecast_design.gap.views.diagnosis_views`.
     path : str or Path
         PNG file to write.
 
@@ -81,40 +98,65 @@ def plot_residual_spectrum(diag: Any, path: str | Path) -> Path:
     Path
         The file written.
     """
-    from ..gap.locate import empirical_response, residual_psd
-
     plt = _plt()
-    data = diag.data
-    fs = data.settings.decimated_rate_hz
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6.5))
-    for label, fit in (("nominal (calibrated)", diag.baseline), (f"with {diag.effect}", _after(diag))):
-        if fit is None:
-            continue
-        ax1.semilogy(*residual_psd(data, fit.residual), label=label)
-    lo, hi = diag.location.frequency_band_hz
+    before_label, after_label = _labels(views)
+    fig = plt.figure(figsize=(10.5, 7.5), layout="constrained")
+    grid = fig.add_gridspec(2, 2)
+    ax1 = fig.add_subplot(grid[0, :])
+    ax1.semilogy(views.psd_f_hz, views.psd_before, color=BEFORE_COLOUR, label=before_label, gid="before|psd")
+    if views.psd_after is not None:
+        ax1.semilogy(views.psd_f_hz, views.psd_after, color=AFTER_COLOUR, label=after_label, gid="after|psd")
+    lo, hi = views.frequency_band_hz
     ax1.axvspan(lo, hi, color="tab:red", alpha=0.12, label="band with 80 % of the energy")
     ax1.set_xlabel("f [Hz]")
     ax1.set_ylabel("residual PSD [N^2 m^2/Hz]")
+    ax1.set_title("Residual spectrum (" + ", ".join(views.equations) + (" equations)" if len(views.equations) > 1
+                                                                       else " equation)"), fontsize="medium")
     ax1.legend(fontsize=8)
     ax1.grid(True, alpha=0.3)
-    f, meas, nom = empirical_response(data)
-    keep = (f > 0) & (f <= fs / 2)
-    ax2.loglog(f[keep], np.abs(meas[keep]), ".", ms=3, label="measured (H1 from tau_m to tau_s)")
-    ax2.loglog(f[keep], np.abs(nom[keep]), label="nominal P(j w)")
+
+    r = views.response
+    ax2 = fig.add_subplot(grid[1, 0])
+    ax3 = fig.add_subplot(grid[1, 1], sharex=ax2)
+    for a, b in r.low_bands_hz():
+        for ax in (ax2, ax3):
+            ax.axvspan(max(a, r.f_hz[0] * 0.9), b, color=LOW_COHERENCE, zorder=0, gid="low-coherence")
+    good = ~r.low
+    ax2.loglog(r.f_hz[good], np.abs(r.measured[good]), "o", ms=3, color=MEASURED_COLOUR,
+               label="measured H1 (coherent)", gid="measured|coherent")
+    if np.any(r.low):
+        ax2.loglog(r.f_hz[r.low], np.abs(r.measured[r.low]), "o", ms=3, mfc="none", color="0.55",
+                   label=f"measured, coherence < {r.threshold:g}", gid="measured|low")
+    ax2.loglog(r.nominal_f_hz, np.abs(r.nominal), color=BEFORE_COLOUR, label="nominal P(j w)", gid="nominal")
     ax2.set_xlabel("f [Hz]")
     ax2.set_ylabel("|tau_s / tau_m| [-]")
-    ax2.legend(fontsize=8)
-    ax2.grid(True, which="both", alpha=0.3)
+    ax2.set_title("Frequency response tau_m -> tau_s", fontsize="medium")
+    ax2.legend(fontsize=7)
+    ax3.semilogx(r.f_hz, r.coherence, ".-", ms=3, lw=0.8, color=MEASURED_COLOUR, gid="coherence")
+    ax3.axhline(r.threshold, color="tab:red", linestyle="--", linewidth=1.0, label=f"threshold {r.threshold:g}")
+    ax3.set_ylim(0.0, 1.05)
+    ax3.set_xlabel("f [Hz]")
+    ax3.set_ylabel("coherence tau_m, tau_s [-]")
+    ax3.set_title("Coherence (grey: too low to trust the response)", fontsize="medium")
+    ax3.legend(fontsize=7, loc="lower left")
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    for ax in (ax2, ax3):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
+    _dropped_note(fig, views)
     return save_figure(fig, path)
 
 
-def plot_residual_operating(diag: Any, path: str | Path) -> Path:
-    """Motor-side residual against motor speed and against motor angle (mod 2 pi).
+def plot_residual_operating(views, path: str | Path) -> Path:
+    """Motor-side residual against motor speed and motor angle, before and after.
 
     Parameters
     ----------
-    diag : Diagnosis
-        A diagnosis.
+    views : DiagnosisViews
+        From :func:`forecast_design.gap.views.diagnosis_views`.
     path : str or Path
         PNG file to write.
 
@@ -124,35 +166,34 @@ def plot_residual_operating(diag: Any, path: str | Path) -> Path:
         The file written.
     """
     plt = _plt()
-    data = diag.data
-    rm = _split(diag, diag.baseline.residual)["motor"]
-    v = data.columns["v_sub"]
-    th = np.mod(data.columns["theta_sub"], 2 * np.pi)
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
-    ax1.plot(v, rm, ".", ms=2, alpha=0.5)
+    op = views.operating
+    before_label, after_label = _labels(views)
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10.5, 4.2), sharey=True)
+    for ax, x in ((ax1, op.speed_rad_s), (ax2, op.angle_rad)):
+        ax.plot(x, op.before, ".", ms=2, alpha=0.5, color=BEFORE_COLOUR, label=before_label, gid="before")
+        if op.after is not None:
+            ax.plot(x, op.after, ".", ms=2, alpha=0.5, color=AFTER_COLOUR, label=after_label, gid="after")
+        ax.grid(True, alpha=0.3)
     ax1.set_xlabel("motor speed theta' [rad/s]")
     ax1.set_ylabel("motor residual [N m]")
-    lo, hi = diag.location.speed_band_rad_s
-    ax1.set_title(f"speed band |theta'| {lo:.2g}-{hi:.2g} rad/s")
-    ax2.plot(th, rm, ".", ms=2, alpha=0.5)
-    ax2.set_xlabel("motor angle mod 2 pi [rad]")
-    ax2.set_title(f"angle span {diag.location.angle_span_rad:.2f} rad")
-    for ax in (ax1, ax2):
-        ax.grid(True, alpha=0.3)
+    lo, hi = views.speed_band_rad_s
+    ax1.set_title(f"speed band |theta'| {lo:.2g}-{hi:.2g} rad/s", fontsize="medium")
+    ax2.set_xlabel("motor angle mod 2 pi [rad]" if op.wrapped else "motor angle from its smallest value [rad]")
+    ax2.set_title(f"angle span {views.angle_span_rad:.2f} rad" + ("" if op.wrapped else " (less than a turn)"),
+                  fontsize="medium")
+    ax1.legend(fontsize=8, markerscale=4)
     return save_figure(fig, path)
 
 
-def plot_before_after(diag: Any, path: str | Path, *, window_s: float = 2.0) -> Path:
+def plot_before_after(views, path: str | Path) -> Path:
     """Held-out overlay: the nominal equation error, the verdict effect's prediction and what is left.
 
     Parameters
     ----------
-    diag : Diagnosis
-        A diagnosis.
+    views : DiagnosisViews
+        From :func:`forecast_design.gap.views.diagnosis_views` (its ``window_s`` sets the stretch).
     path : str or Path
         PNG file to write.
-    window_s : float
-        Length of the held-out stretch shown [s].
 
     Returns
     -------
@@ -160,67 +201,64 @@ def plot_before_after(diag: Any, path: str | Path, *, window_s: float = 2.0) -> 
         The file written.
     """
     plt = _plt()
-    data = diag.data
-    held = np.flatnonzero(data.held_out)
-    t0 = data.t[held[0]] if held.size else data.t[0]
-    sel = (data.t >= t0) & (data.t < t0 + window_s)
-    before = _split(diag, diag.baseline.residual)
-    fit = _after(diag)
-    eqs = [eq for eq in data.equations if np.any(before[eq][sel])]
-    fig, axes = plt.subplots(len(eqs), 1, figsize=(9, 2.8 * len(eqs)), sharex=True, squeeze=False)
+    sel = views.held_out
+    eqs = views.equations
+    fig, axes = plt.subplots(len(eqs), 1, figsize=(9, 2.8 * len(eqs) + 0.4), sharex=True, squeeze=False)
+    t = views.t[sel]
     for ax, eq in zip(axes[:, 0], eqs):
-        ax.plot(data.t[sel], before[eq][sel], lw=1.0, label="before: nominal equation error")
-        if fit is not None:
-            pred = _split(diag, fit.prediction)[eq]
-            after = _split(diag, fit.residual)[eq]
-            ax.plot(data.t[sel], pred[sel], "--", lw=1.0, label=f"{diag.effect} model")
-            ax.plot(data.t[sel], after[sel], lw=1.0, label="after: left over")
+        ax.plot(t, views.before[eq][sel], lw=1.0, color=BEFORE_COLOUR, label="before: nominal equation error",
+                gid=f"before|{eq}")
+        if eq in views.after:
+            ax.plot(t, views.prediction[eq][sel], "--", lw=1.0, color=MODEL_COLOUR, label=f"{views.effect} model",
+                    gid=f"model|{eq}")
+            ax.plot(t, views.after[eq][sel], lw=1.0, color=AFTER_COLOUR, label="after: left over",
+                    gid=f"after|{eq}")
         ax.set_ylabel(f"{eq} [N m]")
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="upper right")
-    axes[0, 0].set_title(f"Held-out data: gap {diag.gap_before:.3g} -> {diag.gap_after:.3g} N m "
-                         f"({100 * diag.reduction:.0f} % less)")
+    reduction = 1.0 - views.gap_after / views.gap_before if views.gap_before > 0 else 0.0
+    axes[0, 0].set_title(f"Held-out data: gap {views.gap_before:.3g} -> {views.gap_after:.3g} N m "
+                         f"({100 * reduction:.0f} % less)")
     axes[-1, 0].set_xlabel("t [s]")
+    _dropped_note(fig, views)
     return save_figure(fig, path)
 
 
-def plot_replay(diag: Any, path: str | Path, *, window_s: float = 0.5) -> Path:
+def plot_replay(views, path: str | Path) -> Path:
     """Output-error replay over the worst window: measured vs replayed ``tau_s`` and ``theta``.
 
     Parameters
     ----------
-    diag : Diagnosis
-        A diagnosis (with its ``replay``).
+    views : DiagnosisViews
+        From :func:`forecast_design.gap.views.diagnosis_views`, with a replay.
     path : str or Path
         PNG file to write.
-    window_s : float
-        Window length [s] (the replay check's).
 
     Returns
     -------
     Path
         The file written.
-    """
-    from ..gap.replay import replay_trace
 
+    Raises
+    ------
+    ParameterError
+        If the views hold no replay.
+    """
+    if views.replay is None:
+        raise ParameterError("the diagnosis has no output-error replay to plot", name="replay")
     plt = _plt()
-    rc = diag.replay
-    start = rc.worst_windows_s[0][0] if rc is not None and rc.worst_windows_s else float(diag.data.t[0])
-    window_s = rc.window_s if rc is not None else window_s
-    tr = replay_trace(diag.data, _after(diag), start, window_s=window_s)
+    tr = views.replay
+    before_label, after_label = _labels(views)
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)
-    ax1.plot(tr["t"], tr["tau_s"], "k", lw=1.2, label="measured")
-    ax1.plot(tr["t"], tr["tau_s_before"], lw=1.0, label="nominal model replay")
-    ax2.plot(tr["t"], tr["theta"], "k", lw=1.2, label="measured")
-    ax2.plot(tr["t"], tr["theta_before"], lw=1.0, label="nominal model replay")
-    if _after(diag) is not None:
-        ax1.plot(tr["t"], tr["tau_s_after"], "--", lw=1.0, label=f"with {diag.effect}")
-        ax2.plot(tr["t"], tr["theta_after"], "--", lw=1.0, label=f"with {diag.effect}")
-    ax1.set_ylabel("tau_s [N m]")
-    ax2.set_ylabel("theta [rad]")
-    ax2.set_xlabel("t [s]")
-    for ax in (ax1, ax2):
+    for ax, key, unit in ((ax1, "tau_s", "N m"), (ax2, "theta", "rad")):
+        ax.plot(tr["t"], tr[key], color=MEASURED_COLOUR, lw=1.2, label="measured", gid=f"measured|{key}")
+        ax.plot(tr["t"], tr[f"{key}_before"], color=BEFORE_COLOUR, lw=1.0, label=before_label, gid=f"before|{key}")
+        if views.has_after:
+            ax.plot(tr["t"], tr[f"{key}_after"], "--", color=AFTER_COLOUR, lw=1.0, label=after_label,
+                    gid=f"after|{key}")
+        ax.set_ylabel(f"{key} [{unit}]")
         ax.grid(True, alpha=0.3)
+    ax2.set_xlabel("t [s]")
     ax1.legend(fontsize=8, loc="upper right")
     ax1.set_title("Output-error replay from the recorded tau_m, started from the measured state "
                   "(worst window of the nominal model)", fontsize=9)

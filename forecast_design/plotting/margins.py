@@ -8,18 +8,13 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..margins import DiskMarginCurve, disk_center_radius
+from ..margins import DiskMarginCurve, disk_center_radius, disk_gain_margin
 from ..reproduce import MarginRow
 from ..errors import ParameterError
 from . import save_figure
+from .style import cutoff_style, observer_colour, observer_label
 
-__all__ = ["plot_fig6", "plot_disk_margin_curve", "disk_upper_boundary"]
-
-# Colour maps per observer; darker shades for higher Q cutoffs, as in the paper's Fig. 6
-# ("the disappearance of the dark red disk" is LD-DOB at 10 Hz).
-_CMAPS = {"ea-fob": "Greens", "lo-dob": "Blues", "ld-dob": "Reds", "motor-fob": "Purples", "sfm": "Oranges"}
-_LABELS = {"none": "plant", "ea-fob": "EA-FOB", "lo-dob": "LO-DOB", "ld-dob": "LD-DOB",
-           "motor-fob": "motor FOB", "sfm": "SFM"}
+__all__ = ["figure_fig6", "plot_fig6", "plot_disk_margin_curve", "disk_upper_boundary"]
 
 
 def disk_upper_boundary(alpha: float, sigma: float = 0.0, n: int = 400) -> np.ndarray:
@@ -73,23 +68,149 @@ def _half_disk_patch(disk_alpha: float, sigma: float, xlim: tuple[float, float],
     return PathPatch(MplPath(verts, codes), **kw)
 
 
+def _fig6_limits(rows: Sequence[MarginRow], sigma: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Common axes limits: every bounded disk that fits within Re f <= 10 is shown whole."""
+    lo, hi = -0.25, 4.0
+    for r in rows:
+        if r.stable and r.disk_margin > 0.0:
+            g_lo, g_hi = disk_gain_margin(r.disk_margin, sigma)
+            if math.isfinite(g_hi) and g_hi <= 10.0:
+                hi = max(hi, 1.05 * g_hi)
+    return (lo, hi), (0.0, 0.5 * (hi - lo) + 0.05)
+
+
+def figure_fig6(rows: Sequence[MarginRow], *, sigma: float = 0.0,
+                xlim: tuple[float, float] | None = None, ylim: tuple[float, float] | None = None,
+                title: str | None = "Disk margins of the DOB solutions (cf. paper Fig. 6)"):
+    """Draw the paper's Fig. 6 and return the open matplotlib figure (see :func:`plot_fig6`).
+
+    One row per environment: the upper half-disks of tolerated gain/phase variations on the
+    left, a bar per observer and cutoff with its disk margin alpha on the right (disks of
+    nearly equal alpha coincide on the left; the bars keep each one readable). Colours follow
+    :mod:`forecast_design.plotting.style`: one hue per observer, darker and more solid for
+    higher cutoffs, the same in every panel; the plant alone is black.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    rows = list(rows)
+    if not rows:
+        raise ParameterError("plot_fig6 needs at least one MarginRow", name="rows", value=rows)
+    envs = list(dict.fromkeys(r.environment for r in rows))
+    cutoffs = sorted({r.w_q_hz for r in rows if r.w_q_hz is not None})
+    auto_x, auto_y = _fig6_limits(rows, sigma)
+    xlim = xlim or auto_x
+    ylim = ylim or (auto_y if xlim == auto_x else (0.0, 0.5 * (xlim[1] - xlim[0]) + 0.05))
+    fig = plt.figure(figsize=(11.0, 3.9 * len(envs) + 1.3), layout="constrained")
+    grid = fig.add_gridspec(len(envs), 2, width_ratios=(2.1, 1.0))
+    legend: dict[str, Line2D] = {}
+
+    def style_of(r: MarginRow) -> dict:
+        shade, ls = cutoff_style(r.w_q_hz, cutoffs)
+        return {"color": observer_colour(r.observer, shade), "linestyle": ls,
+                "linewidth": 2.4 if r.observer == "none" else 1.7}
+
+    def name_of(r: MarginRow) -> str:
+        return observer_label(r.observer) + ("" if r.w_q_hz is None else f" {r.w_q_hz:g} Hz")
+
+    for k, env in enumerate(envs):
+        ax = fig.add_subplot(grid[k, 0])
+        bars = fig.add_subplot(grid[k, 1])
+        env_rows = [r for r in rows if r.environment == env]
+        beyond = []
+        for r in env_rows:
+            st = style_of(r)
+            legend.setdefault(name_of(r), Line2D([], [], **st))
+            if not r.stable or r.disk_margin <= 0.0:
+                continue
+            patch = _half_disk_patch(r.disk_margin, sigma, xlim, ylim, facecolor="none", edgecolor=st["color"],
+                                     linestyle=st["linestyle"], linewidth=st["linewidth"],
+                                     zorder=3.0 if r.observer == "none" else 2.0 + 1.0 / (1.0 + r.disk_margin))
+            patch.set_gid(f"{env}|{r.observer}|{r.w_q_hz}")
+            ax.add_patch(patch)
+            if disk_gain_margin(r.disk_margin, sigma)[1] > xlim[1]:
+                beyond.append(r)
+        theta = np.linspace(0.0, math.pi, 361)
+        ax.plot(np.cos(theta), np.sin(theta), color="0.45", linestyle=(0, (4, 3)), linewidth=0.8)
+        ax.plot([1.0], [0.0], "k+", markersize=9)
+        if beyond:
+            reach = max(disk_gain_margin(r.disk_margin, sigma)[1] for r in beyond)
+            reach_txt = "infinity" if not math.isfinite(reach) else f"Re f = {reach:.3g}"
+            ax.text(0.98, 0.97, f"{len(beyond)} disks reach beyond the frame (up to {reach_txt}):\n"
+                    "their arcs leave on the left edge; alpha in the bars",
+                    transform=ax.transAxes, ha="right", va="top", fontsize="x-small",
+                    bbox={"facecolor": "white", "edgecolor": "0.7", "alpha": 0.9})
+        ax.set_xlim(*xlim)
+        ax.set_ylim(*ylim)
+        ax.set_aspect("equal")
+        ax.set_xlabel("Re f [-]")
+        ax.set_ylabel("Im f [-]")
+        ax.set_title(f"{env} environment: upper half-disks (dashed grey: unit circle)", fontsize="medium")
+        ax.grid(True, alpha=0.3)
+        _alpha_bars(bars, env_rows, style_of, name_of)
+    # one legend column per observer, one line per cutoff (blank entries pad short columns)
+    columns: dict[str, list[tuple[str, Line2D]]] = {}
+    for name, handle in legend.items():
+        kind = next(r.observer for r in rows if name_of(r) == name)
+        columns.setdefault(kind, []).append((name, handle))
+    depth = max(len(c) for c in columns.values())
+    entries = [e for c in columns.values() for e in c + [("", Line2D([], [], linestyle="none"))] * (depth - len(c))]
+    fig.legend(handles=[h for _, h in entries], labels=[n for n, _ in entries], loc="outside lower center",
+               ncol=len(columns), fontsize="small", frameon=False)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def _alpha_bars(ax, rows: Sequence[MarginRow], style_of, name_of) -> None:
+    """Horizontal bars of alpha per observer and cutoff; the plant's alpha as a black line."""
+    plant = [r for r in rows if r.observer == "none"]
+    others = [r for r in rows if r.observer != "none"]
+    y = np.arange(len(others))[::-1].astype(float)
+    top = max([r.disk_margin for r in rows] + [0.1])
+    for yi, r in zip(y, others):
+        st = style_of(r)
+        if r.stable and r.disk_margin > 0.0:
+            ax.barh(yi, r.disk_margin, height=0.72, color=(*st["color"], 0.35), edgecolor=st["color"],
+                    linestyle=st["linestyle"], linewidth=1.4, gid=f"{r.environment}|{r.observer}|{r.w_q_hz}")
+            ax.text(max([r.disk_margin] + [p.disk_margin for p in plant]) + 0.02 * top, yi,
+                    f"{r.disk_margin:.3f}", va="center", fontsize="x-small")
+        else:
+            ax.plot([0.0], [yi], marker="x", color=st["color"], markersize=8, mew=2.0)
+            ax.text(0.04 * top, yi, "unstable", va="center", fontsize="x-small", color=st["color"],
+                    fontweight="bold")
+    for r in plant:
+        ax.axvline(r.disk_margin, color="black", linewidth=1.6)
+        ax.text(r.disk_margin, len(others) - 0.35, f"plant {r.disk_margin:.3f}", ha="right", va="bottom",
+                fontsize="x-small")
+    ax.set_yticks(y, [name_of(r) for r in others], fontsize="x-small")
+    ax.set_xlim(0.0, 1.25 * top)
+    ax.set_ylim(-0.7, len(others) + 0.3)
+    ax.set_xlabel("disk margin alpha [-]")
+    ax.grid(True, axis="x", alpha=0.3)
+
+
 def plot_fig6(rows: Sequence[MarginRow], path: str | Path, *, sigma: float = 0.0,
-              xlim: tuple[float, float] = (-0.25, 4.0), ylim: tuple[float, float] = (0.0, 2.25),
+              xlim: tuple[float, float] | None = None, ylim: tuple[float, float] | None = None,
               title: str | None = "Disk margins of the DOB solutions (cf. paper Fig. 6)") -> Path:
-    """Upper half-disks of gain/phase variations per environment (the paper's Fig. 6).
+    """Upper half-disks of gain/phase variations per environment (the paper's Fig. 6), as PNG.
 
     Parameters
     ----------
     rows : sequence of MarginRow
-        Rows of :func:`forecast_design.reproduce.fig6_table`; one subplot per environment in
-        order of appearance. Unstable rows have no disk and are listed as unstable in the
-        legend, as the paper's figure drops them.
+        Rows of :func:`forecast_design.reproduce.fig6_table`; one row of panels per environment
+        in order of appearance. Unstable rows have no disk (the paper's figure drops them)
+        and show as "unstable" in the bars.
     path : str or Path
         Output PNG file.
     sigma : float
         Skew the rows were computed with [-] (the disk's shape depends on it).
-    xlim, ylim : tuple of float
-        Axes limits in the complex plane of the perturbation f [-].
+    xlim, ylim : tuple of float, optional
+        Axes limits in the complex plane of the perturbation f [-]; default: every disk
+        that ends before Re f = 10 is shown whole, the same limits in every panel.
     title : str or None
         Figure title.
 
@@ -107,63 +228,13 @@ def plot_fig6(rows: Sequence[MarginRow], path: str | Path, *, sigma: float = 0.0
     -----
     Each disk is D(alpha, sigma) = {(1 + (1 - sigma) delta / 2) / (1 - (1 + sigma) delta / 2)
     : |delta| <= alpha}; for sigma = 0 its boundary is the circle with centre
-    (1 + (alpha/2)^2) / (1 - (alpha/2)^2) and radius alpha / (1 - (alpha/2)^2). The dashed
-    unit circle reads off the disk-based phase margin where it meets each disk boundary.
+    (1 + (alpha/2)^2) / (1 - (alpha/2)^2) and radius alpha / (1 - (alpha/2)^2). Near
+    alpha = 2 the disk is huge (alpha = 1.96 reaches Re f = 99), so disks of nearly equal
+    alpha are indistinguishable in the plane; the bar panel beside each environment gives
+    every observer and cutoff its own bar. The dashed unit circle reads off the disk-based
+    phase margin where it meets each disk boundary.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    rows = list(rows)
-    if not rows:
-        raise ParameterError("plot_fig6 needs at least one MarginRow", name="rows", value=rows)
-    envs = list(dict.fromkeys(r.environment for r in rows))
-    fig, axes = plt.subplots(len(envs), 1, figsize=(7.5, 3.6 * len(envs)), squeeze=False)
-    try:
-        for ax, env in zip(axes[:, 0], envs):
-            env_rows = [r for r in rows if r.environment == env]
-            cutoffs = sorted({r.w_q_hz for r in env_rows if r.w_q_hz is not None})
-            handles = []
-            for r in env_rows:
-                label = _LABELS.get(r.observer, r.observer)
-                if r.w_q_hz is not None:
-                    label += f" {r.w_q_hz:g} Hz"
-                if not r.stable or r.disk_margin <= 0.0:
-                    (h,) = ax.plot([], [], " ", label=f"{label}: unstable")
-                    handles.append(h)
-                    continue
-                if r.observer == "none":
-                    kw = dict(facecolor="none", edgecolor="black", linewidth=2.2, zorder=3.0)
-                else:
-                    cmap = plt.get_cmap(_CMAPS.get(r.observer, "Greys"))
-                    rgba = cmap(0.45 + 0.5 * (cutoffs.index(r.w_q_hz) + 1) / max(len(cutoffs), 1))
-                    # faint fill, strong edge: many disks overlap and must stay readable;
-                    # small disks are drawn on top of big ones
-                    kw = dict(facecolor=(*rgba[:3], 0.10), edgecolor=rgba, linewidth=1.6,
-                              zorder=2.0 + 1.0 / (1.0 + r.disk_margin))
-                patch = _half_disk_patch(r.disk_margin, sigma, xlim, ylim, **kw)
-                patch.set_label(f"{label}: alpha = {r.disk_margin:.3f}")
-                ax.add_patch(patch)
-                handles.append(patch)
-            theta = np.linspace(0.0, math.pi, 361)
-            (h,) = ax.plot(np.cos(theta), np.sin(theta), "k--", linewidth=0.7, label="unit circle")
-            handles.append(h)
-            ax.plot([1.0], [0.0], "k+", markersize=9)
-            ax.set_xlim(*xlim)
-            ax.set_ylim(*ylim)
-            ax.set_aspect("equal")
-            ax.set_xlabel("Re f [-]")
-            ax.set_ylabel("Im f [-]")
-            ax.set_title(f"{env} environment")
-            ax.grid(True, alpha=0.3)
-            ax.legend(handles=handles, loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize="x-small")
-        if title:
-            fig.suptitle(title)
-        path = save_figure(fig, path, dpi=120)
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(figure_fig6(rows, sigma=sigma, xlim=xlim, ylim=ylim, title=title), path, dpi=120)
 
 
 def plot_disk_margin_curve(curves: DiskMarginCurve | Mapping[str, DiskMarginCurve], path: str | Path, *,

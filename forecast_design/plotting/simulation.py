@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from ..errors import ParameterError
+from . import write_figure
 
 __all__ = ["plot_simulation", "plot_step_responses", "plot_fig7", "plot_table3"]
 
@@ -61,7 +62,7 @@ def plot_simulation(results: Mapping[str, object] | Sequence[tuple[str, object]]
             ax.grid(True, alpha=0.3)
     fig.tight_layout()
     if path is not None:
-        fig.savefig(path, dpi=120)
+        write_figure(fig, path, dpi=120)
     return fig
 
 
@@ -104,7 +105,7 @@ def plot_step_responses(groups: Mapping[str, Sequence[object]], path: str | Path
         ax.grid(True, alpha=0.3)
     fig.tight_layout()
     if path is not None:
-        fig.savefig(path, dpi=120)
+        write_figure(fig, path, dpi=120)
     return fig
 
 
@@ -136,7 +137,7 @@ def plot_fig7(result, path: str | Path | None = None):
     for ax in fig.axes:
         ax.title.set_fontsize(9)
     if path is not None:
-        fig.savefig(path, dpi=120)
+        write_figure(fig, path, dpi=120)
     return fig
 
 
@@ -190,5 +191,5 @@ def plot_table3(result, path: str | Path | None = None):
         axes[-1, j].set_xlabel("t [s]")
     fig.tight_layout()
     if path is not None:
-        fig.savefig(path, dpi=120)
+        write_figure(fig, path, dpi=120)
     return fig

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..experiment import Experiment
+from ..fileio import atomic_write
 
 __all__ = ["write_report"]
 
@@ -49,20 +50,22 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
     Path
         The Markdown file.
     """
+    from ..gap.views import diagnosis_views
     from ..plotting import gap as gp
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    views = diagnosis_views(diagnosis)     # computed once, below the plotting layer
     plots = {
-        "time": gp.plot_residual_time(diagnosis, out / "residual_time.png"),
-        "spectrum": gp.plot_residual_spectrum(diagnosis, out / "residual_spectrum.png"),
-        "operating": gp.plot_residual_operating(diagnosis, out / "residual_speed_angle.png"),
-        "overlay": gp.plot_before_after(diagnosis, out / "before_after.png"),
+        "time": gp.plot_residual_time(views, out / "residual_time.png"),
+        "spectrum": gp.plot_residual_spectrum(views, out / "residual_spectrum.png"),
+        "operating": gp.plot_residual_operating(views, out / "residual_speed_angle.png"),
+        "overlay": gp.plot_before_after(views, out / "before_after.png"),
     }
-    if diagnosis.replay is not None:
-        plots["replay"] = gp.plot_replay(diagnosis, out / "replay.png")
+    if views.replay is not None:
+        plots["replay"] = gp.plot_replay(views, out / "replay.png")
     mapping = diagnosis.to_mapping()
-    (out / "diagnosis.json").write_text(json.dumps(mapping, indent=2) + "\n")
+    atomic_write(out / "diagnosis.json", json.dumps(mapping, indent=2) + "\n")
     d = diagnosis
     loc = d.location
     env = experiment.design.environment
@@ -129,7 +132,9 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
                   "![output-error replay](replay.png)"]
     lines += ["", "![residual over time](residual_time.png)", "",
               "Residual spectrum (top) and the measured response from motor torque to spring torque against "
-              "the nominal model (bottom):", "", "![residual spectrum](residual_spectrum.png)", "",
+              "the nominal model (bottom left), beside the coherence of that measurement (bottom right; grey: "
+              f"coherence below {views.response.threshold:g}, where the measured response is not trusted):", "",
+              "![residual spectrum](residual_spectrum.png)", "",
               "Motor-side residual against speed (friction shows as a step at zero speed) and against motor "
               "angle (cogging and position-dependent friction show as a periodic pattern):", "",
               "![residual against speed and angle](residual_speed_angle.png)", "",
@@ -164,5 +169,5 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
               "![before and after](before_after.png)", "",
               "Files: `diagnosis.json` holds the machine-readable result.", ""]
     path = out / "report.md"
-    path.write_text("\n".join(lines))
+    atomic_write(path, "\n".join(lines))
     return path

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Mapping
 
-from .board import Board, RunResult, record_to_experiment
+from .board import Board, RunResult, check_writable, record_to_experiment
 from .emulator import Faults, emulate, open_pty, parse_fault, serve_emulator
 from .link import BoardError, Link, LinkError
 from .protocol import BAUD_RATE, FrameParser, Reference, encode_frame, parse_reference, stream_bits_per_second
@@ -13,6 +13,7 @@ from .protocol import BAUD_RATE, FrameParser, Reference, encode_frame, parse_ref
 __all__ = [
     "Board",
     "BoardError",
+    "check_writable",
     "LinkError",
     "Link",
     "RunResult",
@@ -79,6 +80,7 @@ def run_on_port(port: str, *, out: str | Path, reference: str | Reference = "squ
     from ..params import resolve_design
 
     ref = parse_reference(reference) if isinstance(reference, str) else reference
+    check_writable(out)  # before the board is touched: a run is never recorded only to be lost
     design = resolve_design(controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz)
     program = build_program(design, sfm_params=sfm_params)
     with Board(port, baudrate=baudrate, timeout=timeout) as board:

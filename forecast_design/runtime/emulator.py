@@ -50,6 +50,9 @@ class Faults:
         if self.disconnect_after is not None and self.disconnect_after < 0:
             raise ParameterError(f"fault disconnect_after must be >= 0, got {self.disconnect_after!r}",
                                  name="disconnect_after", value=self.disconnect_after)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or not 0 <= self.seed < 2**63:
+            raise ParameterError(f"fault seed must be an integer in [0, 2**63), got {self.seed!r}",
+                                 name="seed", value=self.seed)
 
 
 def parse_fault(texts: Sequence[str]) -> Faults:
@@ -113,7 +116,7 @@ class _Emulator:
         self.realtime = realtime
         self.stop = stop
         self.noise_std = noise_std
-        self.parser = pr.FrameParser()
+        self.parser = pr.FrameParser(pr.HOST_TYPES)
         self.seq = 0
         self.program = None
         self.reference = pr.Reference("step", 0.0)
@@ -173,6 +176,8 @@ class _Emulator:
         if t == M.PING:
             self._send(M.INFO, pr.encode_info(self.rate_hz))
             return
+        if t == M.HEARTBEAT:   # the host is alive; never answered (the emulator has no link watchdog)
+            return
         status = pr.Ack.OK
         n_start = None
         try:
@@ -187,6 +192,8 @@ class _Emulator:
                     status = pr.Ack.NO_CONTROLLER
                 else:
                     n_start = pr.decode_start(frame.payload)
+                    if not 1 <= n_start <= pr.MAX_RUN_SAMPLES:   # the host never asks for more
+                        status, n_start = pr.Ack.BAD_PAYLOAD, None
             elif t == M.STOP:
                 pass
             else:
@@ -211,21 +218,21 @@ class _Emulator:
         batch = bytearray()
         references = self.reference.signal().sample(n, self.rate_hz).tolist()
         for i in range(n):
-            th, q, tau_s = bed.measure()
-            t = i * dt
-            tau_r = references[i]
-            tau_m = ctrl.step(tau_r, tau_s, th)
-            sample = pr.Sample(i, t, tau_m, th, q, tau_s, tau_r)
-            frame = pr.encode_frame(M.SAMPLE, self.seq, pr.encode_sample(sample))
-            self.seq = (self.seq + 1) & 0xFFFF
-            batch += self._corrupt(frame)
-            bed.advance(tau_m)
-            sent += 1
             if self.faults.disconnect_after is not None and sent >= self.faults.disconnect_after:
                 self._write_all(bytes(batch))
                 self.closed = True
                 os.close(self.fd)  # the pulled cable: the host's next read fails
                 return
+            th, q, tau_s = bed.measure()
+            t = i * dt
+            tau_r = references[i]
+            tau_m = ctrl.step(tau_r, tau_s, th)
+            sample = pr.Sample(i, t, tau_m, th, q, tau_s, tau_r, ctrl.u, ctrl.hat)
+            frame = pr.encode_frame(M.SAMPLE, self.seq, pr.encode_sample(sample))
+            self.seq = (self.seq + 1) & 0xFFFF
+            batch += self._corrupt(frame)
+            bed.advance(tau_m)
+            sent += 1
             if len(batch) >= 1024 or i == n - 1:
                 self._write_all(bytes(batch))
                 batch.clear()

@@ -50,7 +50,7 @@ class Link:
         If the port cannot be opened.
     """
 
-    def __init__(self, port: str, *, baudrate: int = 921_600, timeout: float = 0.05):
+    def __init__(self, port: str, *, baudrate: int = 2_000_000, timeout: float = 0.05):
         import serial
 
         self.port = port

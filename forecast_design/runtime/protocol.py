@@ -7,9 +7,11 @@ testable without hardware.
 
 from __future__ import annotations
 
+import binascii
 import math
 import struct
-from dataclasses import dataclass, field
+from array import array
+from dataclasses import dataclass, fields
 from typing import Any
 from enum import IntEnum
 
@@ -24,6 +26,10 @@ __all__ = [
     "BAUD_RATE",
     "MsgType",
     "Ack",
+    "BOARD_TYPES",
+    "HOST_TYPES",
+    "MAX_RUN_SAMPLES",
+    "SequenceCounter",
     "Frame",
     "Sample",
     "Reference",
@@ -40,10 +46,20 @@ __all__ = [
     "decode_start",
     "encode_ack",
     "decode_ack",
+    "type_name",
+    "status_name",
     "encode_done",
     "decode_done",
     "encode_info",
     "decode_info",
+    "Fault",
+    "encode_sensor",
+    "decode_sensor",
+    "encode_fault",
+    "decode_fault",
+    "encode_stats",
+    "decode_stats",
+    "Stats",
     "parse_reference",
     "stream_bits_per_second",
 ]
@@ -56,19 +72,24 @@ HEADER_SIZE = 7
 CRC_SIZE = 2
 #: Longest payload a receiver accepts; a larger length field is a corrupt header [bytes].
 MAX_PAYLOAD = 1024
-#: Version number the board reports in INFO.
-PROTOCOL_VERSION = 1
-#: UART rate of the link [bit/s]; the 2 kHz sample stream needs 740 kbit/s (see docs/protocol.md).
-BAUD_RATE = 921_600
+#: Version number the board reports in INFO (2: SAMPLE carries u and tau_frc_hat; HEARTBEAT,
+#: SENSOR, FAULT and STATS messages).
+PROTOCOL_VERSION = 2
+#: UART rate of the link [bit/s]; the 2 kHz sample stream needs 900 kbit/s (see docs/protocol.md).
+#: 2 Mbit/s is an exact divisor of the F446RE's 42 MHz APB1 clock (USARTDIV 1 + 5/16).
+BAUD_RATE = 2_000_000
 
 _LEN = struct.Struct("<H")
 _HDR = struct.Struct("<HBH")  # length, type, sequence
-_SAMPLE = struct.Struct("<I6f")  # index, t, tau_m, theta, q, tau_s, tau_r
+_SAMPLE = struct.Struct("<I8f")  # index, t, tau_m, theta, q, tau_s, tau_r, u, tau_frc_hat
 _REFERENCE = struct.Struct("<B3f")  # kind, amplitude, period/delay, offset
 _START = struct.Struct("<I")  # samples to record
 _ACK = struct.Struct("<BHB")  # acked type, acked sequence, status
 _DONE = struct.Struct("<IB")  # samples sent, reason
 _INFO = struct.Struct("<BfI")  # protocol version, rate_hz, max upload bytes
+_SENSOR = struct.Struct("<III")  # period index, raw motor encoder count, raw environment encoder count
+_FAULT = struct.Struct("<IB")  # sample index, fault code
+_STATS = struct.Struct("<IIfIfI")  # steps, max ticks, mean ticks, calibration ticks, tick rate, calib instr.
 
 
 class MsgType(IntEnum):
@@ -79,10 +100,14 @@ class MsgType(IntEnum):
     SET_REFERENCE = 0x11  #: reference generator settings
     START = 0x12         #: start a run of N samples
     STOP = 0x13          #: stop the run now
+    HEARTBEAT = 0x14     #: the host is alive (no reply); a board faults when they stop during a run
+    SENSOR = 0x15        #: processor-in-the-loop: raw encoder counts of one period (board answers SAMPLE)
     ACK = 0x80           #: acknowledges one host frame (status 0 = ok)
     INFO = 0x81          #: protocol version and sample rate
     SAMPLE = 0x90        #: one recorded sample
     DONE = 0x91          #: the run ended
+    FAULT = 0x92         #: the board stopped the run on a fault (torque set to zero)
+    STATS = 0x93         #: the board's measured cost of a control period
 
 
 class Ack(IntEnum):
@@ -105,14 +130,26 @@ _FIXED_LENGTH = {
     MsgType.INFO: _INFO.size,
     MsgType.SAMPLE: _SAMPLE.size,
     MsgType.DONE: _DONE.size,
+    MsgType.HEARTBEAT: 0,
+    MsgType.SENSOR: _SENSOR.size,
+    MsgType.FAULT: _FAULT.size,
+    MsgType.STATS: _STATS.size,
 }
 
 
 _KNOWN_TYPES = frozenset(int(t) for t in MsgType)
+#: Types a board sends (0x80 and up); the host's parser accepts these only.
+BOARD_TYPES = frozenset(t for t in _KNOWN_TYPES if t >= 0x80)
+#: Types a host sends (below 0x80); the board's parser accepts these only.
+HOST_TYPES = frozenset(t for t in _KNOWN_TYPES if t < 0x80)
 
 
 def crc16_ccitt_false(data: bytes, crc: int = 0xFFFF) -> int:
     """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, no final xor).
+
+    The standard library's ``binascii.crc_hqx`` is exactly this CRC (the
+    XMODEM/CCITT polynomial, unreflected, no final xor) with a free initial
+    value; the test suite checks it against a bit-by-bit reference on random frames.
 
     Parameters
     ----------
@@ -126,26 +163,12 @@ def crc16_ccitt_false(data: bytes, crc: int = 0xFFFF) -> int:
     int
         The 16-bit CRC; ``crc16_ccitt_false(b"123456789") == 0x29B1``.
     """
-    for byte in data:
-        crc ^= byte << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
-    return crc
-
-
-def _crc_table() -> tuple[int, ...]:
-    return tuple(crc16_ccitt_false(bytes([b]), 0) for b in range(256))
-
-
-_TABLE = _crc_table()
+    return binascii.crc_hqx(data, crc & 0xFFFF)
 
 
 def _crc(data: bytes) -> int:
-    """Table-driven CRC-16/CCITT-FALSE (same result as crc16_ccitt_false, faster)."""
-    crc = 0xFFFF
-    for byte in data:
-        crc = ((crc << 8) & 0xFFFF) ^ _TABLE[((crc >> 8) ^ byte) & 0xFF]
-    return crc
+    """CRC-16/CCITT-FALSE of a frame body (init 0xFFFF)."""
+    return binascii.crc_hqx(data, 0xFFFF)
 
 
 @dataclass(frozen=True, slots=True)
@@ -237,6 +260,14 @@ class FrameParser:
     inside the rejected span (a corrupt length field, dropped bytes) is
     still found: an intact frame is never lost to a neighbour's damage.
 
+    Parameters
+    ----------
+    types : frozenset of int, optional
+        Message types this end accepts (default: every known type). The host
+        passes :data:`BOARD_TYPES`, so a header of a host-bound type arriving
+        from the board (say an UPLOAD claiming 1024 bytes) is a false sync,
+        skipped at once instead of swallowing the frames that follow it.
+
     Examples
     --------
     >>> p = FrameParser()
@@ -245,9 +276,10 @@ class FrameParser:
     ([(1, 7)], 1)
     """
 
-    def __init__(self) -> None:
+    def __init__(self, types: "frozenset[int] | None" = None) -> None:
         self._buf = bytearray()
         self._skipping = False
+        self._types = _KNOWN_TYPES if types is None else frozenset(int(t) for t in types) & _KNOWN_TYPES
         self.stats = ParserStats()
 
     def _skip(self, n: int) -> None:
@@ -277,7 +309,7 @@ class FrameParser:
                 return out
             length, msg_type, seq = _HDR.unpack_from(buf, 2)
             fixed = _FIXED_LENGTH.get(msg_type)
-            if (msg_type not in _KNOWN_TYPES or length > MAX_PAYLOAD
+            if (msg_type not in self._types or length > MAX_PAYLOAD
                     or (fixed is not None and length != fixed)):
                 self._skip(1)
                 continue
@@ -353,6 +385,10 @@ class Sample:
         Spring torque [N m].
     tau_r : float
         Force reference [N m].
+    u : float
+        Force controller output [N m] (tau_m = sat(u + tau_frc_hat)).
+    tau_frc_hat : float
+        Friction estimate fed forward [N m] (0 for compensator none).
     """
 
     index: int
@@ -362,11 +398,13 @@ class Sample:
     q: float
     tau_s: float
     tau_r: float
+    u: float
+    tau_frc_hat: float
 
 
 def encode_sample(s: Sample) -> bytes:
-    """SAMPLE payload: uint32 index then six float32 (t, tau_m, theta, q, tau_s, tau_r)."""
-    return _SAMPLE.pack(s.index & 0xFFFFFFFF, s.t, s.tau_m, s.theta, s.q, s.tau_s, s.tau_r)
+    """SAMPLE payload: uint32 index then eight float32 (t, tau_m, theta, q, tau_s, tau_r, u, tau_frc_hat)."""
+    return _SAMPLE.pack(s.index & 0xFFFFFFFF, s.t, s.tau_m, s.theta, s.q, s.tau_s, s.tau_r, s.u, s.tau_frc_hat)
 
 
 def decode_sample(payload: bytes) -> Sample:
@@ -445,6 +483,12 @@ class Reference:
         return text
 
 
+#: The colon syntax of :func:`parse_reference` (the ``run --reference`` help quotes it). The
+#: numbers map onto :mod:`forecast_design.simulation.references` as ``Square(period_s=PERIOD)``,
+#: ``Sine(frequency_hz=1/PERIOD)`` and ``Step(t0=DELAY)`` (:meth:`Reference.signal`).
+REFERENCE_SYNTAX = "square:AMP:PERIOD, sine:AMP:PERIOD or step:AMP[:DELAY] (N m, s)"
+
+
 def parse_reference(text: str) -> Reference:
     """Parse ``square:AMP:PERIOD``, ``sine:AMP:PERIOD`` or ``step:AMP[:DELAY]``.
 
@@ -463,7 +507,7 @@ def parse_reference(text: str) -> Reference:
     ParameterError
         One line naming the string and the expected form.
     """
-    form = "expected square:AMP:PERIOD, sine:AMP:PERIOD or step:AMP[:DELAY] (N m, s)"
+    form = f"expected {REFERENCE_SYNTAX}"
     parts = str(text).split(":")
     try:
         numbers = [float(p) for p in parts[1:]]
@@ -513,8 +557,24 @@ def decode_ack(payload: bytes) -> tuple[int, int, int]:
     return _ACK.unpack(payload)
 
 
+def type_name(msg_type: int) -> str:
+    """The name of a message type, or ``type 0xNN`` for one the protocol does not define."""
+    try:
+        return MsgType(msg_type).name
+    except ValueError:
+        return f"type 0x{int(msg_type) & 0xFF:02x}"
+
+
+def status_name(status: int) -> str:
+    """The name of an ACK status, or ``unknown status N`` for one the protocol does not define."""
+    try:
+        return Ack(status).name
+    except ValueError:
+        return f"unknown status {int(status)}"
+
+
 def encode_done(n_sent: int, reason: int = 0) -> bytes:
-    """DONE payload: uint32 samples sent, uint8 reason (0 complete, 1 stopped)."""
+    """DONE payload: uint32 samples sent, uint8 reason (0 complete, 1 stopped, 2 fault)."""
     return _DONE.pack(n_sent, reason)
 
 
@@ -533,6 +593,79 @@ def decode_info(payload: bytes) -> tuple[int, float, int]:
     return _INFO.unpack(payload)
 
 
+class Fault(IntEnum):
+    """Fault codes of a FAULT frame; on any of them the board sets the torque to zero and ends the run."""
+
+    LINK_TIMEOUT = 1     #: no valid host frame for the link timeout during a run (a silent host)
+    LINK_CORRUPT = 2     #: bytes rejected beyond resynchronisation (more than the garbage limit in a row)
+    FRAME_DROPPED = 3    #: a SENSOR frame's period index skipped (processor-in-the-loop)
+    OVERRUN = 4          #: a control period started before the previous one finished
+    WATCHDOG_RESET = 5   #: the board restarted from its independent watchdog (reported at the next START)
+    ENCODER = 6          #: an encoder moved more counts in one period than the plausibility limit
+
+
+def encode_sensor(index: int, raw_motor: int, raw_env: int) -> bytes:
+    """SENSOR payload: uint32 period index, uint32 raw motor and environment encoder counts (mod 2**32)."""
+    return _SENSOR.pack(index & 0xFFFFFFFF, raw_motor & 0xFFFFFFFF, raw_env & 0xFFFFFFFF)
+
+
+def decode_sensor(payload: bytes) -> tuple[int, int, int]:
+    """Inverse of :func:`encode_sensor`: (index, raw motor count, raw environment count)."""
+    return _SENSOR.unpack(payload)
+
+
+def encode_fault(index: int, code: int) -> bytes:
+    """FAULT payload: uint32 sample index at which the fault was detected, uint8 :class:`Fault` code."""
+    return _FAULT.pack(index & 0xFFFFFFFF, int(code))
+
+
+def decode_fault(payload: bytes) -> tuple[int, int]:
+    """Inverse of :func:`encode_fault`: (sample index, fault code)."""
+    return _FAULT.unpack(payload)
+
+
+@dataclass(frozen=True, slots=True)
+class Stats:
+    """The board's own measurement of a control period's cost (STATS frame, sent before DONE).
+
+    Fields, in wire order: ``steps`` periods measured [-]; ``max_ticks`` and ``mean_ticks``, the
+    longest and mean period computation [SysTick ticks]; ``calib_ticks``, the ticks a fixed loop of
+    ``calib_instructions`` instructions took (converts ticks to instructions where the clock counts
+    instructions, as under qemu's ``-icount``); ``tick_hz``, the core clock the firmware assumes [Hz].
+    """
+
+    steps: int
+    max_ticks: int
+    mean_ticks: float
+    calib_ticks: int
+    tick_hz: float
+    calib_instructions: int
+
+    @property
+    def instructions_per_tick(self) -> float:
+        """Executed instructions per SysTick tick, from the calibration loop [-]."""
+        return self.calib_instructions / self.calib_ticks if self.calib_ticks else math.nan
+
+    def to_mapping(self) -> dict[str, Any]:
+        """All fields plus mean/max instructions per period (via the calibration) [-]."""
+        k = self.instructions_per_tick
+        return {"steps": self.steps, "max_ticks": self.max_ticks, "mean_ticks": self.mean_ticks,
+                "calib_ticks": self.calib_ticks, "calib_instructions": self.calib_instructions,
+                "tick_hz": self.tick_hz, "mean_instructions_per_step": self.mean_ticks * k,
+                "max_instructions_per_step": self.max_ticks * k}
+
+
+def encode_stats(s: Stats) -> bytes:
+    """STATS payload: uint32 steps, uint32 max ticks, float32 mean ticks, uint32 calibration ticks,
+    float32 tick rate [Hz], uint32 calibration instructions."""
+    return _STATS.pack(s.steps, s.max_ticks, s.mean_ticks, s.calib_ticks, s.tick_hz, s.calib_instructions)
+
+
+def decode_stats(payload: bytes) -> Stats:
+    """Inverse of :func:`encode_stats`."""
+    return Stats(*_STATS.unpack(payload))
+
+
 def stream_bits_per_second(rate_hz: float = 2000.0, bits_per_byte: int = 10) -> float:
     """Line rate the SAMPLE stream needs [bit/s] (8N1 UART: 10 bits per byte).
 
@@ -546,48 +679,95 @@ def stream_bits_per_second(rate_hz: float = 2000.0, bits_per_byte: int = 10) -> 
     Returns
     -------
     float
-        Frame bytes x rate x bits per byte [bit/s]; 37 x 2000 x 10 = 740000 at 2 kHz.
+        Frame bytes x rate x bits per byte [bit/s]; 45 x 2000 x 10 = 900000 at 2 kHz.
     """
     frame_bytes = HEADER_SIZE + _SAMPLE.size + CRC_SIZE
     return float(frame_bytes * rate_hz * bits_per_byte)
 
 
-@dataclass(slots=True)
+#: Most samples one run may request: 2**24, 2.3 h at 2 kHz. The recorder keeps 8 bytes per value
+#: (index and each float field) and one validity byte per sample, so its memory is bounded by this.
+MAX_RUN_SAMPLES = 1 << 24
+
+
+def _finite(x: float) -> bool:
+    return math.isfinite(x)
+
+
 class SampleTracker:
-    """Loss accounting over the sample indices received.
+    """Loss accounting over the sample indices received, in bounded memory.
 
     Samples must arrive with strictly increasing indices; a gap is counted
     as lost (by index), a repeated or older index as out of order and kept
-    out of the record (the counter says so: nothing is dropped silently).
+    out of the record, an index at or beyond ``n_expected`` (the count
+    requested at START) as out of range and dropped, and a sample carrying
+    a NaN or an infinity is kept as *invalid* (its row is interpolated and
+    flagged). Nothing is dropped silently: every case has its counter.
+
+    The record is columnar (``array`` of float64 per field), so memory is
+    at most ``n_expected`` x (8 x (fields) + 1) bytes.
+
+    Parameters
+    ----------
+    n_expected : int, optional
+        Samples requested at START, at most :data:`MAX_RUN_SAMPLES`; indices
+        at or above it are out of range. None: no upper bound (tests).
 
     Attributes
     ----------
-    samples : list of Sample
-        Accepted samples, strictly increasing index.
     lost : list of tuple of int
         Half-open ranges ``(first, stop)`` of missing indices.
     out_of_order : int
         Samples rejected for a non-increasing index.
+    out_of_range : int
+        Samples rejected for an index >= ``n_expected``.
+    invalid : int
+        Samples kept but carrying a non-finite value.
     """
 
-    samples: list = field(default_factory=list)
-    lost: list = field(default_factory=list)
-    out_of_order: int = 0
+    def __init__(self, n_expected: int | None = None) -> None:
+        if n_expected is not None and not 0 <= int(n_expected) <= MAX_RUN_SAMPLES:
+            raise ParameterError(f"a run records 0 .. {MAX_RUN_SAMPLES} samples, got {n_expected}",
+                                 name="n_expected", value=n_expected)
+        self.n_expected = None if n_expected is None else int(n_expected)
+        self._fields = tuple(f.name for f in fields(Sample) if f.name != "index")
+        self._index = array("q")
+        self._values = {name: array("d") for name in self._fields}
+        self._valid = array("b")
+        self.lost: list[tuple[int, int]] = []
+        self.out_of_order = 0
+        self.out_of_range = 0
+        self.invalid = 0
 
     @property
     def next_index(self) -> int:
         """Index expected next [-]."""
-        return self.samples[-1].index + 1 if self.samples else 0
+        return self._index[-1] + 1 if self._index else 0
+
+    @property
+    def received(self) -> int:
+        """Samples accepted (valid or not) [-]."""
+        return len(self._index)
 
     def add(self, sample: Sample) -> None:
-        """Record one received sample."""
+        """Record one received sample (see the class docstring for what is counted)."""
+        index = int(sample.index)
+        if self.n_expected is not None and index >= self.n_expected:
+            self.out_of_range += 1
+            return
         expected = self.next_index
-        if sample.index < expected:
+        if index < expected:
             self.out_of_order += 1
             return
-        if sample.index > expected:
-            self.lost.append((expected, sample.index))
-        self.samples.append(sample)
+        if index > expected:
+            self.lost.append((expected, index))
+        values = [float(getattr(sample, name)) for name in self._fields]
+        ok = all(map(_finite, values))
+        self.invalid += not ok
+        self._index.append(index)
+        for name, v in zip(self._fields, values):
+            self._values[name].append(v)
+        self._valid.append(1 if ok else 0)
 
     def finish(self, n_expected: int) -> None:
         """Count the missing tail once the run is over (``n_expected`` samples were due)."""
@@ -598,3 +778,57 @@ class SampleTracker:
     def n_lost(self) -> int:
         """Number of lost samples [-]."""
         return sum(stop - first for first, stop in self.lost)
+
+    @property
+    def indices(self) -> array:
+        """Indices of the accepted samples, strictly increasing."""
+        return self._index
+
+    @property
+    def valid(self) -> array:
+        """1 where the accepted sample's values are all finite, else 0."""
+        return self._valid
+
+    def column(self, name: str) -> array:
+        """Values of field ``name`` of the accepted samples (float64)."""
+        return self._values[name]
+
+    @property
+    def samples(self) -> list[Sample]:
+        """The accepted samples as :class:`Sample` objects (a copy; for small records)."""
+        cols = [self._values[name] for name in self._fields]
+        return [Sample(i, *(c[k] for c in cols)) for k, i in enumerate(self._index)]
+
+
+@dataclass(slots=True)
+class SequenceCounter:
+    """Checks a sender's frame sequence numbers (+1 per frame, modulo 65536).
+
+    Attributes
+    ----------
+    skipped : int
+        Sequence numbers never seen between two frames received (frames lost
+        whole or rejected by the CRC) [-].
+    repeated : int
+        Frames whose sequence number repeats or goes back (a duplicated or
+        replayed frame, or a sender restart) [-].
+    """
+
+    skipped: int = 0
+    repeated: int = 0
+    last: int | None = None
+
+    def note(self, seq: int) -> None:
+        """Account for one intact frame's sequence number."""
+        seq &= 0xFFFF
+        if self.last is None:
+            self.last = seq
+            return
+        step = (seq - self.last) & 0xFFFF
+        if step == 0 or step >= 0x8000:
+            self.repeated += 1
+            if step == 0:
+                return
+        else:
+            self.skipped += step - 1
+        self.last = seq

@@ -92,8 +92,9 @@ I_CFC, I_CVR = 8, 9
 I_LUGRE, I_FS, I_FC, I_S2, I_VS, I_S1, I_S0 = 10, 11, 12, 13, 14, 15, 16
 I_PFC, I_PVR, I_GAIN, I_ANG0, I_H, I_QS, I_HARM = 17, 18, 19, 20, 21, 22, 23
 N_PARAMS = 24
-# Rows of the harmonic table: position friction a/b, cogging a/b, LuGre F_s a/b.
-H_PA, H_PB, H_CA, H_CB, H_SA, H_SB = 0, 1, 2, 3, 4, 5
+# Rows of the harmonic table: position friction a/b, cogging a/b, LuGre F_s a/b, LuGre ln v_s a/b.
+H_PA, H_PB, H_CA, H_CB, H_SA, H_SB, H_VA, H_VB = 0, 1, 2, 3, 4, 5, 6, 7
+N_HARM_ROWS = 8
 
 #: Environment modes of the kernel.
 MODE_LOCKED, MODE_INERTIAL, MODE_FIRST_ORDER = 0.0, 1.0, 2.0
@@ -114,7 +115,7 @@ class PlantModel:
 
     environment: Environment          # the true environment
     params: np.ndarray                # packed float parameters, shape (N_PARAMS,)
-    harmonics: np.ndarray             # shape (6, n_harmonics)
+    harmonics: np.ndarray             # shape (N_HARM_ROWS, n_harmonics)
     delay_substeps: int               # command delay in substeps [-]
     h: float                          # integration step [s]
     effects: tuple = field(default=())
@@ -210,8 +211,9 @@ def build_plant(design: Design, effects: Sequence[Any] = (), *, rate_hz: float =
         p[I_FS], p[I_FC], p[I_S2], p[I_VS], p[I_S1], p[I_S0] = s.F_s, s.F_c, s.sigma2, s.v_s, s.sigma1, s.sigma0
     pf = _first(effects, PositionFriction)
     cg = _first(effects, Cogging)
-    n_h = max([1] + [len(e.a) for e in (pf, cg) if e is not None] + ([len(s.F_s_a)] if s is not None else []))
-    harm = np.zeros((6, n_h))
+    n_h = max([1] + [len(e.a) for e in (pf, cg) if e is not None]
+              + ([len(s.F_s_a), len(s.v_s_a)] if s is not None else []))
+    harm = np.zeros((N_HARM_ROWS, n_h))
     if pf is not None:
         p[I_PFC], p[I_PVR] = pf.F_c, pf.v_reg
         harm[H_PA, :len(pf.a)], harm[H_PB, :len(pf.b)] = pf.a, pf.b
@@ -221,6 +223,7 @@ def build_plant(design: Design, effects: Sequence[Any] = (), *, rate_hz: float =
         harm[H_CA, :len(cg.a)], harm[H_CB, :len(cg.b)] = cg.a, cg.b
     if s is not None:
         harm[H_SA, :len(s.F_s_a)], harm[H_SB, :len(s.F_s_b)] = s.F_s_a, s.F_s_b
+        harm[H_VA, :len(s.v_s_a)], harm[H_VB, :len(s.v_s_b)] = s.v_s_a, s.v_s_b
     p[I_HARM] = 1.0 if (pf is not None or cg is not None or np.any(harm[H_SA:] != 0.0)) else 0.0
     g = _first(effects, TorqueGain)
     p[I_GAIN] = 1.0 if g is None else g.gain
@@ -350,6 +353,7 @@ def _rhs(x0, x1, x2, x3, x4, tau, p, harm, qs):
         r = w / p[I_CVR]
         frc += p[I_CFC] * (1.0 if r > 1.0 else (-1.0 if r < -1.0 else r))
     fs = p[I_FS]
+    vs = p[I_VS]
     if p[I_HARM] > 0.0:
         th = x0 + p[I_ANG0]
         s1 = math.sin(th)
@@ -359,19 +363,23 @@ def _rhs(x0, x1, x2, x3, x4, tau, p, harm, qs):
         pos = 0.0
         cog = 0.0
         fsh = 0.0
+        lvs = 0.0
         for i in range(harm.shape[1]):
             pos += harm[H_PA, i] * si + harm[H_PB, i] * ci
             cog += harm[H_CA, i] * si + harm[H_CB, i] * ci
             fsh += harm[H_SA, i] * si + harm[H_SB, i] * ci
+            lvs += harm[H_VA, i] * si + harm[H_VB, i] * ci
             si, ci = si * c1 + ci * s1, ci * c1 - si * s1
         frc += cog
         fs += fsh
+        if lvs != 0.0:
+            vs = vs * math.exp(lvs)
         if p[I_PFC] > 0.0:
             r = w / p[I_PVR]
             frc += (1.0 if r > 1.0 else (-1.0 if r < -1.0 else r)) * (p[I_PFC] + pos)
     dz = 0.0
     if p[I_LUGRE] > 0.0:
-        g = _stribeck_level(w, fs, p[I_FC], p[I_VS])
+        g = _stribeck_level(w, fs, p[I_FC], vs)
         s0 = p[I_S0]
         if qs:
             frc += (g if w > 0.0 else (-g if w < 0.0 else 0.0)) + p[I_S2] * w
@@ -395,6 +403,7 @@ def _rhs(x0, x1, x2, x3, x4, tau, p, harm, qs):
 def _bristle_rate(x0, x1, p, harm):
     """sigma0 |omega| / g(omega, theta): the sliding bristle's relaxation rate [1/s]."""
     fs = p[I_FS]
+    lvs = 0.0
     if p[I_HARM] > 0.0:
         th = x0 + p[I_ANG0]
         s1 = math.sin(th)
@@ -403,8 +412,10 @@ def _bristle_rate(x0, x1, p, harm):
         ci = c1
         for i in range(harm.shape[1]):
             fs += harm[H_SA, i] * si + harm[H_SB, i] * ci
+            lvs += harm[H_VA, i] * si + harm[H_VB, i] * ci
             si, ci = si * c1 + ci * s1, ci * c1 - si * s1
-    g = _stribeck_level(x1, fs, p[I_FC], p[I_VS])
+    vs = p[I_VS] if lvs == 0.0 else p[I_VS] * math.exp(lvs)
+    g = _stribeck_level(x1, fs, p[I_FC], vs)
     return p[I_S0] * abs(x1) / g, g
 
 

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..effects import effects_to_mappings
 from ..errors import ParameterError
+from ..experiment_io import csv_chunks
 from ..discrete import njit as _njit, sos_step
 from ..params import Compensator, Design, Environment, PDController
 from .controllers import (
@@ -356,8 +357,8 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
     closed_loop : bool
         Force control (True) or open-loop torque (False).
     sfm_params : Mapping[str, float], optional
-        Required for ``compensator.kind == 'sfm'`` unless the compensator carries its own
-        ``friction`` (which this overrides): ``viscous`` [N m s/rad],
+        Kept for one release: prefer ``Compensator(kind="sfm", friction=...)``. When given,
+        replaces the compensator's own ``friction`` (:meth:`Design.with_friction`): ``viscous`` [N m s/rad],
         ``coulomb`` [N m], optional ``offset``, ``sin<i>``, ``cos<i>``,
         ``coulomb_sin<i>``, ``coulomb_cos<i>`` [N m].
     derivative_cutoff_hz : float
@@ -423,6 +424,7 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
     ref = values if closed_loop else np.zeros(n)
     ol = np.zeros(n) if closed_loop else values
 
+    design = design.with_friction(sfm_params)   # the compensator carries its identified friction
     controller = (design.controller or PDController()) if closed_loop else None
     comp = design.compensator if design.compensator is not None else Compensator(kind="none")
     pd = DiscretePD(controller or PDController(), rate_hz, derivative_cutoff_hz=derivative_cutoff_hz,
@@ -432,11 +434,7 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
     gm_sos = gs_sos = gt_sos = zero_sos
     comp_code = 0
     if comp.kind == "sfm":
-        if sfm_params is None:
-            sfm_params = comp.friction_params   # the compensator's own identified friction
-        if sfm_params is None:
-            raise ParameterError("compensator 'sfm' needs sfm_params (viscous, coulomb[, sin<i>, cos<i>...])",
-                                 name="sfm_params", value=None)
+        sfm_params = comp.require_friction()
         sfm = SfmCompensator(sfm_params, rate_hz, velocity_cutoff_hz=velocity_cutoff_hz, deadband=sfm_deadband,
                              angle_offset=initial_angle)
         vel_sos, sfm_coef, sfm_harm = sfm.velocity_sos, sfm.coefficients.coef, sfm.coefficients.harm
@@ -445,9 +443,6 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         obs = ObserverCompensator(comp, design, rate_hz, method=method)
         gm_sos, gs_sos, gt_sos = obs.sos_m, obs.sos_s, obs.sos_theta
         comp_code = 2
-    elif sfm_params is not None:
-        raise ParameterError(f"sfm_params given but the compensator is {comp.kind!r}", name="sfm_params",
-                             value=sfm_params)
 
     noise = process_noise(seed, process_noise_std, n)
     enc_step = 2.0 * math.pi / encoder_counts if encoder_counts else 0.0
@@ -482,7 +477,7 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         "velocity_cutoff_hz": float(velocity_cutoff_hz), "sfm_deadband": float(sfm_deadband),
         "torque_limit": float(torque_limit), "encoder_counts": int(encoder_counts or 0),
         "process_noise_std": float(process_noise_std), "method": method,
-        "sfm_params": None if sfm_params is None else {k: float(v) for k, v in sfm_params.items()},
+        "sfm_params": comp.friction_params,
         "compensator": comp.kind, "w_q_hz": comp.w_q_hz if comp.is_observer else None,
         "q_family": comp.q_family if comp.is_observer else None,
         "q_order": comp.q_order if comp.is_observer else None,
@@ -526,27 +521,21 @@ def save_simulation(result: SimulationResult, path: str | os.PathLike[str]) -> d
     Notes
     -----
     The TOML holds the nominal model only, as the format requires; a
-    diagnosis tool reading RUN.toml never sees the truth.
+    diagnosis tool reading RUN.toml never sees the truth. The four files are written
+    as one set (:func:`forecast_design.fileio.atomic_write_set`): all are complete on
+    disk before any replaces an old one, the TOML last.
     """
     from ..experiment import save_experiment
 
     toml_path = Path(path)
-    save_experiment(result.to_experiment(), toml_path)
     stem = toml_path.with_suffix("")
     truth_json = stem.with_name(stem.name + ".truth.json")
     truth_csv = stem.with_name(stem.name + ".truth.csv")
     cols = {"t": result.t, **result.truth.columns()}
-    names = list(cols)
-    data = np.column_stack([cols[k] for k in names])
-    tmp = truth_csv.with_name(truth_csv.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(",".join(names) + "\n")
-        np.savetxt(fh, data, fmt="%.17g", delimiter=",")
-    os.replace(tmp, truth_csv)
     meta = {"format": "forecast-simulation-truth/1", "experiment": toml_path.name, "data": truth_csv.name,
             **result.to_mapping()}
-    tmp = truth_json.with_name(truth_json.name + ".tmp")
-    tmp.write_text(json.dumps(meta, indent=2, allow_nan=True) + "\n", encoding="utf-8")
-    os.replace(tmp, truth_json)
+    # One set: the truth files first, then the experiment's CSV and TOML (see fileio).
+    save_experiment(result.to_experiment(), toml_path, sidecars={
+        truth_csv: csv_chunks(cols), truth_json: json.dumps(meta, indent=2, allow_nan=True) + "\n"})
     return {"experiment": toml_path, "data": toml_path.with_suffix(".csv"), "truth": truth_json,
             "truth_data": truth_csv}

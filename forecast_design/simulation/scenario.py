@@ -47,6 +47,12 @@ sections, plus the hidden truth, the reference and the simulation options::
     effect = "environment_mismatch"
     k_e_scale = 1.5                  # or a [truth.effects.environment] table
 
+    [variability]                    # optional: run-to-run variability between repetitions
+    repetitions = 10                 # runs of the scenario [-]
+    initial_angle = "random"         # "random": uniform in [0, 2 pi) per repetition; "fixed": [truth]'s
+    viscous_drift = 0.0              # relative change of the viscous friction per repetition [-]
+    seed = 0                         # seed of the initial angles
+
     [reference]                      # force reference (closed loop) or torque profile (open loop)
     kind = "square"                  # constant | step | square | sine | multisine | chirp | ramp | piecewise_linear
     high = 1.0
@@ -71,6 +77,7 @@ Omitted optional keys take the defaults of :func:`~.run.simulate`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import tomllib
@@ -78,24 +85,117 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..effects import effect_from_mapping, effects_to_mappings
+import numpy as np
+
+from ..effects import PositionFriction, Stiction, effect_from_mapping, effects_to_mappings
 from ..errors import ExperimentFormatError, ParameterError
 from ..params import Compensator, Design, Environment, PDController, Testbed
+from ..plausibility import check_limit, check_physical
 from .references import reference_from_mapping
 from .run import SimulationResult, save_simulation, simulate
 
-__all__ = ["SCENARIO_FORMAT", "Scenario", "load_scenario", "scenario_from_mapping", "run_scenario"]
+__all__ = ["SCENARIO_FORMAT", "Scenario", "Variability", "load_scenario", "scenario_from_mapping", "run_scenario"]
 
 #: The ``format`` string of scenario files.
 SCENARIO_FORMAT = "forecast-scenario/1"
 
 _TOP = ("format", "description", "sampling", "testbed", "environment", "controller", "compensator", "sfm",
-        "truth", "reference", "simulation")
+        "truth", "variability", "reference", "simulation")
 _SIM_KEYS = {
     "duration_s": float, "substeps": int, "seed": int, "encoder_counts": int, "process_noise_std": float,
     "torque_limit": float, "derivative_cutoff_hz": float, "velocity_cutoff_hz": float, "sfm_deadband": float,
     "method": str,
 }
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class Variability:
+    """Run-to-run variability of the virtual testbed between repetitions (paper Section 2, Figs. 2c and 3).
+
+    The hardware's friction depends on the motor angle (Oldham-coupling misalignment): the
+    :class:`~forecast_design.effects.Stiction` effect's static level ``F_s(theta)`` (``F_s_a``,
+    ``F_s_b``) and Stribeck velocity ``v_s(theta)`` (``v_s_a``, ``v_s_b``), the
+    :class:`~forecast_design.effects.PositionFriction` ripple and cogging. Each repetition
+    starts from its own absolute motor angle, so each sees its own stiction level and
+    Stribeck curve, as the testbed did from each initial position. A slow drift (e.g. the
+    lubricant warming up) changes the viscous friction from one repetition to the next.
+
+    Attributes
+    ----------
+    repetitions : int
+        Runs of the scenario [-] (>= 1).
+    initial_angle : str
+        ``"random"``: repetition ``i`` starts at ``initial_angles(n)[i]``, uniform in
+        [0, 2 pi); ``"fixed"``: every repetition at the scenario's ``[truth] initial_angle``.
+    viscous_drift : float
+        Relative change of the viscous friction per repetition [-]: repetition ``i`` has the
+        stiction's ``sigma2`` (and the position friction's mean level) times
+        ``1 + viscous_drift * i`` (> -1 / (repetitions - 1) so that it stays positive).
+    seed : int
+        Seed of the initial angles.
+    """
+
+    repetitions: int = 1
+    initial_angle: str = "random"
+    viscous_drift: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.repetitions, bool) or not isinstance(self.repetitions, int) or self.repetitions < 1:
+            raise ParameterError(f"variability repetitions must be an integer >= 1, got {self.repetitions!r}",
+                                 name="repetitions", value=self.repetitions)
+        if self.initial_angle not in ("random", "fixed"):
+            raise ParameterError(f"variability initial_angle must be 'random' or 'fixed', got "
+                                 f"{self.initial_angle!r}", name="initial_angle", value=self.initial_angle)
+        d = self.viscous_drift
+        if isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d) or \
+                1.0 + d * (self.repetitions - 1) <= 0.0:
+            raise ParameterError(f"variability viscous_drift must be a number keeping 1 + drift * i > 0 for "
+                                 f"every repetition, got {d!r}", name="viscous_drift", value=d)
+        object.__setattr__(self, "viscous_drift", float(d))
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int):
+            raise ParameterError(f"variability seed must be an integer, got {self.seed!r}", name="seed",
+                                 value=self.seed)
+
+    def initial_angles(self, fixed: float = 0.0) -> np.ndarray:
+        """Absolute motor angle of each repetition [rad], shape (repetitions,).
+
+        Parameters
+        ----------
+        fixed : float
+            The angle of every repetition when ``initial_angle == "fixed"`` [rad].
+        """
+        if self.initial_angle == "fixed":
+            return np.full(self.repetitions, float(fixed))
+        return np.random.default_rng(self.seed).uniform(0.0, 2.0 * math.pi, self.repetitions)
+
+    def effects_of(self, effects: tuple, index: int) -> tuple:
+        """The hardware's effects in repetition ``index``: viscous levels drifted (:attr:`viscous_drift`).
+
+        Parameters
+        ----------
+        effects : tuple
+            Effect parameter values of the scenario's truth.
+        index : int
+            Repetition [-], 0-based.
+        """
+        if self.viscous_drift == 0.0 or index == 0:
+            return tuple(effects)
+        scale = 1.0 + self.viscous_drift * index
+        out = []
+        for e in effects:
+            if isinstance(e, Stiction):
+                e = dataclasses.replace(e, sigma2=e.sigma2 * scale)
+            elif isinstance(e, PositionFriction):
+                e = dataclasses.replace(e, F_c=e.F_c * scale, a=tuple(x * scale for x in e.a),
+                                        b=tuple(x * scale for x in e.b))
+            out.append(e)
+        return tuple(out)
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The ``[variability]`` table."""
+        return {"repetitions": self.repetitions, "initial_angle": self.initial_angle,
+                "viscous_drift": self.viscous_drift, "seed": self.seed}
 
 
 @dataclass(frozen=True, slots=True)
@@ -120,6 +220,8 @@ class Scenario:
         Free text.
     source : str or None
         The file it came from.
+    variability : Variability or None
+        Run-to-run variability (``[variability]``); None: one run.
     """
 
     design: Design
@@ -130,11 +232,36 @@ class Scenario:
     options: Mapping[str, Any] = field(default_factory=dict)
     description: str = ""
     source: str | None = None
+    variability: Variability | None = None
 
-    def run(self) -> SimulationResult:
-        """Simulate the scenario (:func:`~.run.simulate`)."""
-        return simulate(self.design, reference=self.reference, effects=self.effects, rate_hz=self.rate_hz,
-                        closed_loop=self.closed_loop, description=self.description, **self.options)
+    def run(self, repetition: int = 0) -> SimulationResult:
+        """Simulate the scenario (:func:`~.run.simulate`), repetition ``repetition`` of its variability.
+
+        Repetition ``i`` starts at the ``i``-th initial angle of :class:`Variability`, with its
+        drifted effects and process-noise seed ``seed + i``.
+        """
+        if self.variability is None:
+            if repetition != 0:
+                raise ParameterError("the scenario has no [variability]: only repetition 0", name="repetition",
+                                     value=repetition)
+            return simulate(self.design, reference=self.reference, effects=self.effects, rate_hz=self.rate_hz,
+                            closed_loop=self.closed_loop, description=self.description, **self.options)
+        v = self.variability
+        if isinstance(repetition, bool) or not isinstance(repetition, int) or not 0 <= repetition < v.repetitions:
+            raise ParameterError(f"repetition must be in 0..{v.repetitions - 1}, got {repetition!r}",
+                                 name="repetition", value=repetition)
+        opts = dict(self.options)
+        angle = float(v.initial_angles(opts.get("initial_angle", 0.0))[repetition])
+        opts["initial_angle"] = angle
+        opts["seed"] = int(opts.get("seed", 0)) + repetition
+        return simulate(self.design, reference=self.reference, effects=v.effects_of(self.effects, repetition),
+                        rate_hz=self.rate_hz, closed_loop=self.closed_loop,
+                        description=f"{self.description} (repetition {repetition})".strip(), **opts)
+
+    def runs(self) -> list[SimulationResult]:
+        """Every repetition of the scenario (one run without ``[variability]``)."""
+        n = 1 if self.variability is None else self.variability.repetitions
+        return [self.run(i) for i in range(n)]
 
     def to_mapping(self) -> dict[str, Any]:
         """The scenario as a TOML-ready mapping (round-trips through :func:`scenario_from_mapping`)."""
@@ -162,6 +289,8 @@ class Scenario:
             truth["effects"] = effects_to_mappings(self.effects)
         if truth:
             out["truth"] = truth
+        if self.variability is not None:
+            out["variability"] = self.variability.to_mapping()
         out["reference"] = self.reference.to_mapping()
         sim = {k: v for k, v in opts.items() if not (k == "torque_limit" and math.isinf(v))}
         if sim.get("encoder_counts", 1) is None:
@@ -239,6 +368,10 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (rate > 0) or not math.isfinite(rate):
         raise ExperimentFormatError(f"{prefix}[sampling] rate_hz must be > 0 [Hz], got {rate!r}", path=source,
                                     key="sampling.rate_hz")
+    try:
+        check_physical("[sampling]", "rate_hz", float(rate))
+    except ParameterError as exc:
+        raise ExperimentFormatError(f"{prefix}{exc}", path=source, key="sampling.rate_hz") from None
     testbed = Testbed.from_mapping(_table(doc, "testbed", prefix, source, required=True), source=source)
     environment = Environment.from_mapping(_table(doc, "environment", prefix, source, required=True),
                                            source=source)
@@ -255,7 +388,8 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
         try:
             compensator = Compensator(**dict(comp_table))
         except ParameterError as exc:
-            raise ExperimentFormatError(f"{prefix}[compensator] {exc}", path=source,
+            message = str(exc).removeprefix("[compensator] ")   # the dataclass names its section already
+            raise ExperimentFormatError(f"{prefix}[compensator] {message}", path=source,
                                         key=f"compensator.{exc.name}") from None
     options: dict[str, Any] = {}
     sfm = _table(doc, "sfm", prefix, source, required=False)
@@ -297,6 +431,19 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
             else:
                 raise ExperimentFormatError(f"{prefix}[truth] unknown key '{key}'; allowed: effects, initial_angle, "
                                             "include_nominal_viscous", path=source, key=f"truth.{key}")
+    variability = None
+    var_table = _table(doc, "variability", prefix, source, required=False)
+    if var_table is not None:
+        allowed = ("repetitions", "initial_angle", "viscous_drift", "seed")
+        for key in var_table:
+            if key not in allowed:
+                raise ExperimentFormatError(f"{prefix}[variability] unknown key '{key}'; allowed: "
+                                            f"{', '.join(allowed)}", path=source, key=f"variability.{key}")
+        try:
+            variability = Variability(**dict(var_table))
+        except ParameterError as exc:
+            raise ExperimentFormatError(f"{prefix}[variability] {exc}", path=source,
+                                        key=f"variability.{exc.name}") from None
     reference = reference_from_mapping(_table(doc, "reference", prefix, source, required=True), source=source)
     sim = _table(doc, "simulation", prefix, source, required=True)
     for key, value in sim.items():
@@ -307,10 +454,46 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
     if "duration_s" not in sim:
         raise ExperimentFormatError(f"{prefix}[simulation] missing required key 'duration_s'", path=source,
                                     key="simulation.duration_s")
+    _check_simulation(options, float(rate), prefix, source)
     design = Design(testbed=testbed, environment=environment,
                     controller=controller, compensator=compensator)
     return Scenario(design=design, rate_hz=float(rate), closed_loop=controller is not None, reference=reference,
-                    effects=tuple(effects), options=options, description=description, source=source)
+                    effects=tuple(effects), options=options, description=description, source=source,
+                    variability=variability)
+
+
+def _check_simulation(options: Mapping[str, Any], rate: float, prefix: str, source: str | None) -> None:
+    """Bounds of the ``[simulation]`` options (docs/reliability.md): nothing that hangs, overflows or aliases."""
+    def fail(key: str, message: str) -> ExperimentFormatError:
+        return ExperimentFormatError(f"{prefix}[simulation] {key} {message}", path=source, key=f"simulation.{key}")
+
+    nyquist = rate / 2.0
+    bounds = {"duration_s": (0.0, None, False), "process_noise_std": (0.0, 100.0, True),
+              "torque_limit": (0.0, None, False), "sfm_deadband": (0.0, None, True),
+              "derivative_cutoff_hz": (0.0, nyquist, False), "velocity_cutoff_hz": (0.0, nyquist, False)}
+    for key, (lo, hi, closed) in bounds.items():
+        v = options.get(key)
+        if v is None or (key == "torque_limit" and v == math.inf):
+            continue
+        ok = math.isfinite(v) and (v >= lo if closed else v > lo)
+        if hi is not None:
+            ok = ok and (v < hi if key.endswith("_hz") else v <= hi)
+        if not ok:
+            where = f"{'>=' if closed else '>'} {lo:g}"
+            if hi is not None:
+                where += f" and {'<' if key.endswith('_hz') else '<='} {hi:g}"
+            extra = " (Nyquist, rate_hz / 2)" if key.endswith("_hz") else ""
+            raise fail(key, f"must be {where}{extra}, got {v!r}")
+    try:
+        for key in ("substeps", "seed"):
+            if key in options:
+                check_limit(key, key, options[key])
+        if "duration_s" in options:
+            check_limit(f"duration_s x rate_hz = {options['duration_s'] * rate:.3g} samples", "simulation_samples",
+                        max(1, int(min(options["duration_s"] * rate, 2**62))))
+    except ParameterError as exc:
+        raise ExperimentFormatError(f"{prefix}[simulation] {exc}", path=source,
+                                    key=f"simulation.{exc.name}") from None
 
 
 def load_scenario(path: str | os.PathLike[str]) -> Scenario:

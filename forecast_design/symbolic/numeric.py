@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..lti import RationalTF
-from ..params import Design
+from ..params import Design, require_design
 from ._catalogue import MODELS
 
 __all__ = [
@@ -308,6 +308,10 @@ class TransferFunctionEntry:
         """``{"latex", "num", "den", "poles", "dc_gain"}`` with den[0] == 1."""
         return {"latex": self.latex, **self.tf.to_mapping()}
 
+    def to_control(self):
+        """The value as a ``control.TransferFunction`` (python-control)."""
+        return self.tf.to_control()
+
 
 @dataclass(frozen=True, slots=True)
 class TransferFunctions:
@@ -321,6 +325,10 @@ class TransferFunctions:
     def to_mapping(self) -> dict[str, dict[str, Any]]:
         """``{"P": {...}, "EA": {...}, "LO": {...}, "LD": {...}}`` (see TransferFunctionEntry)."""
         return {name: getattr(self, name).to_mapping() for name in ("P", "EA", "LO", "LD")}
+
+    def to_control(self) -> dict[str, Any]:
+        """``{"P", "EA", "LO", "LD"}`` as ``control.TransferFunction`` values (python-control)."""
+        return {name: getattr(self, name).to_control() for name in ("P", "EA", "LO", "LD")}
 
 
 def transfer_functions(design: Design) -> TransferFunctions:
@@ -340,6 +348,7 @@ def transfer_functions(design: Design) -> TransferFunctions:
         (descending powers, den[0] == 1), ``poles`` ([[re, im], ...]) and
         ``dc_gain``.
     """
+    require_design(design, "transfer_functions")
     locked = design.environment.locked
 
     def entry(key: str, name: str) -> TransferFunctionEntry:

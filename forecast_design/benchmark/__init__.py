@@ -1,0 +1,29 @@
+"""Benchmark force controllers across a set of environments on the virtual testbed (paper Sections 2 and 7).
+
+``forecast-design benchmark`` in library form::
+
+    from forecast_design.benchmark import BenchmarkSpec, run_benchmark, result_table
+    spec = BenchmarkSpec(controllers=(PDController(P=5, D=0.1),), compensators=parse_compensators("none,ea-fob"),
+                         environments=tuple(resolve_environments("soft,stiff")),
+                         references=(parse_reference("step:0.2"),), repetitions=10)
+    cells, info = run_benchmark(spec, out="bench", executor=make_executor())
+    df = result_table(cells)
+
+Modules: :mod:`.spec` (what runs), :mod:`.metrics` (indicators), :mod:`.runner` (cells
+through :mod:`forecast_design.executor`, cached by their inputs), :mod:`.aggregate`
+(mean/best/worst per environment and over the set, Parquet + CSV + JSON),
+:mod:`.report` (Markdown). Plots: :mod:`forecast_design.plotting.benchmark`.
+"""
+
+from .aggregate import COLUMNS, result_rows, result_table, summary, write_summary, write_tables
+from .metrics import METRICS, repeatability_per_run, step_metrics, tracking_bandwidth_hz
+from .report import markdown_report, write_report
+from .runner import CellResult, run_benchmark, run_cell
+from .spec import BenchmarkSpec, Cell, parse_compensators, parse_controller, parse_reference
+
+__all__ = [
+    "BenchmarkSpec", "Cell", "CellResult", "parse_controller", "parse_compensators", "parse_reference",
+    "run_benchmark", "run_cell", "result_rows", "result_table", "write_tables", "summary", "write_summary",
+    "markdown_report", "write_report", "step_metrics", "tracking_bandwidth_hz", "repeatability_per_run",
+    "METRICS", "COLUMNS",
+]

@@ -1,0 +1,198 @@
+"""Aggregation (per environment and over the set: mean, best, worst) and the tidy result table.
+
+The table has one row per run (``kind = "run"``), one per environment and statistic
+(``kind = "environment"``: mean, best and worst over the repetitions; the ``mean``
+row's repeatability is the cell's mean pairwise cross-correlation) and one per set and
+statistic (``kind = "set"``: mean, best and worst over the environments of their
+per-environment means; ``which`` names the best or worst environment) for every
+controller, compensator and reference: the Forecast methodology's average, best-case
+and worst-case performance over a whole set of environments (Section 2). "Best" is the
+largest repeatability, bandwidth and disk margin and the smallest MAE, rise time,
+overshoot, settling time and |steady-state error|.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import numpy as np
+
+from .metrics import HIGHER_IS_BETTER, METRICS
+from .runner import CellResult
+
+__all__ = ["result_rows", "result_table", "write_tables", "summary", "COLUMNS", "LABELS", "ENV_COLUMNS"]
+
+#: Label columns of a cell.
+LABELS = ("controller", "compensator", "environment", "reference")
+#: Environment parameter columns [SI].
+ENV_COLUMNS = ("J_e", "d_e", "k_e", "J_l", "d_l", "locked")
+#: Every column of the table, in order.
+COLUMNS = ("kind", "statistic", *LABELS, "repetition", "initial_angle_rad", "which", *ENV_COLUMNS, *METRICS)
+
+
+def _score(metric: str, values: np.ndarray) -> np.ndarray:
+    """Larger is better."""
+    if metric in HIGHER_IS_BETTER:
+        return values
+    if metric == "steady_state_error_N_m":
+        return -np.abs(values)
+    return -values
+
+
+def _pick(metric: str, values: Sequence[float], best: bool) -> tuple[float, int | None]:
+    v = np.asarray(values, dtype=float)
+    ok = np.isfinite(v)
+    if not np.any(ok):
+        return math.nan, None
+    s = np.where(ok, _score(metric, v), -np.inf if best else np.inf)
+    i = int(np.argmax(s) if best else np.argmin(s))
+    return float(v[i]), i
+
+
+def result_rows(cells: Iterable[CellResult]) -> list[dict[str, Any]]:
+    """The tidy rows (see the module docstring) of a benchmark's cells.
+
+    Parameters
+    ----------
+    cells : iterable of CellResult
+        From :func:`~.runner.run_benchmark`.
+
+    Returns
+    -------
+    list of dict
+        Rows with the keys :data:`COLUMNS` (NaN or None where not applicable).
+    """
+    cells = list(cells)
+    rows: list[dict[str, Any]] = []
+    env_means: dict[tuple, list[tuple[str, dict[str, float]]]] = {}
+    for c in cells:
+        env = {k: c.environment.get(k) for k in ENV_COLUMNS}
+        base = {**{k: c.labels[k] for k in LABELS}, **env}
+        for r in c.runs:
+            rows.append({"kind": "run", "statistic": "value", **base, "repetition": int(r["repetition"]),
+                         "initial_angle_rad": float(r["initial_angle_rad"]), "which": None,
+                         **{m: float(r[m]) for m in METRICS}})
+        for stat in ("mean", "best", "worst"):
+            row = {"kind": "environment", "statistic": stat, **base, "repetition": None,
+                   "initial_angle_rad": math.nan, "which": None}
+            for m in METRICS:
+                vals = [float(r[m]) for r in c.runs]
+                if stat == "mean":
+                    finite = [v for v in vals if math.isfinite(v)]
+                    row[m] = float(np.mean(finite)) if finite else math.nan
+                else:
+                    row[m] = _pick(m, vals, stat == "best")[0]
+            if stat == "mean":
+                row["repeatability"] = float(c.repeatability)
+                env_means.setdefault((c.labels["controller"], c.labels["compensator"], c.labels["reference"]),
+                                     []).append((c.labels["environment"], row))
+            rows.append(row)
+    for (ctrl, comp, ref), items in env_means.items():
+        for stat in ("mean", "best", "worst"):
+            row = {"kind": "set", "statistic": stat, "controller": ctrl, "compensator": comp,
+                   "environment": "(set)", "reference": ref, "repetition": None, "initial_angle_rad": math.nan,
+                   "which": None, **dict.fromkeys(ENV_COLUMNS)}
+            which = []
+            for m in METRICS:
+                vals = [r[m] for _, r in items]
+                if stat == "mean":
+                    finite = [v for v in vals if math.isfinite(v)]
+                    row[m] = float(np.mean(finite)) if finite else math.nan
+                else:
+                    row[m], i = _pick(m, vals, stat == "best")
+                    if i is not None:
+                        which.append(f"{m}={items[i][0]}")
+            row["which"] = "; ".join(which) if which else None
+            rows.append(row)
+    return [{k: r.get(k) for k in COLUMNS} for r in rows]
+
+
+def result_table(cells: Iterable[CellResult]):
+    """:func:`result_rows` as a pandas DataFrame (columns :data:`COLUMNS`).
+
+    Parameters
+    ----------
+    cells : iterable of CellResult
+        The benchmark's cells.
+    """
+    import pandas as pd
+
+    df = pd.DataFrame(result_rows(cells), columns=list(COLUMNS))
+    df["repetition"] = df["repetition"].astype("Int64")
+    df["locked"] = df["locked"].astype("boolean")
+    for col in ("J_e", "d_e", "k_e", "J_l", "d_l", "initial_angle_rad", *METRICS):
+        df[col] = df[col].astype(float)
+    return df
+
+
+def write_tables(df, out: str | os.PathLike[str]) -> dict[str, Path]:
+    """Write the table as ``results.parquet`` (pyarrow) and ``results.csv`` (atomically).
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+        From :func:`result_table`.
+    out : path
+        The result folder.
+
+    Returns
+    -------
+    dict of str to Path
+        ``parquet`` and ``csv``.
+    """
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {"parquet": folder / "results.parquet", "csv": folder / "results.csv"}
+    tmp = folder / "results.parquet.tmp"
+    df.to_parquet(tmp, engine="pyarrow", index=False)
+    os.replace(tmp, paths["parquet"])
+    tmp = folder / "results.csv.tmp"
+    df.to_csv(tmp, index=False, float_format="%.17g")
+    os.replace(tmp, paths["csv"])
+    return paths
+
+
+def _clean(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def summary(rows: Sequence[Mapping[str, Any]], spec: Mapping[str, Any], info: Mapping[str, Any]) -> dict[str, Any]:
+    """JSON summary: the benchmark, how it ran, and the set-level rows (mean, best, worst).
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        :func:`result_rows`.
+    spec : Mapping
+        :meth:`~.spec.BenchmarkSpec.to_mapping`.
+    info : Mapping
+        From :func:`~.runner.run_benchmark` (cells computed/reused, executor, SFM).
+    """
+    sets = [r for r in rows if r["kind"] == "set"]
+    envs = [r for r in rows if r["kind"] == "environment" and r["statistic"] == "mean"]
+    doc = {"format": "forecast-benchmark/1", "benchmark": dict(spec), "run": dict(info),
+           "set": [{k: r[k] for k in ("controller", "compensator", "reference", "statistic", "which", *METRICS)}
+                   for r in sets],
+           "environments": [{k: r[k] for k in (*LABELS, *METRICS)} for r in envs]}
+    return _clean(doc)
+
+
+def write_summary(doc: Mapping[str, Any], out: str | os.PathLike[str]) -> Path:
+    """Write ``summary.json`` atomically."""
+    path = Path(out) / "summary.json"
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    os.replace(tmp, path)
+    return path

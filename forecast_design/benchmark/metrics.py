@@ -1,0 +1,213 @@
+"""Performance indicators of one run and of a set of repetitions (the Forecast methodology, Section 2).
+
+Per run (step reference):
+
+* ``mae_N_m``: mean |tau_s - tau_s,expected| against the frictionless expected response
+  (the same controller on the nominal plant without friction, compensator or noise: the
+  red dashed lines of Figs. 10-12);
+* ``rise_time_s``: 10 % to 90 % of the run's own final value (mean of the last 10 % of the
+  run), first crossings;
+* ``overshoot_percent``: ``100 (peak - final) / |final|``, 0 without overshoot;
+* ``settling_time_s``: time after the step until the response stays within 2 % of its
+  final value;
+* ``steady_state_error_N_m``: ``amplitude - final``.
+
+Per run (chirp reference): ``bandwidth_hz``, the lowest frequency at which the measured
+tau_s / tau_r gain falls 3 dB below its value at the chirp's start frequency
+(:func:`tracking_bandwidth_hz`).
+
+Per set of repetitions: ``repeatability``, the mean pairwise zero-lag cross-correlation
+of tau_s (Table 3, :func:`forecast_design.reproduce.pairwise_xcorr`); per run the mean
+correlation with the other repetitions (whose mean is the set's value).
+
+Per loop: ``disk_margin``, the balanced disk margin of the force loop with the compensator
+(:func:`forecast_design.analysis.loop_margins`; the SFM is a feed-forward and leaves the
+plant's margin).
+"""
+
+from __future__ import annotations
+
+import math
+import numpy as np
+
+from ..analysis import loop_margins
+from ..errors import ParameterError
+from ..params import Compensator, Design
+from ..reproduce import pairwise_xcorr
+
+__all__ = ["step_metrics", "tracking_bandwidth_hz", "frequency_response", "repeatability_per_run",
+           "pairwise_xcorr", "disk_margin_of", "METRICS", "HIGHER_IS_BETTER"]
+
+#: Metric columns of the result table, in order.
+METRICS = ("repeatability", "mae_N_m", "rise_time_s", "overshoot_percent", "settling_time_s",
+           "steady_state_error_N_m", "bandwidth_hz", "disk_margin")
+#: Metrics where larger is better (the others: smaller, or smaller magnitude for the error).
+HIGHER_IS_BETTER = frozenset({"repeatability", "bandwidth_hz", "disk_margin"})
+
+
+def _first_crossing(t: np.ndarray, y: np.ndarray, level: float) -> float:
+    idx = np.nonzero(y >= level)[0]
+    if idx.size == 0:
+        return math.nan
+    i = int(idx[0])
+    if i == 0:
+        return float(t[0])
+    # linear interpolation between the samples around the crossing
+    y0, y1 = y[i - 1], y[i]
+    return float(t[i - 1] + (level - y0) / (y1 - y0) * (t[i] - t[i - 1]))
+
+
+def step_metrics(t: np.ndarray, y: np.ndarray, *, amplitude: float, t0: float = 0.0, band: float = 0.02
+                 ) -> dict[str, float]:
+    """Rise time, overshoot, settling time and steady-state error of one step response.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n,)
+        Sample times [s].
+    y : ndarray, shape (n,)
+        Response (tau_s) [N m].
+    amplitude : float
+        Step height of the reference [N m] (non-zero).
+    t0 : float
+        Time of the step [s].
+    band : float
+        Settling band, a fraction of the final value [-].
+
+    Returns
+    -------
+    dict
+        ``rise_time_s``, ``overshoot_percent``, ``settling_time_s``, ``steady_state_error_N_m``
+        and ``final_N_m``; NaN where undefined (a response that never leaves zero).
+    """
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if t.shape != y.shape or t.ndim != 1 or t.size < 10:
+        raise ParameterError(f"step_metrics needs two equal 1-D arrays of >= 10 samples, got {t.shape}, {y.shape}",
+                             name="y", value=y.shape)
+    if amplitude == 0.0:
+        raise ParameterError("step amplitude must be non-zero", name="amplitude", value=amplitude)
+    sign = 1.0 if amplitude > 0 else -1.0
+    after = t >= t0
+    ts, ys = t[after] - t0, sign * y[after]
+    final = float(np.mean(ys[-max(1, ys.size // 10):]))
+    out = {"final_N_m": sign * final, "steady_state_error_N_m": float(amplitude - sign * final)}
+    if not final > 0.0:
+        out.update(rise_time_s=math.nan, overshoot_percent=math.nan, settling_time_s=math.nan)
+        return out
+    t10, t90 = _first_crossing(ts, ys, 0.1 * final), _first_crossing(ts, ys, 0.9 * final)
+    out["rise_time_s"] = t90 - t10
+    out["overshoot_percent"] = float(max(0.0, (np.max(ys) - final) / final * 100.0))
+    outside = np.nonzero(np.abs(ys - final) > band * final)[0]
+    out["settling_time_s"] = 0.0 if outside.size == 0 else float(ts[min(outside[-1] + 1, ts.size - 1)])
+    return out
+
+
+def frequency_response(r: np.ndarray, y: np.ndarray, rate_hz: float, f_lo: float, f_hi: float,
+                       bands: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    """Empirical frequency response y/r from one record, averaged over log-spaced bands.
+
+    Parameters
+    ----------
+    r, y : ndarray, shape (n,)
+        Input (reference) and output (tau_s) [N m].
+    rate_hz : float
+        Sampling rate [Hz].
+    f_lo, f_hi : float
+        Band of the excitation [Hz].
+    bands : int
+        Log-spaced frequency bands [-].
+
+    Returns
+    -------
+    f_hz : ndarray
+        Geometric band centres [Hz] (bands with no FFT bin dropped).
+    H : ndarray of complex
+        ``sum Y conj(R) / sum |R|^2`` over each band's bins.
+    """
+    r = np.asarray(r, dtype=float) - np.mean(r)
+    y = np.asarray(y, dtype=float) - np.mean(y)
+    R, Y = np.fft.rfft(r), np.fft.rfft(y)
+    f = np.fft.rfftfreq(r.size, 1.0 / rate_hz)
+    edges = np.geomspace(f_lo, f_hi, bands + 1)
+    fc, H = [], []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        sel = (f >= lo) & (f < hi)
+        den = np.sum(np.abs(R[sel]) ** 2)
+        if not np.any(sel) or den == 0.0:
+            continue
+        fc.append(math.sqrt(lo * hi))
+        H.append(np.sum(Y[sel] * np.conj(R[sel])) / den)
+    return np.array(fc), np.array(H)
+
+
+def tracking_bandwidth_hz(r: np.ndarray, y: np.ndarray, rate_hz: float, f_lo: float, f_hi: float) -> float:
+    """Lowest frequency where the tracking gain |tau_s / tau_r| is 3 dB below its low-frequency value.
+
+    Parameters
+    ----------
+    r, y : ndarray, shape (n,)
+        Chirp reference and measured tau_s [N m].
+    rate_hz : float
+        Sampling rate [Hz].
+    f_lo, f_hi : float
+        The chirp's start and end frequencies [Hz].
+
+    Returns
+    -------
+    float
+        Bandwidth [Hz], interpolated in log frequency between bands; ``f_hi`` clipped (inf is
+        not claimed) when the gain never drops 3 dB within the chirp; NaN when the record is
+        too short to resolve ``f_lo``.
+    """
+    f, H = frequency_response(r, y, rate_hz, f_lo, f_hi)
+    if f.size < 3:
+        return math.nan
+    gain = np.abs(H)
+    ref = np.mean(gain[:2])
+    below = np.nonzero(gain < ref / math.sqrt(2.0))[0]
+    if below.size == 0:
+        return float(f_hi)
+    i = int(below[0])
+    if i == 0:
+        return float(f[0])
+    g0, g1 = gain[i - 1], gain[i]
+    target = ref / math.sqrt(2.0)
+    x = (g0 - target) / (g0 - g1)
+    return float(math.exp(math.log(f[i - 1]) + x * (math.log(f[i]) - math.log(f[i - 1]))))
+
+
+def repeatability_per_run(responses: np.ndarray) -> np.ndarray:
+    """Each run's mean zero-lag correlation with the other repetitions [-].
+
+    Parameters
+    ----------
+    responses : ndarray, shape (m, n)
+        One response per row, m >= 2.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Its mean equals :func:`pairwise_xcorr` of the set.
+    """
+    x = np.asarray(responses, dtype=float)
+    if x.ndim != 2 or x.shape[0] < 2:
+        raise ParameterError(f"repeatability needs at least two responses as rows, got shape {x.shape}",
+                             name="responses", value=x.shape)
+    c = np.corrcoef(x)
+    m = x.shape[0]
+    return (np.sum(c, axis=1) - np.diag(c)) / (m - 1)
+
+
+def disk_margin_of(design: Design, compensator: Compensator) -> float:
+    """Balanced disk margin of the force loop with an observer (or the plant's for ``none``/``sfm``) [-].
+
+    Parameters
+    ----------
+    design : Design
+        Testbed, environment and controller.
+    compensator : Compensator
+        Friction compensator; the SFM (a feed-forward) is analysed as ``none``.
+    """
+    comp = compensator if compensator.is_observer else Compensator(kind="none")
+    return float(loop_margins(design, comp).alpha)

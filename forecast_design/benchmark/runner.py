@@ -1,0 +1,235 @@
+"""Run a benchmark: every cell on the virtual testbed through the executor, results cached by their inputs.
+
+A cell (one controller, compensator, environment and reference) is one coarse task:
+its ``repetitions`` runs plus the frictionless expected response, simulated where the
+executor puts it (:func:`run_cell`, deterministic by seed: repetition ``i`` starts from
+the ``i``-th initial angle of :class:`~forecast_design.simulation.scenario.Variability`
+and draws process noise with seed ``seed + 1 + i``, the same in every cell, so cells
+differ only by what is benchmarked). Finished cells are stored as
+``OUT/cells/<key>.json`` (metrics) and ``<key>.npz`` (traces); the key hashes every input
+(:meth:`~.spec.BenchmarkSpec.cell_key`), so a rerun computes only missing or changed cells.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..executor import Executor, LocalExecutor
+from ..params import Compensator, Design
+from ..reproduce import identify_extended_sfm
+from ..simulation import Chirp, simulate
+from ..simulation.scenario import Variability
+from .metrics import METRICS, disk_margin_of, pairwise_xcorr, repeatability_per_run, step_metrics, \
+    tracking_bandwidth_hz
+from .spec import BenchmarkSpec, Cell
+
+__all__ = ["CellResult", "run_cell", "run_benchmark", "TRACE_POINTS"]
+
+#: Samples kept per stored trace (decimated) for the overlay plots [-].
+TRACE_POINTS = 1000
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class CellResult:
+    """Metrics and traces of one cell.
+
+    Attributes
+    ----------
+    key : str
+        Hash of the cell's inputs.
+    labels : dict
+        ``controller``, ``compensator``, ``environment``, ``reference``.
+    environment : dict
+        The environment's parameters (``J_e``, ``d_e``, ``k_e``, ``J_l``, ``d_l``, ``locked``).
+    runs : tuple of dict
+        Per repetition: ``repetition``, ``initial_angle_rad`` and the :data:`~.metrics.METRICS`.
+    repeatability : float
+        Mean pairwise cross-correlation of the repetitions [-].
+    disk_margin : float
+        The loop's disk margin [-].
+    t, tau_s, expected, tau_r : ndarray
+        Decimated traces: times [s], tau_s per repetition (rows), the frictionless
+        expected response and the reference [N m].
+    """
+
+    key: str
+    labels: Mapping[str, str]
+    environment: Mapping[str, Any]
+    runs: tuple
+    repeatability: float
+    disk_margin: float
+    t: np.ndarray
+    tau_s: np.ndarray
+    expected: np.ndarray
+    tau_r: np.ndarray
+
+    def to_mapping(self) -> dict[str, Any]:
+        """Metrics without traces (the ``cells/<key>.json`` file)."""
+        return {"key": self.key, "labels": dict(self.labels), "environment": dict(self.environment),
+                "runs": [dict(r) for r in self.runs], "repeatability": self.repeatability,
+                "disk_margin": self.disk_margin}
+
+    def save(self, folder: Path) -> None:
+        """Write ``<key>.npz`` then ``<key>.json`` (the JSON last: its presence marks a finished cell)."""
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = folder / f"{self.key}.tmp.npz"
+        np.savez(tmp, t=self.t, tau_s=self.tau_s, expected=self.expected, tau_r=self.tau_r)
+        os.replace(tmp, folder / f"{self.key}.npz")
+        tmp = folder / f"{self.key}.json.tmp"
+        tmp.write_text(json.dumps(_jsonable(self.to_mapping()), indent=1, allow_nan=False) + "\n", encoding="utf-8")
+        os.replace(tmp, folder / f"{self.key}.json")
+
+    @classmethod
+    def load(cls, folder: Path, key: str) -> "CellResult | None":
+        """The stored cell with this key, or None if absent or unreadable."""
+        try:
+            doc = json.loads((folder / f"{key}.json").read_text(encoding="utf-8"))
+            with np.load(folder / f"{key}.npz") as npz:
+                arrays = {k: npz[k] for k in ("t", "tau_s", "expected", "tau_r")}
+        except (OSError, ValueError, KeyError):
+            return None
+        if doc.get("key") != key:
+            return None
+        runs = tuple({k: (math.nan if v is None else v) for k, v in r.items()} for r in doc["runs"])
+        return cls(key=key, labels=doc["labels"], environment=doc["environment"], runs=runs,
+                   repeatability=_num(doc["repeatability"]), disk_margin=_num(doc["disk_margin"]), **arrays)
+
+
+def _num(x: Any) -> float:
+    return math.nan if x is None else float(x)
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def _decimate(n: int) -> slice:
+    return slice(None, None, max(1, int(math.ceil(n / TRACE_POINTS))))
+
+
+def run_cell(task: tuple) -> CellResult:
+    """Simulate one cell's repetitions and its frictionless expected response; compute the metrics.
+
+    Parameters
+    ----------
+    task : tuple
+        ``(key, cell, spec, sfm_params)``: the cell, the benchmark (hardware, seed,
+        repetitions) and the identified SFM parameters (None without an SFM).
+
+    Returns
+    -------
+    CellResult
+        Metrics and decimated traces.
+    """
+    key, cell, spec, sfm_params = task
+    design = Design(testbed=Design.nominal().testbed, environment=cell.environment, controller=cell.controller,
+                    compensator=cell.compensator)
+    var = Variability(repetitions=spec.repetitions, viscous_drift=spec.viscous_drift, seed=spec.seed)
+    angles = var.initial_angles()
+    common = dict(reference=cell.reference, duration_s=cell.duration_s, rate_hz=spec.rate_hz)
+    expected = simulate(dataclasses.replace(design, compensator=Compensator(kind="none")), **common,
+                        include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None,
+                        description="benchmark: frictionless expected response")
+    runs = [simulate(design, **common, effects=var.effects_of(spec.effects, i), initial_angle=float(a),
+                     seed=spec.seed + 1 + i, sfm_params=sfm_params if cell.compensator.kind == "sfm" else None,
+                     sfm_deadband=spec.sfm_deadband if cell.compensator.kind == "sfm" else 0.0)
+            for i, a in enumerate(angles)]
+    tau = np.array([r.tau_s for r in runs])
+    t = runs[0].t
+    per_run_rep = repeatability_per_run(tau)
+    margin = disk_margin_of(design, cell.compensator)
+    chirp = isinstance(cell.reference, Chirp)
+    rows = []
+    for i, (r, a) in enumerate(zip(runs, angles)):
+        row: dict[str, Any] = {"repetition": i, "initial_angle_rad": float(a)}
+        m = dict.fromkeys(METRICS, math.nan)
+        m["repeatability"] = float(per_run_rep[i])
+        m["mae_N_m"] = float(np.mean(np.abs(r.tau_s - expected.tau_s)))
+        m["disk_margin"] = margin
+        if chirp:
+            m["bandwidth_hz"] = tracking_bandwidth_hz(r.tau_r, r.tau_s, spec.rate_hz, cell.reference.f0_hz,
+                                                      cell.reference.f1_hz)
+        else:
+            sm = step_metrics(t, r.tau_s, amplitude=cell.reference.amplitude, t0=cell.reference.t0)
+            for k in ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m"):
+                m[k] = sm[k]
+        row.update(m)
+        rows.append(row)
+    dec = _decimate(t.size)
+    return CellResult(key=key, labels=cell.labels, environment=cell.environment.to_mapping(), runs=tuple(rows),
+                      repeatability=pairwise_xcorr(tau), disk_margin=margin, t=np.array(t[dec]),
+                      tau_s=np.array(tau[:, dec]), expected=np.array(expected.tau_s[dec]),
+                      tau_r=np.array(runs[0].tau_r[dec]))
+
+
+def run_benchmark(spec: BenchmarkSpec, *, out: str | os.PathLike[str] | None = None, executor: Executor | None = None,
+                  progress: Callable[[int, int], None] | None = None,
+                  sfm_params: Mapping[str, float] | None = None) -> tuple[list[CellResult], dict[str, Any]]:
+    """Run every cell of a benchmark (those not already stored under ``out``).
+
+    Parameters
+    ----------
+    spec : BenchmarkSpec
+        What to run.
+    out : path, optional
+        Result folder; finished cells are read from and written to ``out/cells``.
+    executor : Executor, optional
+        Where cells run (:func:`forecast_design.executor.make_executor`); default: this process.
+    progress : callable, optional
+        ``progress(done, total)`` over the cells to compute.
+    sfm_params : Mapping, optional
+        The SFM's identified friction; default: identified on a simulated open-loop run of
+        the same hardware (:func:`forecast_design.reproduce.identify_extended_sfm`).
+
+    Returns
+    -------
+    cells : list of CellResult
+        In :meth:`~.spec.BenchmarkSpec.cells` order.
+    info : dict
+        ``computed`` and ``reused`` cell counts, the SFM parameters and the executor.
+    """
+    if not isinstance(spec, BenchmarkSpec):
+        raise ParameterError("run_benchmark needs a BenchmarkSpec", name="spec", value=type(spec).__name__)
+    cells: list[Cell] = spec.cells()
+    if sfm_params is None and any(c.compensator.kind == "sfm" for c in cells):
+        sfm_params, _, _ = identify_extended_sfm(spec.effects, seed=spec.seed)
+    sfm = None if sfm_params is None else {k: float(v) for k, v in sfm_params.items()}
+    folder = None if out is None else Path(out) / "cells"
+    keys = [spec.cell_key(c, sfm) for c in cells]
+    found: dict[str, CellResult] = {}
+    if folder is not None:
+        for k in keys:
+            stored = CellResult.load(folder, k)
+            if stored is not None:
+                found[k] = stored
+    todo = [(k, c, spec, sfm) for k, c in zip(keys, cells) if k not in found]
+    ex = executor or LocalExecutor(1)
+    # rounds of a few tasks per worker: each round's cells are stored before the next starts,
+    # so an interrupted run keeps what it finished
+    step = max(4, 4 * ex.workers)
+    for start in range(0, len(todo), step):
+        chunk = todo[start:start + step]
+        report = None if progress is None else (lambda d, n, s=start: progress(s + d, len(todo)))
+        for res in ex.map(run_cell, chunk, progress=report):
+            found[res.key] = res
+            if folder is not None:
+                res.save(folder)
+    info = {"cells": len(cells), "computed": len(todo), "reused": len(cells) - len(todo), "sfm_params": sfm,
+            **ex.describe()}
+    return [found[k] for k in keys], info

@@ -1,0 +1,55 @@
+"""Board-firmware options shared by ``export --firmware`` and ``pil`` (one definition)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+
+from ._options import _float_range
+
+__all__ = ["_add_firmware_options", "_firmware_options_from_args"]
+
+
+def _add_firmware_options(p: argparse.ArgumentParser) -> None:
+    """--firmware, --board, --output-stage, --tau-full-scale, --link-timeout-ms."""
+    from ..export.firmware import BOARDS, OUTPUT_STAGES
+
+    g = p.add_argument_group("board firmware (export --firmware, pil)")
+    g.add_argument("--firmware", action="store_true",
+                   help="write a complete bare-metal firmware project (make builds .elf/.bin) instead of the C only")
+    g.add_argument("--board", default=BOARDS[0], choices=BOARDS, help="target board (default nucleo-f446re)")
+    g.add_argument("--output-stage", default="dac", choices=OUTPUT_STAGES,
+                   help="ESCON set value: dac (PA4 analog) or pwm (PA6, 10-90 %% duty); default dac")
+    g.add_argument("--tau-full-scale", type=_float_range, default=2.0, metavar="N_M",
+                   help="torque at the ESCON's full-scale set value [N m] (default 2.0; from k_t, gear, current range)")
+    g.add_argument("--link-timeout-ms", type=_float_range, default=100.0, metavar="MS",
+                   help="host silence during a run that zeroes the torque [ms] (default 100)")
+
+
+def _firmware_options_from_args(args: argparse.Namespace):
+    """FirmwareOptions of the parsed options; --tau-max is the torque limit (default 1 N m)."""
+    from ..export.firmware import FirmwareOptions
+
+    limit = args.tau_max if math.isfinite(args.tau_max) else 1.0
+    return FirmwareOptions(board=args.board, output=args.output_stage, tau_limit_N_m=limit,
+                           tau_full_scale_N_m=args.tau_full_scale, link_timeout_ms=args.link_timeout_ms)
+
+
+def _cmd_export_firmware(args: argparse.Namespace, env, comp) -> int:
+    """``export --firmware``: write the firmware project (and build it when --check-arm)."""
+    from ..export.firmware import build_firmware, export_firmware
+    from . import _testbed_from_args, _write_json
+
+    result = export_firmware(out_dir=args.out, controller=args.controller,
+                             compensator=comp if comp is not None else "none", env=env,
+                             testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz,
+                             method=args.method, options=_firmware_options_from_args(args))
+    mapping = result.to_mapping()
+    if args.check_arm:   # build both targets here (-Werror) as a check
+        mapping["elf"] = [str(build_firmware(args.out, "board")), str(build_firmware(args.out, "pil"))]
+    if args.json:
+        _write_json(args.json, mapping)
+    if args.json != "-":
+        print(f"wrote the {result.options.board} firmware project to {result.out_dir} ({len(result.files)} files, "
+              f"sha256 {result.digest[:12]}); build it with: make -C {result.out_dir}")
+    return 0

@@ -1,0 +1,180 @@
+"""Options shared by the verbs: environments, testbed, compensator with identified friction, JSON, skew.
+
+One spelling per concept (README, "Interface conventions"); the older spellings are aliases.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+__all__: list[str] = []
+
+
+def _float_range(text: str) -> float:
+    value = float(text)
+    if value != value:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}")
+    return value
+
+
+_ENV_HELP = ("environment: a preset (soft), inline values (k_e=20,J_e=0.02[,d_e=..][,locked=true]), "
+             "a TOML file (one or a set, docs/environments.md) or a comma list of presets")
+
+
+def _add_environment_options(p: argparse.ArgumentParser, *, default: str, many: bool,
+                             believed: bool = False, testbed: bool = True) -> None:
+    """The one spelling of the environment/testbed options (``--env``, alias ``--envs``; ``--testbed``;
+    ``--experiment RUN.toml``). ``many``: the verb takes a set (repeat or give a file); else exactly one."""
+    what = "environment set" if many else "the environment (exactly one)"
+    p.add_argument("--env", "--envs", dest="env", action="append", metavar="SPEC",
+                   help=f"{what}; {_ENV_HELP}; repeatable (default {default})")
+    p.set_defaults(env_default=default)
+    if testbed:
+        p.add_argument("--testbed", metavar="SPEC",
+                       help="testbed: inline (k=40[,J_m=..][,d_m=..]) or a TOML file with [testbed] "
+                            "(default: the paper's Table 1)")
+        p.add_argument("--experiment", metavar="RUN.toml",
+                       help="take testbed and environment from a log's TOML (its CSV is not read)")
+    if believed:
+        p.add_argument("--believed", metavar="SPEC",
+                       help="environment the observer believes in (same forms as --env; default: the true one)")
+
+
+def _note(notes) -> None:
+    for note in notes:
+        print(f"forecast-design: note: {note}", file=sys.stderr)
+
+
+def _testbed_from_args(args: argparse.Namespace):
+    """The testbed of --testbed / --experiment (Table 1 when neither is given)."""
+    from ..environments import resolve_testbed
+
+    experiment, testbed = getattr(args, "experiment", None), getattr(args, "testbed", None)
+    if experiment and (testbed or getattr(args, "env", None)):
+        from ..errors import ParameterError
+
+        raise ParameterError("give --experiment or --env/--testbed, not both (the log's TOML holds its testbed "
+                             "and environment)", name="experiment")
+    if experiment and not os.path.isfile(experiment):
+        from ..errors import ExperimentFormatError
+
+        raise ExperimentFormatError(f"{experiment}: experiment file not found", path=experiment)
+    return resolve_testbed(experiment or testbed)
+
+
+def _environments_from_args(args: argparse.Namespace, *, seed: int = 0):
+    """The EnvironmentSet of --env/--envs (repeats concatenated) or --experiment; notes go to stderr."""
+    from ..environments import resolve_environments
+
+    specs = getattr(args, "env", None)
+    experiment = getattr(args, "experiment", None)
+    if experiment and specs:
+        from ..errors import ParameterError
+
+        raise ParameterError("give --experiment or --env/--testbed, not both (the log's TOML holds its testbed "
+                             "and environment)", name="experiment")
+    if experiment and not os.path.isfile(experiment):
+        from ..errors import ExperimentFormatError
+
+        raise ExperimentFormatError(f"{experiment}: experiment file not found", path=experiment)
+    envset = resolve_environments(experiment or specs or args.env_default,
+                                  testbed=_testbed_from_args(args), seed=seed)
+    _note(envset.notes)
+    return envset
+
+
+def _one_environment_from_args(args: argparse.Namespace, what: str):
+    """(name, Environment) of a verb that takes exactly one environment (a set is an error, never the last)."""
+    return _environments_from_args(args).single(f"{what} (--env)")
+
+
+def _design_from_args(args: argparse.Namespace, *, env_name: str | None = None):
+    """The one design named by --experiment or --env/--testbed (``env_name`` overrides --env)."""
+    from ..environments import resolve_environments
+    from ..params import Design
+
+    testbed = _testbed_from_args(args)
+    if env_name is not None:
+        env = resolve_environments(env_name, testbed=testbed).single(f"environment {env_name!r}")[1]
+    else:
+        env = _one_environment_from_args(args, "this command")[1]
+    return Design(testbed=testbed, environment=env)
+
+
+def _add_json_option(p: argparse.ArgumentParser, what: str = "the result") -> None:
+    """``--json [FILE]``, the same in every verb: FILE, or stdout with no FILE or '-'."""
+    p.add_argument("--json", metavar="FILE", nargs="?", const="-",
+                   help=f"write {what} as JSON to FILE (stdout with no FILE or '-')")
+
+
+def _json_positional(args: argparse.Namespace, name: str, suffix: str = ".toml") -> None:
+    """``VERB --json RUN.toml`` (the old flag form) read RUN.toml as the JSON target: give it back."""
+    if getattr(args, name) is None and args.json not in (None, "-") and args.json.endswith(suffix):
+        setattr(args, name, args.json)
+        args.json = "-"
+    if getattr(args, name) is None:
+        from ..errors import ParameterError
+
+        raise ParameterError(f"missing the {name.upper()}{suffix} argument", name=name)
+
+
+_FRICTION_MODELS = ("sfm", "extended-sfm")
+
+
+def _friction_from_file(path: str) -> dict[str, float]:
+    """The identified friction of an ``identify --json F.json`` file, for an SFM compensator.
+
+    Only the SFM-shaped laws (viscous, coulomb, offset, angle harmonics) drive the SFM feed-forward;
+    a fitted inertia is not friction and is left out (with a note).
+    """
+    from pathlib import Path
+
+    from ..errors import ExperimentFormatError
+
+    try:
+        doc = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise ExperimentFormatError(f"{path}: friction file not found (write it with identify --json)",
+                                    path=path) from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ExperimentFormatError(f"{path}: not an identify --json file: {str(exc).splitlines()[0]}",
+                                    path=path) from None
+    params = doc.get("params") if isinstance(doc, dict) else None
+    if not isinstance(params, dict) or not params:
+        raise ExperimentFormatError(f"{path}: no 'params' object (expected the output of identify --json)",
+                                    path=path, key="params")
+    model = doc.get("model")
+    if model not in _FRICTION_MODELS:
+        raise ExperimentFormatError(f"{path}: model {model!r} cannot drive the SFM compensator; identify with "
+                                    f"--model {' or --model '.join(_FRICTION_MODELS)}", path=path, key="model")
+    for name in doc.get("not_identified") or ():
+        print(f"forecast-design: warning: {path}: {name} was not identified; its value is used as it is",
+              file=sys.stderr)
+    if "inertia" in params:
+        _note([f"{path}: the fitted inertia is not friction; the SFM compensator leaves it out"])
+    return {k: v for k, v in params.items() if k != "inertia"}
+
+
+def _compensator_from_args(args: argparse.Namespace):
+    """The Compensator of --compensator/--w-q-hz (and --friction for sfm), or None for 'none'."""
+    from ..errors import ParameterError
+    from ..params import Compensator
+
+    friction = getattr(args, "friction", None)
+    if friction and args.compensator != "sfm":
+        raise ParameterError(f"--friction applies to --compensator sfm, not {args.compensator!r}", name="friction")
+    if args.compensator == "sfm" and not friction:
+        raise ParameterError("--compensator sfm needs --friction F.json (from identify --model sfm --json F.json)",
+                             name="friction")
+    if args.compensator == "none":
+        return None
+    return Compensator(kind=args.compensator, w_q_hz=args.w_q_hz,
+                       friction=_friction_from_file(friction) if friction else ())
+
+
+def _add_skew_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--skew", "--sigma", dest="sigma", type=_float_range, default=0.0, metavar="SKEW",
+                   help="disk skew sigma (python-control/MATLAB 'skew'; 0 balanced, the paper's)")

@@ -1,0 +1,45 @@
+"""The ``pil`` verb: the board firmware on qemu in the loop with the virtual testbed."""
+
+from __future__ import annotations
+
+import argparse
+
+from . import _command, _compensator_from_args, _configure_export, _one_environment_from_args, _testbed_from_args
+from . import _write_json
+from ._firmware import _firmware_options_from_args
+
+
+def _configure_pil(p: argparse.ArgumentParser) -> None:
+    _configure_export(p)   # the same design options as export (--out is the recorded RUN.toml here)
+    p.add_argument("--reference", default="square:0.2:0.5", metavar="KIND:ARGS",
+                   help="force reference: square:AMP:PERIOD, sine:AMP:PERIOD, step:AMP[:DELAY]")
+    p.add_argument("--duration", type=float, default=2.0, help="simulated time [s] (default 2)")
+    p.add_argument("--work-dir", metavar="DIR", help="firmware project folder (default: RUN-firmware beside --out)")
+    p.add_argument("--no-icount", action="store_true",
+                   help="run qemu on real time (no instruction count; the link timeout is then wall-clock)")
+
+
+@_command("pil", "processor-in-the-loop: the board firmware on qemu (netduinoplus2) against the virtual testbed",
+          _configure_pil)
+def _cmd_pil(args: argparse.Namespace) -> int:
+    from ..errors import ParameterError
+    from ..runtime.pil import run_pil
+
+    if args.check_arm:
+        raise ParameterError("--check-arm is an export option; pil always runs the firmware on qemu",
+                             name="check_arm")
+    _, env = _one_environment_from_args(args, "pil")
+    comp = _compensator_from_args(args)
+    result = run_pil(controller=args.controller, compensator=comp if comp is not None else "none", env=env,
+                     testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz, method=args.method,
+                     reference=args.reference, duration=args.duration, out=args.out, work_dir=args.work_dir,
+                     options=_firmware_options_from_args(args), icount=not args.no_icount)
+    summary = result.to_mapping()
+    if args.json:
+        _write_json(args.json, summary)
+    if args.json != "-":
+        ips = summary["instructions_per_step"]
+        cost = f"; {ips:.0f} instructions/step of 84000 cycles" if ips is not None else ""
+        fault = f"; firmware fault {result.fault}" if result.fault else ""
+        print(f"{args.out}: {result.samples} of {result.expected} periods with the firmware in the loop{cost}{fault}")
+    return 2 if result.fault else 0

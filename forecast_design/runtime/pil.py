@@ -1,0 +1,383 @@
+"""Processor-in-the-loop: the board firmware on qemu (netduinoplus2), the virtual testbed on the host.
+
+Each period the host measures the virtual testbed (the simulator's own
+:class:`~forecast_design.simulation.plant.PlantStepper`), sends the raw encoder counts in a SENSOR
+frame over the firmware's USART2 (a qemu pseudo-terminal), and applies the torque of the SAMPLE the
+firmware answers with. The run is recorded in the experiment format like a hardware run.
+:func:`python_closed_loop` runs the same loop with the controller in Python (the reference the PIL
+run must match).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import select
+import shutil
+import subprocess
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..errors import ExportError, ParameterError
+from ..export.firmware import (FirmwareOptions, build_firmware, export_firmware, firmware_measurements,
+                               sensor_counts)
+from ..export.toolchain import find_tools
+from ..params import Design
+from ..simulation import plant_stepper
+from . import protocol as pr
+from .board import Board, record_to_experiment
+from .link import LinkError
+
+__all__ = ["PilFaults", "PilResult", "QemuBoard", "qemu_available", "run_pil", "pil_session",
+           "python_closed_loop", "COUNT_OFFSET"]
+
+#: Raw counts start here (mod 2**32), so the firmware's 32-bit counters wrap within the first periods.
+COUNT_OFFSET = 2**32 - 3
+
+
+def qemu_available() -> str | None:
+    """None when qemu-system-arm, arm-none-eabi-gcc and make are there, else the reason (one line)."""
+    tools = find_tools()
+    if tools.qemu is None:
+        return "qemu-system-arm not on PATH (Debian package qemu-system-arm; tools/setup.sh --test)"
+    if tools.arm_gcc is None:
+        return "arm-none-eabi-gcc not on PATH (Debian package gcc-arm-none-eabi; tools/setup.sh --test)"
+    if shutil.which("make") is None:
+        return "make not on PATH (Debian package make)"
+    return None
+
+
+@dataclass(frozen=True, slots=True)
+class PilFaults:
+    """Faults the host injects on the PIL link (each at a period index; None: off).
+
+    Parameters
+    ----------
+    garbage_at : int or None
+        Before this period's SENSOR frame, send ``garbage_bytes`` bytes that hold no frame.
+    garbage_bytes : int
+        Length of that garbage [bytes].
+    drop_at : int or None
+        Never send this period's SENSOR frame (the next one follows).
+    silent_at : int or None
+        Stop sending at this period (a silent host).
+    seed : int
+        Seed of the garbage bytes.
+    """
+
+    garbage_at: int | None = None
+    garbage_bytes: int = 200
+    drop_at: int | None = None
+    silent_at: int | None = None
+    seed: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class PilResult:
+    """One PIL run.
+
+    Parameters
+    ----------
+    samples : int
+        SAMPLE frames received (one per period run) [-].
+    expected : int
+        Periods requested [-].
+    fault : str or None
+        The fault the firmware reported (torque zero), if any.
+    fault_index : int or None
+        Sample index at which it was detected.
+    fault_latency_s : float or None
+        Wall-clock time from the injected fault (the last host frame) to the FAULT frame [s].
+    stats : dict or None
+        The firmware's STATS: ticks per period and the instruction calibration.
+    instructions_per_step : float or None
+        Mean executed instructions per control period (qemu ``-icount``; None without it).
+    path : str or None
+        The experiment written.
+    arrays : dict of ndarray
+        Recorded signals by name (``tau_m``, ``theta``, ``q``, ``tau_s``, ``tau_r``, ``u``, ``tau_frc_hat``).
+    """
+
+    samples: int
+    expected: int
+    fault: str | None
+    fault_index: int | None
+    fault_latency_s: float | None
+    stats: dict | None
+    instructions_per_step: float | None
+    path: str | None
+    arrays: dict
+
+    def to_mapping(self) -> dict[str, Any]:
+        """Summary for ``--json`` (without the arrays)."""
+        budget = 168e6 / 2000.0
+        ips = self.instructions_per_step
+        return {"samples": self.samples, "expected": self.expected, "fault": self.fault,
+                "fault_index": self.fault_index, "fault_latency_s": self.fault_latency_s, "stats": self.stats,
+                "instructions_per_step": ips, "budget_cycles_2khz_168mhz": budget,
+                "budget_fraction_at_cpi_2": None if ips is None else 2.0 * ips / budget, "path": self.path}
+
+
+class QemuBoard:
+    """qemu-system-arm running a firmware image on ``netduinoplus2`` with USART2 on a pseudo-terminal.
+
+    Parameters
+    ----------
+    elf : str or Path
+        A ``make pil`` image.
+    icount : bool
+        Run with ``-icount shift=0`` (1 instruction = 1 ns of virtual time: the firmware's SysTick then
+        counts instructions; the link timeout runs on that slower virtual clock).
+    """
+
+    def __init__(self, elf: str | Path, *, icount: bool = True) -> None:
+        qemu = find_tools().qemu
+        if qemu is None:
+            raise ExportError("qemu-system-arm not on PATH (tools/setup.sh --test installs it)")
+        cmd = [qemu, "-M", "netduinoplus2", "-display", "none", "-monitor", "none", "-serial", "null",
+               "-serial", "pty", "-kernel", str(elf)] + (["-icount", "shift=0"] if icount else [])
+        self.process = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                        stderr=subprocess.STDOUT)
+        self.port = self._pty_path()
+
+    def _pty_path(self) -> str:
+        deadline, text = time.monotonic() + 10.0, b""
+        fd = self.process.stdout.fileno()
+        while time.monotonic() < deadline:
+            r, _, _ = select.select([fd], [], [], 0.2)
+            if r:
+                chunk = os.read(fd, 4096)
+                if not chunk:
+                    break
+                text += chunk
+                for line in text.decode("utf-8", "replace").splitlines():
+                    if "redirected to" in line and "serial1" in line:
+                        return line.split("redirected to", 1)[1].split()[0]
+        self.close()
+        raise ExportError(f"qemu did not report the USART2 pseudo-terminal: {text.decode('utf-8', 'replace')[:300]!r}")
+
+    def close(self) -> None:
+        """Stop qemu (this process only)."""
+        if self.process.poll() is None:
+            self.process.terminate()
+            try:
+                self.process.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        if self.process.stdout:
+            self.process.stdout.close()
+
+    def __enter__(self) -> "QemuBoard":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _reference_values(reference: pr.Reference, n: int, rate_hz: float) -> np.ndarray:
+    return reference.signal().sample(n, rate_hz)
+
+
+def python_closed_loop(program, design: Design, reference: pr.Reference | str, n: int, *,
+                       options: FirmwareOptions | None = None, effects: Sequence[Any] = (), seed: int = 1,
+                       noise_std: float = 1e-3, dtype: Any = np.float32) -> dict[str, np.ndarray]:
+    """The all-Python closed loop: the same plant stepper and discrete controller, no firmware.
+
+    Parameters
+    ----------
+    program : ControllerProgram
+        The exported controller (``FirmwareResult.program``).
+    design : Design
+        The virtual testbed's design.
+    reference : Reference or str
+        Force reference.
+    n : int
+        Periods [-].
+    options : FirmwareOptions, optional
+        Encoder resolution of the firmware.
+    effects : sequence
+        Unmodelled effects of the virtual testbed.
+    seed, noise_std
+        Process noise of the virtual testbed (as the PIL run).
+    dtype : numpy dtype
+        ``np.float32``: the controller and the sensor conversion run in float32 exactly as the
+        firmware does (:func:`~forecast_design.export.firmware.firmware_measurements`);
+        ``np.float64``: the design implementation on the plant's own measurements.
+
+    Returns
+    -------
+    dict of ndarray
+        ``tau_m``, ``theta``, ``q``, ``tau_s``, ``tau_r``, ``u``, ``tau_frc_hat`` per period.
+    """
+    opt = options or FirmwareOptions()
+    ref = pr.parse_reference(reference) if isinstance(reference, str) else reference
+    rate = program.rate_hz
+    bed = plant_stepper(design, effects, n=n, rate_hz=rate, seed=seed, process_noise_std=noise_std,
+                        encoder_counts=opt.encoder_counts)
+    ctrl = program.make_step(dtype)
+    refs = _reference_values(ref, n, rate)
+    single = np.dtype(dtype) == np.float32
+    out = {k: np.zeros(n) for k in ("tau_m", "theta", "q", "tau_s", "tau_r", "u", "tau_frc_hat")}
+    for i in range(n):
+        th, q, tau_s = bed.measure()
+        if single:
+            th, q, tau_s = firmware_measurements(sensor_counts(th, opt.rad_per_count),
+                                                 sensor_counts(q, opt.rad_per_count), opt.rad_per_count,
+                                                 design.testbed.k, design.environment.locked)
+        tau_r = float(np.float32(refs[i])) if single else float(refs[i])
+        tau_m = ctrl.step(tau_r, tau_s, th)
+        for key, v in zip(out, (tau_m, th, q, tau_s, tau_r, ctrl.u, ctrl.hat)):
+            out[key][i] = v
+        bed.advance(tau_m)
+    return out
+
+
+def pil_session(board: Board, program, design: Design, reference: pr.Reference, n: int, *,
+                options: FirmwareOptions, faults: PilFaults | None = None, effects: Sequence[Any] = (),
+                seed: int = 1, noise_std: float = 1e-3, timeout: float = 5.0) -> tuple[list, dict]:
+    """Upload, start, and run ``n`` lock-step periods against a firmware behind ``board``.
+
+    Returns
+    -------
+    tuple
+        (received samples, info dict with ``fault``, ``fault_index``, ``fault_latency_s``, ``stats``).
+    """
+    faults = faults or PilFaults()
+    rate = program.rate_hz
+    board.ping(connect_timeout=20.0)
+    board.upload(program)
+    board._command(pr.MsgType.SET_REFERENCE, pr.encode_reference(reference))
+    board._command(pr.MsgType.START, pr.encode_start(n))
+    bed = plant_stepper(design, effects, n=n, rate_hz=rate, seed=seed, process_noise_std=noise_std,
+                        encoder_counts=options.encoder_counts)
+    rng = np.random.default_rng(faults.seed)
+    samples: list[pr.Sample] = []
+    info: dict[str, Any] = {"fault": None, "fault_index": None, "fault_latency_s": None, "stats": None}
+    pending = list(board._pending)
+    board._pending = []
+    last_sent = time.monotonic()
+    k, done = 0, False
+    while not done:
+        waiting_for = None
+        if k < n and k != faults.silent_at:
+            if k == faults.garbage_at:
+                junk = rng.integers(0, 256, faults.garbage_bytes, dtype=np.uint8)
+                junk[junk == 0xA5] = 0x00   # garbage that holds no sync byte: nothing to resynchronise to
+                board.link.write(junk.tobytes())
+            if k != faults.drop_at:
+                th, q, _ = bed.measure()
+                raw_m = sensor_counts(th, options.rad_per_count) + COUNT_OFFSET
+                raw_e = sensor_counts(q, options.rad_per_count) + COUNT_OFFSET
+                board._send(pr.MsgType.SENSOR, pr.encode_sensor(k, raw_m, raw_e))
+                waiting_for = k
+            last_sent = time.monotonic()
+        deadline = time.monotonic() + timeout
+        got = False
+        while not got and not done:
+            frames, pending = (pending, []) if pending else (board._feed(board.link.read(timeout=0.01)), [])
+            for frame in frames:
+                if frame.type == pr.MsgType.SAMPLE:
+                    s = pr.decode_sample(frame.payload)
+                    samples.append(s)
+                    if s.index == waiting_for:
+                        bed.advance(s.tau_m)
+                        got = True
+                elif frame.type == pr.MsgType.FAULT:
+                    index, code = pr.decode_fault(frame.payload)
+                    info.update(fault=pr.Fault(code).name if code in iter(pr.Fault) else f"code {code}",
+                                fault_index=index, fault_latency_s=time.monotonic() - last_sent)
+                elif frame.type == pr.MsgType.STATS:
+                    info["stats"] = pr.decode_stats(frame.payload).to_mapping()
+                elif frame.type == pr.MsgType.DONE:
+                    done = True
+            if waiting_for is None and k < n and k != faults.silent_at and not done:
+                break   # a dropped frame: send the next period at once
+            if time.monotonic() > deadline:
+                raise LinkError(f"{board.link.port}: firmware silent for {timeout} s at period {k} "
+                                f"({len(samples)} samples received)")
+        k += 1
+    return samples, info
+
+
+def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1",
+            compensator: Any = "none", env: Any = "exp-soft", w_q_hz: float | None = 10.0,
+            rate_hz: float = 2000.0, method: str = "tustin", sfm_params: Mapping[str, float] | None = None,
+            reference: str | pr.Reference = "square:0.2:0.5", duration: float = 0.5,
+            out: str | Path | None = None, work_dir: str | Path | None = None,
+            options: FirmwareOptions | None = None, faults: PilFaults | None = None,
+            effects: Sequence[Any] = (), seed: int = 1, noise_std: float = 1e-3, icount: bool = True,
+            timeout: float = 5.0, testbed: Any = None) -> PilResult:
+    """The ``forecast-design pil`` verb: build the PIL firmware, run it on qemu against the virtual testbed.
+
+    Parameters
+    ----------
+    design, controller, compensator, env, w_q_hz, rate_hz, method, sfm_params, testbed
+        The design, as :func:`forecast_design.export.firmware.export_firmware`.
+    reference : str or Reference
+        Force reference (``square:AMP:PERIOD`` ...).
+    duration : float
+        Simulated time [s].
+    out : str or Path, optional
+        Experiment TOML to write (CSV beside it).
+    work_dir : str or Path, optional
+        Where the firmware project is written and built (default: beside ``out``, else ``pil-firmware``).
+    options : FirmwareOptions, optional
+        Board settings (link timeout, torque limit...).
+    faults : PilFaults, optional
+        Link faults to inject.
+    effects, seed, noise_std
+        The virtual testbed's unmodelled effects and process noise.
+    icount : bool
+        Count instructions (qemu ``-icount shift=0``).
+    timeout : float
+        Host wait for each answer [s].
+
+    Returns
+    -------
+    PilResult
+        Samples, fault (if any), STATS and instructions per step, the experiment path and arrays.
+
+    Raises
+    ------
+    ExportError
+        qemu, the toolchain or make missing, or a failed build.
+    LinkError
+        The firmware fell silent.
+    """
+    ref = pr.parse_reference(reference) if isinstance(reference, str) else reference
+    if not (isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0):
+        raise ParameterError(f"duration must be > 0 [s], got {duration!r}", name="duration", value=duration)
+    why = qemu_available()
+    if why:
+        raise ExportError(f"pil: {why}")
+    opt = options or FirmwareOptions()
+    work = Path(work_dir) if work_dir else (Path(out).with_suffix("").with_name(Path(out).stem + "-firmware")
+                                            if out else Path("pil-firmware"))
+    fw = export_firmware(design, work, controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz,
+                         rate_hz=rate_hz, method=method, sfm_params=sfm_params, options=opt, testbed=testbed)
+    elf = build_firmware(work, "pil")
+    n = int(round(duration * fw.program.rate_hz))
+    with QemuBoard(elf, icount=icount) as qemu, Board(qemu.port, timeout=timeout) as board:
+        samples, info = pil_session(board, fw.program, fw.design, ref, n, options=opt, faults=faults,
+                                    effects=effects, seed=seed, noise_std=noise_std, timeout=timeout)
+    arrays = {name: np.array([getattr(s, name) for s in samples], dtype=float)
+              for name in ("tau_m", "theta", "q", "tau_s", "tau_r", "u", "tau_frc_hat")}
+    path = None
+    if out is not None and samples:
+        from ..experiment import save_experiment
+
+        text = (f"processor-in-the-loop on qemu netduinoplus2: reference {ref.to_string()}, {duration} s"
+                + (f"; firmware fault {info['fault']} at sample {info['fault_index']} (torque zero)"
+                   if info["fault"] else ""))
+        exp = record_to_experiment(fw.design, fw.program.rate_hz, samples, samples[-1].index + 1, description=text)
+        path = str(save_experiment(exp, out))
+    stats = info["stats"]
+    ips = stats["mean_instructions_per_step"] if (stats and icount) else None
+    return PilResult(len(samples), n, info["fault"], info["fault_index"], info["fault_latency_s"], stats, ips,
+                     path, arrays)
+

@@ -1,0 +1,237 @@
+"""Benchmark over an environment set: indicators, aggregation, tables, the verb; run-to-run variability."""
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from forecast_design.benchmark import (BenchmarkSpec, parse_compensators, parse_controller, parse_reference,
+                                       repeatability_per_run, result_rows, result_table, run_benchmark,
+                                       step_metrics, tracking_bandwidth_hz)
+from forecast_design.benchmark.metrics import pairwise_xcorr
+from forecast_design.cli import main
+from forecast_design.effects import Stiction
+from forecast_design.errors import ExperimentFormatError, ParameterError
+from forecast_design.friction.laws import stribeck_level
+from forecast_design.params import Design, PDController, environment_preset
+from forecast_design.simulation import simulate
+from forecast_design.simulation.plant import _bristle_rate, build_plant
+from forecast_design.simulation.scenario import Variability, scenario_from_mapping
+
+control = pytest.importorskip("control")
+
+
+# --- indicators -------------------------------------------------------------------------------
+
+
+def test_step_metrics_match_python_control_step_info():
+    # a second-order step response, closed form, checked against python-control's step_info
+    wn, zeta = 20.0, 0.3
+    sys_ = control.tf([0.8 * wn**2], [1.0, 2 * zeta * wn, wn**2])
+    t = np.linspace(0.0, 3.0, 6001)
+    _, y = control.step_response(sys_, t)
+    ref = control.step_info(y, t, yfinal=0.8, SettlingTimeThreshold=0.02, RiseTimeLimits=(0.1, 0.9))
+    m = step_metrics(t, 0.2 * y / 0.8 * 0.8, amplitude=0.2)   # response to a 0.2 step of gain 0.8 -> 0.16
+    ref02 = control.step_info(0.2 * y, t, yfinal=0.16, SettlingTimeThreshold=0.02, RiseTimeLimits=(0.1, 0.9))
+    assert m["rise_time_s"] == pytest.approx(ref02["RiseTime"], abs=2 * (t[1] - t[0]))
+    assert m["overshoot_percent"] == pytest.approx(ref["Overshoot"], rel=1e-3)
+    assert m["settling_time_s"] == pytest.approx(ref02["SettlingTime"], abs=2 * (t[1] - t[0]))
+    assert m["steady_state_error_N_m"] == pytest.approx(0.2 - 0.16, abs=1e-6)
+    # closed-form overshoot of a 2nd-order system
+    assert m["overshoot_percent"] == pytest.approx(100 * math.exp(-zeta * math.pi / math.sqrt(1 - zeta**2)), rel=1e-3)
+
+
+def test_tracking_bandwidth_of_the_frictionless_loop_matches_its_transfer_function():
+    # chirp on the frictionless virtual testbed (stiff environment) vs the -3 dB point of the
+    # continuous closed loop tau_s/tau_r = C P / (1 + C P) from python-control
+    env = environment_preset("stiff")
+    ref, dur = parse_reference("chirp:0.2:0.5:40:8")
+    r = simulate(Design.nominal("stiff", controller=PDController(P=5.0, D=0.1)), reference=ref, duration_s=dur,
+                 include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None)
+    bw = tracking_bandwidth_hz(r.tau_r, r.tau_s, 2000.0, 0.5, 40.0)
+    tb = Design.nominal().testbed
+    s = control.tf("s")
+    J, d, ke = env.J, env.d, env.k_e
+    E = J * s**2 + d * s + ke
+    # tau_s / tau_m of the SEA with the environment (J_m, d_m = 0 here, k, environment E)
+    P = tb.k * E / ((tb.J_m * s**2) * (E + tb.k) + tb.k * E)
+    C = 5.0 + 0.1 * s * (2 * math.pi * 200) / (s + 2 * math.pi * 200)
+    T = control.feedback(C * P, 1)
+    w = np.geomspace(2 * math.pi * 0.5, 2 * math.pi * 40, 4000)
+    mag = np.abs(T(1j * w))
+    target = np.mean(np.abs(T(1j * w[:2]))) / math.sqrt(2)
+    bw_tf = w[np.nonzero(mag < target)[0][0]] / (2 * math.pi) if np.any(mag < target) else 40.0
+    assert bw == pytest.approx(bw_tf, rel=0.15)
+
+
+def test_repeatability_per_run_averages_to_the_pairwise_xcorr(rng):
+    x = rng.normal(size=(5, 80)).cumsum(axis=1)
+    assert np.mean(repeatability_per_run(x)) == pytest.approx(pairwise_xcorr(x), rel=1e-12)
+
+
+@pytest.mark.parametrize("text,match", [("pi:5:0.1", "pd:P:D"), ("pd:5", "pd:P:D"), ("pd:x:0.1", "not a number")])
+def test_bad_controller_is_one_line(text, match):
+    with pytest.raises(ParameterError, match=match):
+        parse_controller(text)
+
+
+def test_parsing_compensators_and_references():
+    comps = parse_compensators(["none,sfm", "ea-fob:20,none"])
+    assert [c.kind for c in comps] == ["none", "sfm", "ea-fob"] and comps[2].w_q_hz == 20.0
+    with pytest.raises(ParameterError, match="kind must be one of"):
+        parse_compensators("none,magic")
+    ref, dur = parse_reference("step:0.3", duration_s=2.0)
+    assert ref.amplitude == 0.3 and dur == 2.0
+    for bad in ("step", "chirp:0.2:1", "ramp:1", "step:0"):
+        with pytest.raises(ParameterError, match="--reference"):
+            parse_reference(bad)
+
+
+# --- runner and aggregation ---------------------------------------------------------------------
+
+
+def _spec(**kw):
+    base = dict(controllers=(PDController(P=5.0, D=0.1),), compensators=parse_compensators("none,ea-fob"),
+                environments=(("exp-soft", environment_preset("exp-soft")), ("locked", environment_preset("locked"))),
+                references=(parse_reference("step:0.2:0.5"),), repetitions=3)
+    base.update(kw)
+    return BenchmarkSpec(**base)
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    cells, info = run_benchmark(_spec(), out=out)
+    return out, cells, info
+
+
+def test_cells_are_keyed_by_their_inputs_and_reruns_reuse_them(bench):
+    out, cells, info = bench
+    assert info["computed"] == 4 and info["reused"] == 0
+    again, info2 = run_benchmark(_spec(), out=out)
+    assert info2["computed"] == 0 and info2["reused"] == 4
+    for a, b in zip(again, cells):
+        assert json.dumps(a.to_mapping(), sort_keys=True) == json.dumps(b.to_mapping(), sort_keys=True)
+        assert np.array_equal(a.tau_s, b.tau_s)
+    # a changed input (more repetitions) is a different cell
+    _, info3 = run_benchmark(_spec(repetitions=4), out=out)
+    assert info3["computed"] == 4
+
+
+def test_aggregates_are_the_mean_best_and_worst_of_their_rows(bench):
+    _, cells, _ = bench
+    rows = result_rows(cells)
+    runs = [r for r in rows if r["kind"] == "run"]
+    assert len(runs) == 4 * 3
+    for cell in cells:
+        lab = cell.labels
+        mine = [r for r in runs if all(r[k] == lab[k] for k in ("compensator", "environment"))]
+        env = {r["statistic"]: r for r in rows if r["kind"] == "environment"
+               and all(r[k] == lab[k] for k in ("compensator", "environment"))}
+        assert env["mean"]["mae_N_m"] == pytest.approx(np.mean([r["mae_N_m"] for r in mine]), rel=1e-12)
+        assert env["best"]["mae_N_m"] == min(r["mae_N_m"] for r in mine)
+        assert env["worst"]["mae_N_m"] == max(r["mae_N_m"] for r in mine)
+        assert env["mean"]["repeatability"] == pytest.approx(cell.repeatability, rel=1e-12)
+    sets = {(r["compensator"], r["statistic"]): r for r in rows if r["kind"] == "set"}
+    env_means = [r for r in rows if r["kind"] == "environment" and r["statistic"] == "mean" and r["compensator"] == "none"]
+    assert sets[("none", "worst")]["mae_N_m"] == max(r["mae_N_m"] for r in env_means)
+    assert sets[("none", "best")]["repeatability"] == max(r["repeatability"] for r in env_means)
+
+
+def test_the_eafob_beats_pd_alone_over_the_set(bench):
+    # Section 7's claim, over the set: closer to the frictionless response and more repeatable
+    _, cells, _ = bench
+    sets = {r["compensator"]: r for r in result_rows(cells) if r["kind"] == "set" and r["statistic"] == "mean"}
+    assert sets["ea-fob:10"]["mae_N_m"] < sets["none"]["mae_N_m"]
+    assert sets["ea-fob:10"]["repeatability"] > sets["none"]["repeatability"]
+
+
+def test_bad_spec_is_one_line():
+    with pytest.raises(ParameterError, match="repetitions must be an integer >= 2"):
+        _spec(repetitions=1)
+    with pytest.raises(ParameterError, match="unique"):
+        _spec(environments=(("a", environment_preset("soft")), ("a", environment_preset("stiff"))))
+
+
+# --- the verb -------------------------------------------------------------------------------------
+
+
+def test_benchmark_verb_writes_table_plots_report_and_json(tmp_path, capsys):
+    envs = tmp_path / "set.toml"
+    envs.write_text('[[environment]]\nname = "k"\nJ_e = 0.01\nk_e = {log = [1.0, 100.0], n = 2}\n')
+    out = tmp_path / "out"
+    args = ["benchmark", "--controller", "pd:5:0.1", "--compensator", "none,ea-fob", "--envs", str(envs),
+            "--repetitions", "2", "--reference", "step:0.2:0.4", "--reference", "chirp:0.1:1:20:3",
+            "--out", str(out), "--workers", "1", "--json", str(tmp_path / "s.json")]
+    assert main(args) == 0
+    df = pd.read_parquet(out / "results.parquet")
+    assert set(df["kind"]) == {"run", "environment", "set"}
+    assert len(df[df["kind"] == "run"]) == 2 * 2 * 2 * 2
+    chirp = df[(df["kind"] == "run") & df["reference"].str.startswith("chirp")]
+    assert chirp["bandwidth_hz"].notna().all() and chirp["rise_time_s"].isna().all()
+    csv = pd.read_csv(out / "results.csv")
+    assert np.allclose(csv["mae_N_m"].to_numpy(), df["mae_N_m"].to_numpy(), equal_nan=True, rtol=0, atol=0)
+    for name in ("indicators.png", "overlays.png", "heatmap.png", "report.md", "summary.json"):
+        assert (out / name).stat().st_size > 500
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["run"]["computed"] == 8 and {r["statistic"] for r in summary["set"]} == {"mean", "best", "worst"}
+    capsys.readouterr()
+    assert main(args[:-2] + ["--no-plots"]) == 0
+    assert "0 cells computed, 8 reused" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("extra,match", [(["--controller", "pd:5"], "pd:P:D"),
+                                         (["--compensator", "none,fob"], "kind must be one of"),
+                                         (["--repetitions", "1"], "repetitions"),
+                                         (["--envs", "moon"], "moon"),
+                                         (["--scheduler", "nowhere"], "tcp://HOST:PORT")])
+def test_benchmark_verb_bad_input_exits_2_with_one_line(tmp_path, capsys, extra, match):
+    assert main(["benchmark", "--out", str(tmp_path / "o"), *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and match in err
+
+
+# --- run-to-run variability ------------------------------------------------------------------------
+
+
+def test_stribeck_velocity_follows_its_angle_harmonics():
+    # v_s(theta) = v_s exp(c sin theta + d cos theta): the kernel's bristle level equals the one
+    # friction law evaluated at that v_s
+    st = Stiction(F_s=0.7, v_s=0.05, v_s_a=(1.2,), v_s_b=(0.5,))
+    plant = build_plant(Design.nominal("locked"), (st,), initial_angle=0.3)
+    for theta, v in ((0.0, 0.02), (1.0, -0.1), (2.5, 0.3)):
+        th = theta + 0.3
+        vs = 0.05 * math.exp(1.2 * math.sin(th) + 0.5 * math.cos(th))
+        rate, g = _bristle_rate(theta, v, plant.params, plant.harmonics)
+        assert g == pytest.approx(stribeck_level(v, 0.7, 0.4, vs), rel=1e-12)
+        assert rate == pytest.approx(260.0 * abs(v) / g, rel=1e-12)
+
+
+def test_variability_angles_and_drift():
+    v = Variability(repetitions=5, seed=3, viscous_drift=0.1)
+    a = v.initial_angles()
+    assert np.array_equal(a, np.random.default_rng(3).uniform(0.0, 2 * math.pi, 5))
+    assert np.all(Variability(repetitions=3, initial_angle="fixed").initial_angles(1.5) == 1.5)
+    eff = v.effects_of((Stiction(),), 4)
+    assert eff[0].sigma2 == pytest.approx(0.1 * 1.4)
+    with pytest.raises(ParameterError, match="viscous_drift"):
+        Variability(repetitions=3, viscous_drift=-0.6)
+
+
+def test_scenario_variability_table_round_trips_and_runs_differ():
+    doc = {"format": "forecast-scenario/1", "sampling": {"rate_hz": 2000.0},
+           "testbed": Design.nominal().testbed.to_mapping(), "environment": environment_preset("exp-soft").to_mapping(),
+           "controller": {"kind": "pd", "P": 5.0, "D": 0.1},
+           "truth": {"effects": [Stiction(F_s=0.7, F_s_a=(0.2,), F_s_b=(0.0,)).to_mapping()]},
+           "variability": {"repetitions": 3, "initial_angle": "random", "seed": 1},
+           "reference": {"kind": "step", "amplitude": 0.2}, "simulation": {"duration_s": 0.3}}
+    sc = scenario_from_mapping(doc)
+    assert scenario_from_mapping(sc.to_mapping()) == sc
+    runs = sc.runs()
+    assert [r.truth.initial_angle for r in runs] == list(Variability(repetitions=3, seed=1).initial_angles())
+    assert not np.array_equal(runs[0].tau_s, runs[1].tau_s)
+    bad = dict(doc, variability={"repetitions": 3, "angle": "random"})
+    with pytest.raises(ExperimentFormatError, match=r"\[variability\] unknown key 'angle'"):
+        scenario_from_mapping(bad, source="s.toml")

@@ -1,0 +1,160 @@
+"""The executor: serial, local processes and a real Dask cluster on the loopback give identical results."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from forecast_design.benchmark import BenchmarkSpec, parse_compensators, parse_reference, run_benchmark
+from forecast_design.errors import ParameterError
+from forecast_design.executor import DaskExecutor, LocalExecutor, batched, make_executor
+from forecast_design.params import PDController, environment_preset
+
+
+def _spec(duration_s=0.5, repetitions=2, envs=("exp-soft", "locked")):
+    return BenchmarkSpec(controllers=(PDController(P=5.0, D=0.1),), compensators=parse_compensators("none,ea-fob"),
+                         environments=tuple((n, environment_preset(n)) for n in envs),
+                         references=(parse_reference(f"step:0.2:{duration_s}"),), repetitions=repetitions)
+
+
+def _same(a, b):
+    """Bit-for-bit equality of two benchmarks' cells."""
+    assert [c.key for c in a] == [c.key for c in b]
+    for x, y in zip(a, b):
+        # JSON text: exact float repr, and NaN (undefined metrics) equal to NaN
+        assert json.dumps(x.to_mapping(), sort_keys=True) == json.dumps(y.to_mapping(), sort_keys=True)
+        for name in ("t", "tau_s", "expected", "tau_r"):
+            assert np.array_equal(getattr(x, name), getattr(y, name))
+
+
+@pytest.fixture(scope="module")
+def local_run():
+    return run_benchmark(_spec(), executor=LocalExecutor(1), sfm_params=None)[0]
+
+
+def test_batches_concatenate_to_the_items():
+    items = list(range(11))
+    b = batched(items, 4)
+    assert [len(x) for x in b] == [4, 4, 3] and [i for x in b for i in x] == items
+    with pytest.raises(ParameterError):
+        batched(items, 0)
+
+
+def test_local_processes_give_the_serial_results_bit_for_bit(local_run):
+    with LocalExecutor(2) as ex:
+        cells, info = run_benchmark(_spec(), executor=ex)
+    assert info["workers"] == 2 and info["computed"] == 4
+    _same(local_run, cells)
+
+
+def test_map_batched_is_map_in_order():
+    with LocalExecutor(2) as ex:
+        out = ex.map_batched(abs, list(range(-7, 3)), batch_size=3)
+    assert out == [abs(i) for i in range(-7, 3)]
+
+
+def test_a_killed_local_worker_loses_no_result():
+    # os.getpid of a task names its worker; killing that worker breaks the pool, the executor
+    # starts a new one and the unfinished tasks are computed again
+    ex = LocalExecutor(2)
+    done = []
+
+    def progress(d, n):
+        done.append(d)
+
+    def killer():
+        while not done:
+            time.sleep(0.01)
+        for child in _children(os.getpid()):
+            os.kill(child, signal.SIGKILL)
+            break
+
+    th = threading.Thread(target=killer)
+    th.start()
+    out = ex.map(_slow_square, list(range(12)), progress=progress)
+    th.join()
+    assert out == [i * i for i in range(12)]
+    assert ex.restarts >= 1
+
+
+def _slow_square(x):
+    time.sleep(0.15)
+    return x * x
+
+
+def _children(pid):
+    try:
+        with open(f"/proc/{pid}/task/{pid}/children") as fh:
+            text = fh.read()
+    except OSError:
+        pytest.skip("no /proc children list on this platform")
+    return [int(p) for p in text.split()]
+
+
+def test_importing_the_executor_and_cli_does_not_import_dask():
+    code = ("import sys, forecast_design.executor, forecast_design.cli, forecast_design.benchmark; "
+            "print(sorted(m for m in ('dask', 'distributed') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_bad_scheduler_address_is_a_one_line_error():
+    with pytest.raises(ParameterError, match="tcp://HOST:PORT"):
+        make_executor("localhost:8786")
+    with pytest.raises(ParameterError, match="cannot reach the Dask scheduler"):
+        DaskExecutor("tcp://127.0.0.1:9", timeout_s=1.0)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    distributed = pytest.importorskip("distributed")
+    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                 dashboard_address=None)
+    yield c
+    c.close()
+
+
+@pytest.mark.slow
+def test_dask_cluster_gives_the_local_results_bit_for_bit(cluster, local_run):
+    with make_executor(cluster.scheduler_address) as ex:
+        assert ex.workers == 2
+        cells, info = run_benchmark(_spec(), executor=ex)
+    assert info["executor"] == "dask" and info["computed"] == 4
+    _same(local_run, cells)
+
+
+@pytest.mark.slow
+def test_a_dask_worker_killed_mid_run_loses_no_result(cluster):
+    spec = _spec(duration_s=2.0, repetitions=2, envs=("exp-soft", "locked", "soft", "stiff"))
+    expected = run_benchmark(spec, executor=LocalExecutor(1))[0]
+    ex = make_executor(cluster.scheduler_address)
+    killed = []
+
+    def killer():
+        deadline = time.time() + 60
+        while time.time() < deadline:
+            busy = {w: tasks for w, tasks in ex.client.processing().items() if tasks}
+            if busy:
+                addr = next(iter(busy))
+                for worker in cluster.workers.values():
+                    if getattr(worker, "worker_address", None) == addr and worker.process is not None:
+                        os.kill(worker.process.pid, signal.SIGKILL)
+                        killed.append(addr)
+                        return
+            time.sleep(0.02)
+
+    th = threading.Thread(target=killer)
+    th.start()
+    try:
+        cells, _ = run_benchmark(spec, executor=ex)
+    finally:
+        th.join()
+        ex.close()
+    assert killed, "no worker was killed while tasks ran"
+    _same(expected, cells)
