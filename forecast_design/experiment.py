@@ -471,8 +471,9 @@ class Experiment:
         -------
         dict
             ``source``, ``description``, ``rate_hz`` [Hz], ``n_samples``, ``t_start`` [s],
-            ``duration`` [s], ``columns`` (CSV order), ``tau_s_derived``, ``locked``,
-            ``has_controller``, ``compensator`` (kind or None), ``design`` (TOML tables).
+            ``duration`` [s] (also ``t_start_s``, ``duration_s``), ``columns`` (CSV order),
+            ``tau_s_derived``, ``locked``, ``has_controller``, ``compensator`` (kind or None),
+            ``design`` (TOML tables).
         """
         mapping = self.to_mapping(data=self.data or "-")
         return {
@@ -482,6 +483,8 @@ class Experiment:
             "n_samples": self.n_samples,
             "t_start": float(self.signals.t[0]),
             "duration": self.duration,
+            "t_start_s": float(self.signals.t[0]),
+            "duration_s": self.duration,
             "columns": list(self.signals.columns()),
             "tau_s_derived": self.signals.tau_s_derived,
             "locked": self.design.environment.locked,

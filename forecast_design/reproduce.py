@@ -77,7 +77,8 @@ import numpy as np
 
 from .effects import Cogging, PositionFriction, Stiction
 from .errors import ParameterError
-from .margins import disk_margin, json_float
+from .environments import resolve_environments, resolve_testbed
+from .margins import _skew, disk_margin, json_float
 from .params import COMPENSATOR_KINDS, Compensator, Design, PDController
 
 __all__ = [
@@ -564,7 +565,7 @@ def identify_extended_sfm(effects: Sequence[Any] = TABLE3_TRUTH, *, seed: int = 
 
 
 def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_s: float = 1.0, seed: int = 0,
-                     w_q_hz: float = 10.0, environments: Sequence[str] = ("exp-soft", "locked"),
+                     w_q_hz: float = 10.0, environments: Any = ("exp-soft", "locked"),
                      effects: Sequence[Any] = TABLE3_TRUTH, sfm_deadband: float = TABLE3_SFM_DEADBAND,
                      sensitivity: Sequence[float] = (0.0, 0.01, 0.05)) -> Table3Result:
     """Reproduce the paper's Table 3 (repeatability and fidelity of step responses) in simulation.
@@ -582,8 +583,9 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
         Seed of the initial angles and of the process noise.
     w_q_hz : float
         EA-FOB Q cutoff [Hz].
-    environments : sequence of str
-        Environment presets (paper: ``exp-soft`` and ``locked``).
+    environments : str, Environment, EnvironmentSet, path or sequence
+        The environments (paper: ``exp-soft`` and ``locked``), in any form
+        :func:`~forecast_design.environments.resolve_environments` accepts; rows carry the set's names.
     effects : sequence of effect parameter values
         The hardware (default :data:`TABLE3_TRUTH`).
     sfm_deadband : float
@@ -608,15 +610,17 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
     angles = Variability(repetitions=repetitions, seed=seed).initial_angles()
     sfm_params, fit, _ = identify_extended_sfm(effects, seed=seed)
     ref = Step(amplitude=amplitude)
+    envset = resolve_environments(environments)      # presets, inline values, files, Environment objects
+    environments, env_of = envset.names, dict(envset.items())
     rows, responses, expected = [], {}, {}
     for env in environments:
-        expected[env] = simulate(Design.nominal(env, controller=PDController(P=5.0, D=0.1)), reference=ref,
-                                 duration_s=duration_s, rate_hz=_RATE, include_nominal_viscous=False,
+        expected[env] = simulate(Design(environment=env_of[env], controller=PDController(P=5.0, D=0.1)),
+                                 reference=ref, duration_s=duration_s, rate_hz=_RATE, include_nominal_viscous=False,
                                  process_noise_std=0.0, encoder_counts=None,
                                  description=f"reproduce table3: {env}, frictionless PD")
         for kind in ("none", "sfm", "ea-fob"):
             comp = Compensator(kind=kind, w_q_hz=w_q_hz) if kind == "ea-fob" else Compensator(kind=kind)
-            design = Design.nominal(env, controller=PDController(P=5.0, D=0.1), compensator=comp)
+            design = Design(environment=env_of[env], controller=PDController(P=5.0, D=0.1), compensator=comp)
             runs = [simulate(design, reference=ref, duration_s=duration_s, rate_hz=_RATE, effects=effects,
                              initial_angle=float(a), seed=seed + 1 + i,
                              sfm_params=sfm_params if kind == "sfm" else None, sfm_deadband=sfm_deadband,
@@ -630,7 +634,8 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
     sens = []
     for db in sensitivity:
         for env in environments:
-            design = Design.nominal(env, controller=PDController(P=5.0, D=0.1), compensator=Compensator(kind="sfm"))
+            design = Design(environment=env_of[env], controller=PDController(P=5.0, D=0.1),
+                            compensator=Compensator(kind="sfm"))
             tau = np.array([simulate(design, reference=ref, duration_s=duration_s, rate_hz=_RATE, effects=effects,
                                      initial_angle=float(a), seed=seed + 1 + i, sfm_params=sfm_params,
                                      sfm_deadband=float(db)).tau_s for i, a in enumerate(angles)])
@@ -710,7 +715,7 @@ def _table3_explanation(result: Table3Result) -> str:
 class MarginRow:
     """One disk of the paper's Fig. 6: an environment, an observer and its Q cutoff."""
 
-    environment: str                        # environment preset name
+    environment: str                        # environment name (preset or set label)
     observer: str                           # compensator kind ('none' is the plant alone)
     w_q_hz: float | None                    # Q(s) cutoff, None for 'none'      [Hz]
     disk_margin: float                      # alpha (0 if unstable)            [-]
@@ -718,44 +723,63 @@ class MarginRow:
     phase_margin_deg: float                 # disk-based                       [deg]
     frequency_rad_s: float                  # critical frequency               [rad/s]
     stable: bool                            # nominal closed loop stable
+    skew: float = 0.0                       # skew of the disk                 [-]
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON row with keys environment, observer, w_q_hz, disk_margin, gain_margin_db,
-        phase_margin_deg, frequency_rad_s, stable (infinities as ``None``)."""
+        phase_margin_deg, frequency_rad_s, stable (infinities as ``None``), and the keys every verb
+        uses for these quantities (README, "Interface conventions"): ``compensator`` (= observer),
+        ``alpha`` (= disk_margin), ``skew``, ``phase_margins_deg`` ([-phase, +phase]) and
+        ``frequency_hz``."""
+        pm, w = json_float(self.phase_margin_deg), json_float(self.frequency_rad_s)
         return {
             "environment": self.environment,
             "observer": self.observer,
+            "compensator": self.observer,
             "w_q_hz": self.w_q_hz,
             "disk_margin": json_float(self.disk_margin),
+            "alpha": json_float(self.disk_margin),
+            "skew": self.skew,
             "gain_margin_db": [json_float(g) for g in self.gain_margin_db],
-            "phase_margin_deg": json_float(self.phase_margin_deg),
-            "frequency_rad_s": json_float(self.frequency_rad_s),
+            "phase_margin_deg": pm,
+            "phase_margins_deg": None if pm is None else [-pm, pm],
+            "frequency_rad_s": w,
+            "frequency_hz": None if w is None else w / (2.0 * math.pi),
             "stable": self.stable,
         }
 
 
 def fig6_table(
     *,
-    environments: Sequence[str] = ("soft", "stiff"),
+    environments: Any = ("soft", "stiff"),
     w_q_hz: Sequence[float] = (1.0, 5.0, 10.0),
     observers: Sequence[str] = ("none", "ea-fob", "lo-dob", "ld-dob"),
     controller: PDController = PDController(P=5.0, D=0.1),
-    sigma: float = 0.0,
+    skew: float = 0.0,
+    sigma: float | None = None,
+    testbed: Any = None,
 ) -> list[MarginRow]:
     """Disk margins of the force loop with each observer, as in the paper's Fig. 6.
 
     Parameters
     ----------
-    environments : sequence of str
-        Environment preset names (paper: ``soft``, ``stiff``).
+    environments : str, Environment, EnvironmentSet, path or sequence
+        The environments (paper: ``soft``, ``stiff``): anything
+        :func:`~forecast_design.environments.resolve_environments` accepts (preset names, inline
+        ``k_e=..,J_e=..`` values, an environment-set file, Environment objects); rows are labelled
+        with the set's names.
     w_q_hz : sequence of float
         Q(s) cutoffs [Hz] for every observer (paper: 1, 5, 10).
     observers : sequence of str
         Compensator kinds; ``none`` is the plant alone and gets a single row.
     controller : PDController
         Force controller (paper: P = 5 [N m / N m], D = 0.1 [N m s / N m]).
-    sigma : float
-        Skew of the disk [-] (the paper uses the balanced disk, 0).
+    skew : float
+        Skew of the disk [-] (the paper uses the balanced disk, 0); python-control's and MATLAB's name.
+    sigma : float, optional
+        Alias of ``skew`` (kept for existing callers).
+    testbed : Testbed, str or None
+        The testbed (:func:`~forecast_design.environments.resolve_testbed`); None: Table 1.
 
     Returns
     -------
@@ -780,19 +804,21 @@ def fig6_table(
                 f"fig6_table: observer must be one of {', '.join(COMPENSATOR_KINDS)}, got {kind!r}",
                 name="observers", value=kind)
     from .loops import force_loop
+    skew = _skew(skew, sigma)
+    tb = resolve_testbed(testbed)
     rows: list[MarginRow] = []
-    for env in environments:
-        design = Design.nominal(env)
+    for env, environment in resolve_environments(environments, testbed=tb):
+        design = Design(testbed=tb, environment=environment)
         for kind in observers:
             cutoffs: Sequence[float | None] = (None,) if kind == "none" else tuple(w_q_hz)
             for wq in cutoffs:
                 comp = None if wq is None else Compensator(kind=kind, w_q_hz=wq)
                 loop = force_loop(design, comp, controller=controller)
-                dm = disk_margin(loop.L, sigma, closed_loop_stable=bool(loop.stable))
+                dm = disk_margin(loop.L, skew, closed_loop_stable=bool(loop.stable))
                 rows.append(MarginRow(
                     environment=env, observer=kind, w_q_hz=None if wq is None else float(wq),
                     disk_margin=dm.alpha, gain_margin_db=dm.gain_margin_db,
                     phase_margin_deg=dm.phase_margin_deg, frequency_rad_s=dm.frequency_rad_s,
-                    stable=dm.stable,
+                    stable=dm.stable, skew=dm.sigma,
                 ))
     return rows

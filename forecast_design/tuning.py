@@ -131,9 +131,11 @@ class TuningResult:
     at_bound: str | None = None    # the search-range end the answer sits on, in words (None: inside)
 
     def to_mapping(self) -> dict[str, Any]:
-        """JSON-ready mapping (the ``tune-q`` output)."""
+        """JSON-ready mapping (the ``tune-q`` output); ``compensator`` repeats ``observer`` (the key every
+        verb uses)."""
         out = {
             "observer": self.observer,
+            "compensator": self.observer,
             "w_q_hz": None if math.isnan(self.w_q_hz) else self.w_q_hz,
             "worst_ratio": self.worst_ratio,
             "worst_environment": self.worst_environment,

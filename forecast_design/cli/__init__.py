@@ -161,7 +161,8 @@ def _cmd_tf(args: argparse.Namespace) -> int:
 
 def _configure_reproduce(p: argparse.ArgumentParser) -> None:
     p.add_argument("figure", choices=["fig6", "fig7", "table3"], help="which result of the paper")
-    p.add_argument("--sigma", type=_float_range, default=0.0, help="fig6: disk skew (0 = balanced, the paper's)")
+    _add_skew_option(p)
+    _add_environment_options(p, default="soft,stiff", many=True)
     p.add_argument("--json", metavar="OUT", nargs="?", const="-",
                    help="write the result as JSON to OUT (stdout with no OUT or '-')")
     p.add_argument("--plot", metavar="OUT.png", help="draw the figure")
@@ -179,7 +180,7 @@ def _write_json(target: str, obj: Any) -> None:
 def _reproduce_fig6(args: argparse.Namespace) -> int:
     from ..reproduce import fig6_table
 
-    rows = fig6_table(sigma=args.sigma)
+    rows = fig6_table(environments=_environments_from_args(args), testbed=_testbed_from_args(args), skew=args.sigma)
     mapping = [row.to_mapping() for row in rows]
     if args.plot:
         from ..plotting.margins import plot_fig6
@@ -245,12 +246,17 @@ _REPRODUCERS: dict[str, Callable[[argparse.Namespace], int]] = {
 
 @_command("reproduce", "reproduce a result of the paper: fig6 (disk margins), fig7, table3", _configure_reproduce)
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from ..errors import ParameterError
+
     handler = _REPRODUCERS.get(args.figure)
     if handler is None:
-        from ..errors import ParameterError
-
         raise ParameterError(f"reproduce {args.figure}: not available in this version", name="figure",
                              value=args.figure)
+    given = [opt for opt, value in (("--env", args.env), ("--testbed", args.testbed), ("--experiment", args.experiment),
+                                    ("--skew", args.sigma)) if value]
+    if args.figure != "fig6" and given:
+        raise ParameterError(f"reproduce {args.figure} runs the paper's own set-up; {', '.join(given)} applies to "
+                             f"fig6 only", name=given[0].lstrip("-"))
     return handler(args)
 
 
@@ -343,28 +349,6 @@ def _cmd_pipeline(args: argparse.Namespace) -> int:
         _write_json(args.json, result.to_mapping())
     if args.json != "-":
         print(f"report: {result.out_dir / 'index.md'}")
-    return 0
-
-
-# --- check -------------------------------------------------------------------------
-
-
-def _configure_check(p: argparse.ArgumentParser) -> None:
-    p.add_argument("experiment", metavar="EXPERIMENT.toml", help="experiment in the forecast-experiment/1 format")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
-
-
-@_command("check", "validate an experiment (TOML + CSV) and summarise it", _configure_check)
-def _cmd_check(args: argparse.Namespace) -> int:
-    from ..experiment import load_experiment
-
-    summary = load_experiment(args.experiment).summary()
-    if args.json:
-        _print_json(summary)
-    else:
-        print(f"{args.experiment}: ok, {summary['n_samples']} samples at {summary['rate_hz']:g} Hz "
-              f"({summary['duration']:.4g} s), columns {', '.join(summary['columns'])}, "
-              f"{'locked' if summary['locked'] else 'environment k_e = %g' % summary['design']['environment']['k_e']}")
     return 0
 
 
@@ -553,7 +537,7 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
     p.add_argument("--compensator", "--observer", dest="compensator", default="none", choices=_COMPENSATOR_CHOICES)
     p.add_argument("--friction", metavar="F.json", help="identified friction for --compensator sfm (identify --json)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0)
-    _add_environment_options(p, default="exp-soft", many=False, testbed=False)
+    _add_environment_options(p, default="exp-soft", many=False)
     p.add_argument("--reference", default="square:0.2:0.5", metavar="KIND:ARGS",
                    help="force reference: square:AMP:PERIOD, sine:AMP:PERIOD or step:AMP[:DELAY] (N m, s); "
                         "sine:0.2:0.5 is 0.2 N m at 2 Hz")
@@ -572,7 +556,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         result = run_on_port(args.port, out=args.out, reference=args.reference, duration=args.duration,
                              controller=args.controller, compensator=comp if comp is not None else "none",
                              w_q_hz=args.w_q_hz, env=_one_environment_from_args(args, "run")[1],
-                             timeout=args.timeout)
+                             testbed=_testbed_from_args(args), timeout=args.timeout)
         summary = result.to_mapping()
     except LinkError as exc:
         if args.json and getattr(exc, "summary", None):
@@ -626,8 +610,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         if not row["identified"] and row["reduction"] >= diagnosis.data.options.min_reduction:
             print(f"warning: {row['effect']} would remove {100 * row['reduction']:.0f} % of the gap but is not "
                   f"identified on this log: {'; '.join(row['reasons'][:2])}", file=sys.stderr)
-        if args.report:
-            print(f"report: {args.report}")
+    if args.report and args.json != "-":
+        print(f"report: {args.report}")
     return 0
 
 
@@ -665,45 +649,6 @@ def _cmd_bench_gap(args: argparse.Namespace) -> int:
         print(result.format_confusion())
         print(f"accuracy {100 * result.accuracy:.1f} %, false alarms {result.false_alarms}, "
               f"lowest held-out reduction of a correct effect {result.min_true_reduction:.3f}")
-    return 0
-
-
-# --- simulate ----------------------------------------------------------------------------
-
-
-def _configure_simulate(p: argparse.ArgumentParser) -> None:
-    p.add_argument("scenario", metavar="SCENARIO.toml",
-                   help="nominal model + [truth] effects + [reference] + [simulation] (see docs/scenario.md)")
-    p.add_argument("--out", required=True, metavar="RUN.toml", help="the simulated run, as an experiment")
-    p.add_argument("--json", action="store_true", help="print the written paths as JSON")
-    p.add_argument("--plot", metavar="OUT.png", help="plot the run (torque tracking, friction, motion)")
-
-
-@_command("simulate", "simulate the testbed (friction, effects, controller at 2 kHz) into an experiment",
-          _configure_simulate)
-def _cmd_simulate(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
-    from ..fileio import check_writable, refuse_overwriting
-    from ..simulation.scenario import load_scenario
-    from ..simulation.run import save_simulation
-
-    out = Path(args.out)  # save_simulation writes RUN.toml, RUN.csv, RUN.truth.json, RUN.truth.csv
-    refuse_overwriting([out, out.with_suffix(".csv"), out.with_name(out.stem + ".truth.json"),
-                        out.with_name(out.stem + ".truth.csv")] + ([args.plot] if args.plot else []),
-                       [args.scenario])
-    check_writable(out)
-    result = load_scenario(args.scenario).run()
-    paths = save_simulation(result, args.out)
-    if args.plot:
-        from ..plotting.simulation import plot_simulation
-
-        plot_simulation({args.scenario: result}, args.plot)
-    if args.json:
-        _print_json({key: str(value) for key, value in paths.items()})
-    else:
-        for key, value in paths.items():
-            print(f"{key}: {value}")
     return 0
 
 

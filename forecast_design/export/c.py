@@ -391,6 +391,7 @@ class ExportResult:
             "channels": [{"name": ch.name, "source": ch.source, "sections": int(ch.sos.shape[0]),
                           "group": ch.group, "gain": ch.gain} for ch in self.program.channels],
             "sfm": self.program.sfm is not None, "tau_max": self.program.tau_max,
+            "tau_max_N_m": self.program.tau_max if math.isfinite(self.program.tau_max) else None,
             "n_sections": self.program.n_sections,
             "controller": None if self.design.controller is None else self.design.controller.to_mapping(),
             "compensator": None if self.design.compensator is None else self.design.compensator.to_mapping(),

@@ -8,8 +8,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
-__all__ = ["OBSERVER_COLOURS", "OBSERVER_LABELS", "observer_colour", "observer_label", "cutoff_style",
-           "unit_labels"]
+__all__ = ["OBSERVER_COLOURS", "OBSERVER_LABELS", "observer_colour", "observer_label", "cutoff_style"]
 
 # Base colour per compensator kind (matplotlib's tab10, colour-blind friendlier than pure hues);
 # the plant alone is black.
@@ -79,21 +78,3 @@ def cutoff_style(w_q_hz: float | None, cutoffs: Sequence[float]) -> tuple[float,
     i = list(cutoffs).index(w_q_hz)
     shade = 0.6 + 0.4 * (i + 1) / n
     return shade, _LINESTYLES[(n - 1 - i) % len(_LINESTYLES)]
-
-
-def unit_labels(prismatic: bool) -> dict[str, str]:
-    """Units of an axis log's quantities: N, m, m/s (prismatic) or N m, rad, rad/s (rotary).
-
-    Parameters
-    ----------
-    prismatic : bool
-        A linear axis (e.g. the EMPS benchmark) instead of the SEA's rotary motor.
-
-    Returns
-    -------
-    dict
-        ``force``, ``position``, ``velocity`` and ``acceleration`` unit strings.
-    """
-    if prismatic:
-        return {"force": "N", "position": "m", "velocity": "m/s", "acceleration": "m/s^2"}
-    return {"force": "N m", "position": "rad", "velocity": "rad/s", "acceleration": "rad/s^2"}

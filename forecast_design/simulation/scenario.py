@@ -88,6 +88,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..effects import PositionFriction, Stiction, effect_from_mapping, effects_to_mappings
+from ..environments import resolve_environments
 from ..errors import ExperimentFormatError, ParameterError
 from ..params import Compensator, Design, Environment, PDController, Testbed
 from ..plausibility import check_limit, check_physical
@@ -263,6 +264,42 @@ class Scenario:
         n = 1 if self.variability is None else self.variability.repetitions
         return [self.run(i) for i in range(n)]
 
+    def with_friction(self, friction: Mapping[str, float]) -> Scenario:
+        """The scenario with an ``sfm`` compensator running on identified friction.
+
+        Parameters
+        ----------
+        friction : Mapping[str, float]
+            Identified SFM parameters as :mod:`forecast_design.friction` names them (``viscous``
+            [N m s/rad], ``coulomb``, ``offset``, ``sin<i>``, ``cos<i>``, ``coulomb_sin<i>``,
+            ``coulomb_cos<i>`` [N m]), e.g. the ``params`` of ``identify --json``.
+
+        Returns
+        -------
+        Scenario
+            A copy whose compensator is ``Compensator(kind="sfm", friction=friction)`` (replacing a
+            scenario's own ``[sfm]`` parameters; keeping its Q settings, which the SFM ignores).
+
+        Raises
+        ------
+        ParameterError
+            When the scenario's compensator is an observer (``ea-fob``...) rather than none or
+            ``sfm``, or a parameter name or value is not one of the SFM's.
+        """
+        comp = self.design.compensator
+        if comp is not None and comp.kind not in ("none", "sfm"):
+            raise ParameterError(f"identified friction drives an 'sfm' compensator, but the scenario's compensator is "
+                                 f"{comp.kind!r}; set [compensator] kind = \"sfm\" (or none) to use it",
+                                 name="friction", value=comp.kind)
+        from .controllers import SfmCompensator
+
+        SfmCompensator(friction, self.rate_hz)             # names and values, as for a [sfm] table
+        base = comp if comp is not None else Compensator(kind="sfm")
+        new = Compensator(kind="sfm", w_q_hz=base.w_q_hz, q_family=base.q_family, q_order=base.q_order,
+                          friction=dict(friction))
+        options = {k: v for k, v in self.options.items() if k != "sfm_params"}
+        return dataclasses.replace(self, design=dataclasses.replace(self.design, compensator=new), options=options)
+
     def to_mapping(self) -> dict[str, Any]:
         """The scenario as a TOML-ready mapping (round-trips through :func:`scenario_from_mapping`)."""
         out: dict[str, Any] = {"format": SCENARIO_FORMAT}
@@ -279,6 +316,8 @@ class Scenario:
                                   "q_order": comp.q_order}
         opts = dict(self.options)
         sfm = opts.pop("sfm_params", None)
+        if sfm is None and comp is not None and comp.friction:
+            sfm = comp.friction_params
         if sfm is not None:
             out["sfm"] = dict(sfm)
         truth: dict[str, Any] = {}
@@ -308,6 +347,26 @@ def _table(doc: Mapping[str, Any], key: str, prefix: str, source: str | None, *,
     if not isinstance(value, Mapping):
         raise ExperimentFormatError(f"{prefix}[{key}] must be a table, got {value!r}", path=source, key=key)
     return value
+
+
+def _environment(doc: Mapping[str, Any], testbed: Testbed, prefix: str, source: str | None) -> Environment:
+    """The scenario's ``[environment]``: a table, or a string naming one environment as everywhere else.
+
+    The string is a preset name (``"soft"``), inline values (``"k_e=20,J_e=0.02"``) or an
+    environment(-set) file holding exactly one environment, relative to the scenario's folder
+    (docs/environments.md); J_l, d_l default to the Table 1 link.
+    """
+    value = doc.get("environment")
+    if not isinstance(value, str):
+        return Environment.from_mapping(_table(doc, "environment", prefix, source, required=True), source=source)
+    spec = value.strip()
+    if spec.lower().endswith(".toml") and source is not None and not os.path.isabs(spec):
+        spec = os.path.join(os.path.dirname(source), spec)
+    try:
+        return resolve_environments(spec, testbed=testbed).single("a scenario")[1]
+    except (ParameterError, ExperimentFormatError) as exc:
+        raise ExperimentFormatError(f"{prefix}environment = {value!r}: {str(exc).splitlines()[0]}", path=source,
+                                    key="environment") from None
 
 
 def _typed(value: Any, kind: type, prefix: str, key: str, source: str | None) -> Any:
@@ -373,8 +432,7 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
     except ParameterError as exc:
         raise ExperimentFormatError(f"{prefix}{exc}", path=source, key="sampling.rate_hz") from None
     testbed = Testbed.from_mapping(_table(doc, "testbed", prefix, source, required=True), source=source)
-    environment = Environment.from_mapping(_table(doc, "environment", prefix, source, required=True),
-                                           source=source)
+    environment = _environment(doc, testbed, prefix, source)
     ctrl_table = _table(doc, "controller", prefix, source, required=False)
     controller = None if ctrl_table is None else PDController.from_mapping(ctrl_table, source=source)
     comp_table = _table(doc, "compensator", prefix, source, required=False)

@@ -8,15 +8,17 @@ polynomials of the force loop, the ``tf`` verb's table) is evaluated here.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
 
+from ..environments import resolve_environments, resolve_testbed
 from ..errors import ParameterError
 from ..lti import RationalTF
-from ..params import Design, require_design
+from ..params import Design
 from ._catalogue import MODELS
 
 __all__ = [
@@ -331,15 +333,21 @@ class TransferFunctions:
         return {name: getattr(self, name).to_control() for name in ("P", "EA", "LO", "LD")}
 
 
-def transfer_functions(design: Design) -> TransferFunctions:
+def transfer_functions(design: Any = "soft", *, testbed: Any = None) -> TransferFunctions:
     """P and the nominal plants P_n^EA, P_n^LO, P_n^LD at a design.
 
     Parameters
     ----------
-    design : Design
-        EA uses the design's own environment (with d_m = 0); LD uses its
-        J_l [kg m^2] and d_l [N m s/rad]; LO depends on J_m and k only.
-        For a locked design P is the locked plant and EA equals LO.
+    design : Design, Environment, str or path
+        A Design, or one environment in any form
+        :func:`~forecast_design.environments.resolve_environments` accepts (an Environment, a
+        preset name such as ``"soft"``, inline ``"k_e=20,J_e=0.02"`` values, a file holding one;
+        a set of several is an error: call once per member). EA uses the design's own
+        environment (with d_m = 0); LD uses its J_l [kg m^2] and d_l [N m s/rad]; LO depends
+        on J_m and k only. For a locked design P is the locked plant and EA equals LO.
+    testbed : Testbed, str or None
+        The testbed (:func:`~forecast_design.environments.resolve_testbed`: a Testbed, inline
+        ``"k=40"``, a TOML file); None keeps the Design's, or Table 1 for an environment.
 
     Returns
     -------
@@ -348,7 +356,13 @@ def transfer_functions(design: Design) -> TransferFunctions:
         (descending powers, den[0] == 1), ``poles`` ([[re, im], ...]) and
         ``dc_gain``.
     """
-    require_design(design, "transfer_functions")
+    if isinstance(design, Design):
+        if testbed is not None:
+            design = dataclasses.replace(design, testbed=resolve_testbed(testbed))
+    else:
+        tb = resolve_testbed(testbed)
+        design = Design(testbed=tb, environment=resolve_environments(design, testbed=tb).single(
+            "transfer_functions")[1])
     locked = design.environment.locked
 
     def entry(key: str, name: str) -> TransferFunctionEntry:
