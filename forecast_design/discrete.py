@@ -75,15 +75,17 @@ from .lti import RationalTF
 
 try:  # numba is optional: without it the kernels run as (slow) plain Python.
     from numba import njit as _numba_njit
+    from numba import prange
 
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover
     _numba_njit = None
+    prange = range
     HAVE_NUMBA = False
 
 
-def njit(func=None, *, inline: str = "never"):
-    """The project's one numba shim: ``numba.njit(cache=True, inline=...)``, or the plain function.
+def njit(func=None, *, inline: str = "never", parallel: bool = False):
+    """The project's one numba shim: ``numba.njit(cache=True, inline=..., parallel=...)``, or the plain function.
 
     Parameters
     ----------
@@ -91,6 +93,9 @@ def njit(func=None, *, inline: str = "never"):
         The function (``@njit`` or ``njit(f, inline="always")``).
     inline : str
         numba's IR-level inlining at jitted call sites (``"never"`` or ``"always"``).
+    parallel : bool
+        Run the function's ``prange`` loops (:data:`prange`, ``range`` without numba) on
+        numba's thread pool.
 
     Returns
     -------
@@ -98,7 +103,11 @@ def njit(func=None, *, inline: str = "never"):
         The compiled function (the function itself without numba).
     """
     def wrap(f):
-        return f if _numba_njit is None else _numba_njit(cache=True, inline=inline)(f)
+        if _numba_njit is None:
+            return f
+        if parallel:
+            return _numba_njit(cache=True, inline=inline, parallel=True)(f)
+        return _numba_njit(cache=True, inline=inline)(f)
 
     return wrap if func is None else wrap(func)
 

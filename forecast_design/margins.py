@@ -134,10 +134,15 @@ class DiskMarginCurve:
     sigma: float                   # skew                                          [-]
 
     def to_mapping(self) -> dict[str, Any]:
-        """JSON-ready mapping (lists; infinities become ``None``)."""
+        """JSON-ready mapping (lists; infinities become ``None``); ``disk_margin``, ``frequency_hz`` and
+        ``skew`` are the keys every verb uses (``alpha``, ``w_rad_s`` and ``sigma`` kept)."""
+        alpha = [json_float(a) for a in self.alpha]
         return {
+            "frequency_hz": [float(w) / (2.0 * math.pi) for w in self.w_rad_s],
+            "disk_margin": alpha,
+            "skew": self.sigma,
             "w_rad_s": [float(w) for w in self.w_rad_s],
-            "alpha": [json_float(a) for a in self.alpha],
+            "alpha": alpha,
             "gain_margin_db": [[json_float(lo), json_float(hi)] for lo, hi in self.gain_margin_db],
             "phase_margin_deg": [json_float(p) for p in self.phase_margin_deg],
             "sigma": self.sigma,

@@ -42,6 +42,10 @@ OBSERVER_KINDS = ("ea-fob", "lo-dob", "ld-dob", "motor-fob")
 Q_FAMILIES = ("butterworth", "binomial")
 #: Where a force loop is broken for its loop transfer function L.
 BREAK_POINTS = ("controller", "plant-input")
+#: Boards the firmware export targets.
+BOARDS = ("nucleo-f446re",)
+#: ESCON set-value paths: the DAC (PA4, analog set value) or a PWM timer (PA6, PWM set value).
+OUTPUT_STAGES = ("dac", "pwm")
 
 
 def check_number(owner: str, name: str, value: Any, *, positive: bool = False, nonneg: bool = True) -> float:

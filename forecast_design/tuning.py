@@ -29,6 +29,7 @@ import numpy as np
 
 from .loops.response import (LoopResponse, loop_response, observer_responses, q_argument, sensitivity,
                              sensitivity_terms)
+from .executor import Executor
 from .margins import disk_margin
 from .errors import ParameterError, SolverError
 from .plausibility import check_limit, check_physical
@@ -253,10 +254,16 @@ def _grid_ratios(plants: Sequence[_Plant], coeffs: np.ndarray, w_q_hz: np.ndarra
 
 
 def _exact_ratios(plants: Sequence[_Plant], compensator: Compensator, setting: _Setting,
-                  order: Sequence[int] | None = None, stop_below: float | None = None
-                  ) -> tuple[np.ndarray, np.ndarray, int]:
+                  order: Sequence[int] | None = None, stop_below: float | None = None,
+                  executor: Executor | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Exact alpha_observer/alpha_plant (stability checked), critical frequencies [rad/s] and the
-    number of evaluations; with ``stop_below``, stop at the first ratio under it (others nan)."""
+    number of evaluations; with ``stop_below``, stop at the first ratio under it (others nan).
+    With an executor every plant is evaluated (in coarse batches), whatever ``stop_below``."""
+    if executor is not None:
+        items = [(p.true_design, p.believed, compensator, setting) for p in plants]
+        out = executor.map_batched(_exact_of, items, batch_size=_batch_size(executor, len(items)))
+        alphas = np.array([a for a, _ in out])
+        return alphas / np.array([p.alpha_plant for p in plants]), np.array([f for _, f in out]), len(plants)
     ratios, freqs = np.full(len(plants), np.nan), np.full(len(plants), np.nan)
     n = 0
     for i in (range(len(plants)) if order is None else order):
@@ -313,8 +320,27 @@ def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("sof
     return float(ratios[i]), plants[i].label
 
 
+def _plant_of(item: tuple) -> _Plant:
+    """One plant of the set from ``(label, true_design, believed, compensator, setting)`` (an executor task)."""
+    label, true_design, believed, compensator, setting = item
+    alpha = _exact_ratio(true_design, true_design, None, setting)[0]
+    W, CP, M, dm = _responses(true_design, believed, compensator, setting, setting.grid(), {})
+    return _Plant(label, true_design, believed, alpha, setting.grid(), W, CP, M, dm)
+
+
+def _exact_of(item: tuple) -> tuple[float, float]:
+    """:func:`_exact_ratio` of ``(true_design, believed, compensator, setting)`` (an executor task)."""
+    return _exact_ratio(*item)
+
+
+def _batch_size(executor: Executor, n: int) -> int:
+    """Items per task: about four tasks per worker (coarse tasks; results do not depend on it)."""
+    return max(1, math.ceil(n / (4 * max(1, executor.workers))))
+
+
 def _plants(compensator: Compensator, envs, uncertainty: float, setting: _Setting, seed: int = 0,
-            progress: Callable[[int, int], None] | None = None, testbed: Any = None) -> list[_Plant]:
+            progress: Callable[[int, int], None] | None = None, testbed: Any = None,
+            executor: Executor | None = None) -> list[_Plant]:
     if not compensator.is_observer:
         raise ParameterError(f"tuning needs an observer kind (ea-fob, lo-dob, ld-dob, motor-fob), "
                              f"got {compensator.kind!r}", name="observer", value=compensator.kind)
@@ -326,6 +352,11 @@ def _plants(compensator: Compensator, envs, uncertainty: float, setting: _Settin
     cache: dict = {}
     alone: dict = {}
     pairs = environment_set(envs, uncertainty=uncertainty, seed=seed, testbed=base.testbed)
+    if executor is not None:
+        items = [(label, dataclasses.replace(base, environment=true), dataclasses.replace(base, environment=bel),
+                  compensator, setting) for label, true, bel in pairs]
+        return executor.map_batched(_plant_of, items, batch_size=_batch_size(executor, len(items)),
+                                    progress=progress)
     out = []
     for n, (label, true, bel) in enumerate(pairs):
         true_design = dataclasses.replace(base, environment=true)
@@ -454,7 +485,8 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
            q_family: str = "butterworth", q_order: int = 2, controller: PDController = PDController(),
            break_at: str = "controller", sigma: float = 0.0, scan_points: int = 80, seed: int = 0,
            sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1, scan: str = "bounded",
-           progress: Callable[[int, int], None] | None = None, testbed: Any = None) -> TuningResult:
+           progress: Callable[[int, int], None] | None = None, testbed: Any = None,
+           executor: Executor | None = None) -> TuningResult:
     """Largest Q cutoff keeping the disk margin near the plant's own in every environment.
 
     Parameters
@@ -498,6 +530,12 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
         ``progress(done, total)`` while the plant set is prepared and the scan runs.
     testbed : Testbed, str or None
         The testbed (:func:`~forecast_design.environments.resolve_testbed`; None: Table 1).
+    executor : Executor, optional
+        Where the per-plant work of a large set runs (:func:`forecast_design.executor.make_executor`:
+        local processes or a Dask cluster): the plant set's responses and margins and every exact
+        verification, in coarse batches of plants. None (default): this process, with the early
+        stop of the bounded scan. The answer is the same either way; ``evaluations`` counts the
+        exact margins computed, which without the early stop is more.
 
     Returns
     -------
@@ -540,14 +578,15 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
                              name="band", value=band_hz)
     setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
     base = Compensator(kind=observer, w_q_hz=band_hz[0], q_family=q_family, q_order=q_order)
-    plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed)
+    plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed, executor=executor)
     coeffs = _q_polynomial(base)
     evaluations = len({p.true_design for p in plants})    # plant-alone margins
     threshold = min_ratio * (1.0 - _FEAS_RTOL)
 
     def exact(w_q_hz: float, order=None, stop_below=None):
         nonlocal evaluations
-        ratios, freqs, n = _exact_ratios(plants, dataclasses.replace(base, w_q_hz=w_q_hz), setting, order, stop_below)
+        ratios, freqs, n = _exact_ratios(plants, dataclasses.replace(base, w_q_hz=w_q_hz), setting, order, stop_below,
+                                         executor=executor)
         evaluations += n
         return ratios, freqs
 
@@ -648,7 +687,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
                  w_q_hz: float = 10.0, uncertainty: float = 0.0, damping_range: tuple[float, float] = (0.3, 2.0),
                  controller: PDController = PDController(), break_at: str = "controller",
                  sigma: float = 0.0, seed: int = 0, sampled: bool = False, rate_hz: float = 2000.0,
-                 delay_samples: int = 1, testbed: Any = None) -> TuningResult:
+                 delay_samples: int = 1, testbed: Any = None, executor: Executor | None = None) -> TuningResult:
     """Maximise the worst-case margin ratio at a fixed Q bandwidth over the Q damping.
 
     Parameters
@@ -680,6 +719,8 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
         Computation delay when ``sampled`` [samples].
     testbed : Testbed, str or None
         The testbed (:func:`~forecast_design.environments.resolve_testbed`; None: Table 1).
+    executor : Executor, optional
+        Where the per-plant work runs (as in :func:`tune_q`); None: this process.
 
     Returns
     -------
@@ -694,7 +735,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
     """
     setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
     base = Compensator(kind=observer, w_q_hz=w_q_hz, q_family="butterworth", q_order=2)
-    plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed)
+    plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed, executor=executor)
     w_q = 2 * math.pi * w_q_hz
     import casadi as ca
 
@@ -702,7 +743,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
 
     def exact_at(zeta: float) -> np.ndarray:
         comp = dataclasses.replace(base, q_damping=float(zeta))
-        return _exact_ratios(plants, comp, setting)[0]
+        return _exact_ratios(plants, comp, setting, executor=executor)[0]
 
     zetas = np.linspace(*damping_range, 60)
     scan = np.array([exact_at(z).min() for z in zetas])

@@ -235,3 +235,84 @@ def test_scenario_variability_table_round_trips_and_runs_differ():
     bad = dict(doc, variability={"repetitions": 3, "angle": "random"})
     with pytest.raises(ExperimentFormatError, match=r"\[variability\] unknown key 'angle'"):
         scenario_from_mapping(bad, source="s.toml")
+
+
+# --- recorded runs (benchmark --runs DIR) ----------------------------------------------------------
+
+
+def _simulated_runs(folder, spec):
+    """Save each cell's repetitions as experiments, simulated exactly as run_cell simulates them."""
+    from forecast_design.simulation import save_simulation
+
+    var = Variability(repetitions=spec.repetitions, seed=spec.seed)
+    for cell in spec.cells():
+        design = Design(environment=cell.environment, controller=cell.controller, compensator=cell.compensator)
+        for i, a in enumerate(var.initial_angles()):
+            r = simulate(design, reference=cell.reference, duration_s=cell.duration_s, effects=spec.effects,
+                         initial_angle=float(a), seed=spec.seed + 1 + i)
+            name = f"{cell.environment_name}-{cell.compensator.kind}-{i}.toml"
+            save_simulation(r, folder / cell.environment_name / name)
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    from forecast_design.simulation import save_simulation
+
+    folder = tmp_path_factory.mktemp("runs")
+    spec = _spec(repetitions=3)
+    _simulated_runs(folder, spec)
+    # an open-loop run (skipped) and a TOML that is not an experiment (ignored)
+    ol = simulate(Design.nominal("link-only"), reference=np.full(200, 0.5), duration_s=0.1, closed_loop=False)
+    save_simulation(ol, folder / "open-loop.toml")
+    (folder / "set.toml").write_text('[[environment]]\nname = "a"\nk_e = 5.0\nJ_e = 0.001\n')
+    return folder, spec
+
+
+def test_recorded_runs_are_grouped_by_their_toml_and_give_the_simulated_cells_indicators(recorded):
+    # the same runs benchmarked from their experiment files (TOML + CSV, 17 digits) and on the virtual
+    # testbed give the same indicators: one implementation of the metrics, exact CSV round trip
+    from forecast_design.benchmark import run_recorded
+
+    folder, spec = recorded
+    cells, info = run_recorded(folder)
+    assert info["runs"] == 13 and info["cells"] == 4 and len(info["skipped"]) == 1
+    assert "open-loop.toml" in info["skipped"][0]
+    simulated = {tuple(c.labels.values()): c for c in run_benchmark(spec)[0]}
+    for c in cells:
+        sim = simulated[tuple(c.labels.values())]          # labels (incl. step:0.2:0.5) match
+        assert len(c.runs) == 3
+        assert c.repeatability == pytest.approx(sim.repeatability, rel=1e-12)
+        assert c.disk_margin == pytest.approx(sim.disk_margin, rel=1e-12)
+        for mine, theirs in zip(c.runs, sim.runs):
+            for m in ("mae_N_m", "rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m",
+                      "repeatability"):
+                assert mine[m] == pytest.approx(theirs[m], rel=1e-9, abs=1e-12), m
+            assert math.isnan(mine["initial_angle_rad"])
+
+
+def test_benchmark_verb_on_recorded_runs_writes_the_table_and_reuses_cells(recorded, tmp_path, capsys):
+    folder, _ = recorded
+    out = tmp_path / "out"
+    assert main(["benchmark", "--runs", str(folder), "--out", str(out), "--no-plots", "--workers", "1"]) == 0
+    captured = capsys.readouterr()
+    assert "note: skipped" in captured.err and "4 cells computed, 0 reused" in captured.out
+    df = pd.read_parquet(out / "results.parquet")
+    assert len(df[df["kind"] == "run"]) == 12
+    assert set(df[df["kind"] == "run"]["environment"]) == {"exp-soft", "locked"}
+    assert "recorded runs from" in (out / "report.md").read_text()
+    assert main(["benchmark", "--runs", str(folder), "--out", str(out), "--no-plots", "--workers", "1"]) == 0
+    assert "0 cells computed, 4 reused" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("extra,match", [(["--runs", "nowhere"], "not a folder"),
+                                         (["--runs", ".", "--controller", "pd:5:0.1"], "drop --controller")])
+def test_benchmark_runs_bad_input_is_one_line(tmp_path, capsys, extra, match):
+    assert main(["benchmark", "--out", str(tmp_path / "o"), *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and match in err
+
+
+def test_a_folder_without_closed_loop_runs_is_a_one_line_error(tmp_path, capsys):
+    (tmp_path / "x.toml").write_text("a = 1\n")
+    assert main(["benchmark", "--runs", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert "no closed-loop experiment" in capsys.readouterr().err

@@ -268,8 +268,15 @@ def test_margins_verb_agrees_with_fig6_and_reports_instability(capsys):
     row = next(r for r in json.loads(fig6) if r["environment"] == "stiff" and r["observer"] == "ld-dob"
                and r["w_q_hz"] == 5)
     assert dm["alpha"] == pytest.approx(row["disk_margin"], rel=1e-12)
-    _, out, _ = _run(capsys, "margins", "--env", "stiff", "--observer", "ld-dob", "--w-q-hz", "10", "--json")
-    assert json.loads(out)["stable"] is False and json.loads(out)["alpha"] == 0.0
+    # LD-DOB at 10 Hz in the stiff environment is unstable (paper Fig. 6b): said in words, exit code 1
+    code, out, err = _run(capsys, "margins", "--env", "stiff", "--observer", "ld-dob", "--w-q-hz", "10", "--json")
+    assert code == 1 and json.loads(out)["stable"] is False and json.loads(out)["alpha"] == 0.0
+    assert json.loads(out)["disk_margin"] == 0.0 and "UNSTABLE" in err     # JSON on stdout, the words on stderr
+    assert row["stable"] is True and not next(
+        r for r in json.loads(fig6) if r["environment"] == "stiff" and r["observer"] == "ld-dob"
+        and r["w_q_hz"] == 10)["stable"]                                   # fig6 agrees on which loop is unstable
+    code, out, err = _run(capsys, "margins", "--env", "stiff", "--observer", "ld-dob", "--w-q-hz", "10")
+    assert code == 1 and "UNSTABLE" in out and "nan" not in out and err == ""
 
 
 def test_tune_q_sampled_json(capsys):

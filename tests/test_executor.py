@@ -158,3 +158,46 @@ def test_a_dask_worker_killed_mid_run_loses_no_result(cluster):
         ex.close()
     assert killed, "no worker was killed while tasks ran"
     _same(expected, cells)
+
+
+# --- tune-q over large sets through the executor ----------------------------------------------------
+
+
+def _tune(executor=None):
+    from forecast_design.tuning import tune_q
+
+    # the LD-DOB over soft and stiff with +-10 % on J, d, k_e (18 plants): the answer lies inside the band
+    return tune_q("ld-dob", "soft,stiff", uncertainty=0.1, executor=executor)
+
+
+@pytest.fixture(scope="module")
+def serial_tuning():
+    return _tune()
+
+
+def test_tune_q_through_local_processes_equals_the_serial_tuning(serial_tuning):
+    with LocalExecutor(2) as ex:
+        spread = _tune(ex)
+    assert 0.5 < serial_tuning.w_q_hz < 30.0 and serial_tuning.plants == 18
+    a, b = serial_tuning.to_mapping(), spread.to_mapping()
+    a.pop("evaluations"), b.pop("evaluations")           # no early stop on the executor: may count more
+    assert a == b                                         # same cutoff, worst ratio and plant, bit for bit
+
+
+def test_tune_q_verb_with_workers_gives_the_same_cutoff(serial_tuning, capsys):
+    from forecast_design.cli import main
+
+    assert main(["tune-q", "--compensator", "ld-dob", "--envs", "soft,stiff", "--uncertainty", "0.1",
+                 "--workers", "2", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["w_q_hz"] == serial_tuning.w_q_hz and doc["worst_ratio"] == serial_tuning.worst_ratio
+
+
+@pytest.mark.slow
+def test_tune_q_on_a_dask_cluster_equals_local(cluster, serial_tuning):
+    with make_executor(cluster.scheduler_address) as ex:
+        on_dask = _tune(ex)
+    with LocalExecutor(1) as ex:
+        local = _tune(ex)
+    assert on_dask.to_mapping() == local.to_mapping()
+    assert on_dask.w_q_hz == serial_tuning.w_q_hz and on_dask.worst_ratio == serial_tuning.worst_ratio

@@ -26,7 +26,7 @@ needs_qemu = pytest.mark.skipif(NO_PIL is not None, reason=str(NO_PIL))
 
 
 @needs_arm
-@pytest.mark.parametrize("output", ["dac", "pwm"])
+@pytest.mark.parametrize("output", ["dac", pytest.param("pwm", marks=pytest.mark.slow)])
 def test_firmware_builds_for_board_and_pil_with_werror(tmp_path, output):
     opts = fwm.FirmwareOptions(output=output)
     res = fwm.export_firmware(out_dir=tmp_path, compensator="ea-fob", env="exp-soft", w_q_hz=10, options=opts)
@@ -261,16 +261,18 @@ def _session(pil_image, faults, n=200):
 
 @needs_qemu
 @pytest.mark.parametrize("faults, code, at", [
-    (PilFaults(garbage_at=50, garbage_bytes=200), "LINK_CORRUPT", 50),
+    (PilFaults(garbage_at=50, garbage_bytes=80), "LINK_CORRUPT", 50),
     (PilFaults(drop_at=60), "FRAME_DROPPED", 60),
     (PilFaults(silent_at=70), "LINK_TIMEOUT", 70)])
 def test_link_faults_zero_the_torque_and_are_reported(pil_image, faults, code, at):
     samples, info = _session(pil_image, faults)
     assert info["fault"] == code and info["fault_index"] == at
     assert [s.index for s in samples] == list(range(at))   # no command after the fault: torque zero
-    # stated time: garbage and a dropped frame at once (< 1 period of host time + the link round trip),
-    # a silent host within the link timeout plus 2 periods plus 150 ms of host/qemu scheduling slack
-    limit = LINK_TIMEOUT_MS / 1000 + 2 / 2000 + 0.15 if code == "LINK_TIMEOUT" else 0.25
+    # stated time (docs/firmware.md): garbage and a dropped frame are detected on the byte/frame that shows
+    # them, reported within 0.25 s of wall time here (qemu delivers ~2 bytes/ms to the guest); a silent
+    # host after the link timeout of the firmware's own 2 kHz clock, never before it, and under qemu
+    # (whose SysTick lags wall time on a loaded host) within 0.5 s for the 100 ms timeout
+    limit = 0.5 if code == "LINK_TIMEOUT" else 0.25
     assert info["fault_latency_s"] <= limit
     if code == "LINK_TIMEOUT":
         assert info["fault_latency_s"] >= LINK_TIMEOUT_MS / 1000 - 2 / 2000
@@ -290,3 +292,18 @@ def test_pil_skips_with_the_reason_when_qemu_is_missing(monkeypatch, tmp_path):
     monkeypatch.setattr(pil, "qemu_available", lambda: "qemu-system-arm not on PATH")
     with pytest.raises(ExportError, match="qemu-system-arm not on PATH"):
         pil.run_pil(duration=0.01, out=tmp_path / "r.toml")
+
+
+def test_cli_export_firmware_writes_the_project_and_bad_options_exit_2(tmp_path, capsys):
+    from forecast_design.cli import main
+
+    assert main(["export", "--firmware", "--board", "nucleo-f446re", "--compensator", "lo-dob", "--out",
+                 str(tmp_path / "fw"), "--json", str(tmp_path / "fw.json")]) == 0
+    names = {p.name for p in (tmp_path / "fw").iterdir()}
+    assert set(fwm.TEMPLATE_FILES) | {"fd_config.h", "fd_blob.c", "config.mk", "fd_controller.c"} <= names
+    # a torque limit above the full-scale set value is refused with one line naming the option
+    assert main(["export", "--firmware", "--out", str(tmp_path / "bad"), "--tau-max", "3", "--tau-full-scale",
+                 "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "tau_full_scale_N_m" in err[0]
+    assert main(["pil", "--check-arm", "--out", str(tmp_path / "r.toml")]) == 2

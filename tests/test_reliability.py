@@ -4,9 +4,11 @@ CLI cases run in-process through ``forecast_design.cli.main`` with a wall-clock 
 fuzz tests are hypothesis-driven, derandomised, with a small ``max_examples``.
 """
 
+import contextlib
 import copy
 import math
 import resource
+import signal
 import time
 import tomllib
 from importlib import resources
@@ -31,11 +33,31 @@ def _max_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+class CaseTimeout(Exception):
+    """Raised inside a CLI case that outlives CASE_SECONDS (a hang becomes a failure, not a stalled suite)."""
+
+
+@contextlib.contextmanager
+def time_bound(seconds: float = CASE_SECONDS):
+    """Interrupt the block after ``seconds`` of wall clock (SIGALRM; main thread, POSIX)."""
+    def expire(signum, frame):
+        raise CaseTimeout(f"case still running after {seconds:g} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 def cli(argv, capsys):
     """Run one CLI case in-process; return (code, stdout, stderr), enforcing the time and memory bounds."""
     rss, t0 = _max_rss_mb(), time.monotonic()
     try:
-        code = main([str(a) for a in argv])
+        with time_bound(CASE_SECONDS):
+            code = main([str(a) for a in argv])
     except SystemExit as exc:   # argparse's own one-line usage errors exit 2 this way
         code = exc.code
     elapsed = time.monotonic() - t0
@@ -59,7 +81,7 @@ def write_experiment(folder, name="run", *, J_m=0.133, k=58.0, J_e=0.001, J_l=0.
     toml.write_text(f'format = "forecast-experiment/1"\ndata = "{name}.csv"\n[sampling]\nrate_hz = 1000.0\n'
                     f"[testbed]\nJ_m = {J_m!r}\nd_m = 0.3\nk = {k!r}\n"
                     f"[environment]\nJ_e = {J_e!r}\nd_e = 0.063\nk_e = 5.0\nJ_l = {J_l!r}\nd_l = 0.35\n")
-    t = np.arange(2000) / 1000.0
+    t = (np.arange(2000) / 1000.0).tolist()   # Python floats: repr of a numpy scalar is not a CSV number
     rows = "".join(f"{a!r},{0.5 * math.sin(6 * a)!r},{0.01 * math.sin(6 * a)!r},{0.005 * math.sin(6 * a)!r}\n"
                    for a in t)
     (folder / f"{name}.csv").write_text("t,tau_m,theta,q\n" + rows)
@@ -171,13 +193,14 @@ def test_api_type_errors_are_parameter_errors():
     from forecast_design.gap import diagnose
     from forecast_design.symbolic import transfer_functions
 
-    for call in (lambda: transfer_functions("soft"), lambda: diagnose("run.toml"),
+    for call in (lambda: transfer_functions(42), lambda: diagnose("run.toml"),
                  lambda: export_controller("soft", out_dir="unused"), lambda: Design(testbed="x"),
                  lambda: Design(environment="soft"), lambda: Design(compensator="ea-fob")):
         with pytest.raises(ParameterError) as info:
             call()
         assert "\n" not in str(info.value)
     assert loop_margins(Design.nominal("soft"), "ea-fob").stable   # a kind name is accepted here
+    assert transfer_functions("soft").P.tf == transfer_functions(Design.nominal("soft")).P.tf   # so is a preset
 
 
 @FUZZ

@@ -409,7 +409,9 @@ def test_example_scenario_is_package_data_and_runs(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "forecast_design", "simulate", str(path), "--out", str(out), "--json"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
-    assert set(json.loads(proc.stdout)) == {"experiment", "data", "truth", "truth_data"}
+    summary = json.loads(proc.stdout)
+    assert {"experiment", "data", "truth", "truth_data"} <= set(summary)    # the paths, plus the run's figures
+    assert summary["compensator"] == "ea-fob" and summary["statistics"]["n_samples"] == 16000
     from forecast_design.experiment import load_experiment
 
     exp = load_experiment(out)

@@ -12,11 +12,13 @@
 Modules: :mod:`.spec` (what runs), :mod:`.metrics` (indicators), :mod:`.runner` (cells
 through :mod:`forecast_design.executor`, cached by their inputs), :mod:`.aggregate`
 (mean/best/worst per environment and over the set, Parquet + CSV + JSON),
-:mod:`.report` (Markdown). Plots: :mod:`forecast_design.plotting.benchmark`.
+:mod:`.report` (Markdown), :mod:`.recorded` (recorded runs from a folder of experiments,
+grouped into cells by their TOML). Plots: :mod:`forecast_design.plotting.benchmark`.
 """
 
 from .aggregate import COLUMNS, result_rows, result_table, summary, write_summary, write_tables
 from .metrics import METRICS, repeatability_per_run, step_metrics, tracking_bandwidth_hz
+from .recorded import find_runs, group_runs, run_recorded
 from .report import markdown_report, write_report
 from .runner import CellResult, run_benchmark, run_cell
 from .spec import BenchmarkSpec, Cell, parse_compensators, parse_controller, parse_reference
@@ -25,5 +27,5 @@ __all__ = [
     "BenchmarkSpec", "Cell", "CellResult", "parse_controller", "parse_compensators", "parse_reference",
     "run_benchmark", "run_cell", "result_rows", "result_table", "write_tables", "summary", "write_summary",
     "markdown_report", "write_report", "step_metrics", "tracking_bandwidth_hz", "repeatability_per_run",
-    "METRICS", "COLUMNS",
+    "METRICS", "COLUMNS", "run_recorded", "find_runs", "group_runs",
 ]

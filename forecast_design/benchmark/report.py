@@ -56,8 +56,12 @@ def markdown_report(rows: Sequence[Mapping[str, Any]], spec: Mapping[str, Any], 
     lines = ["# Force-control benchmark over an environment set", "",
              f"Controllers {', '.join(spec['controllers'])}; compensators {', '.join(spec['compensators'])}; "
              f"{len(spec['environments'])} environments; references {', '.join(spec['references'])}; "
-             f"{spec['repetitions']} repetitions per cell, each from its own random motor angle (seed "
-             f"{spec['seed']}). Ran {info.get('computed', 0)} cells, reused {info.get('reused', 0)} finished ones "
+             + (f"recorded runs from `{spec['runs']}` ({info.get('runs', 0)} experiments, grouped into cells by "
+                f"their TOML's environment, controller, compensator and recorded reference). "
+                if spec.get("runs") else
+                f"{spec['repetitions']} repetitions per cell, each from its own random motor angle (seed "
+                f"{spec['seed']}). ")
+             + f"Ran {info.get('computed', 0)} cells, reused {info.get('reused', 0)} finished ones "
              f"({info.get('executor', 'local')}, {info.get('workers', 1)} workers).", "",
              "Indicators: repeatability = mean pairwise zero-lag cross-correlation of tau_s over the repetitions "
              "(Table 3); MAE against the frictionless expected response (same controller, no friction, no "

@@ -21,7 +21,9 @@ class _ArgumentParser(argparse.ArgumentParser):
     """argparse with one-line errors and exit code 2 (argparse's own convention)."""
 
     def error(self, message: str) -> None:  # pragma: no cover - exercised via main()
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        # the same prefix as every other error line; the verb (prog "forecast-design VERB") follows it
+        verb = self.prog.partition(" ")[2]
+        self.exit(2, f"forecast-design: error: {verb + ': ' if verb else ''}{message}\n")
 
 
 @contextlib.contextmanager
@@ -285,6 +287,10 @@ def _configure_tune_q(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rate-hz", type=_float_range, default=2000.0, help="--sampled: control rate [Hz]")
     p.add_argument("--delay-samples", type=int, default=1, help="--sampled: computation delay [samples]")
     p.add_argument("--exact-scan", action="store_true", help="verify with a full exact scan (slow)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="compute the plants' margins on N local processes (large sets; default: this process)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="compute them on a Dask cluster, tcp://HOST:PORT (same answer as locally)")
     p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write JSON to OUT (or stdout)")
     p.add_argument("--plot", metavar="OUT.png",
                    help="draw the trade-off: worst-case margin ratio and friction-rejection bandwidth "
@@ -299,17 +305,23 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
     # random:N is expanded here with --seed; the set (an EnvironmentSet) is what tune_q receives
     args.envs = _environments_from_args(args, seed=args.seed)
     testbed = _testbed_from_args(args)
-    if args.max_margin is not None:
-        result = tune_q_shape(args.observer, args.envs, w_q_hz=args.max_margin, uncertainty=args.uncertainty,
-                              break_at=args.break_at, seed=args.seed, sampled=args.sampled, rate_hz=args.rate_hz,
-                              delay_samples=args.delay_samples, testbed=testbed)
-    else:
-        with _progress_bar("exact scan", "cutoff") as progress:
-            result = tune_q(args.observer, args.envs, uncertainty=args.uncertainty, min_ratio=args.min_ratio,
-                            band_hz=tuple(args.band), q_family=args.q_family, q_order=args.q_order,
-                            break_at=args.break_at, seed=args.seed, progress=progress, sampled=args.sampled,
-                            rate_hz=args.rate_hz, delay_samples=args.delay_samples,
-                            scan="exact" if args.exact_scan else "bounded", testbed=testbed)
+    with contextlib.ExitStack() as stack:
+        executor = None
+        if args.scheduler or args.workers is not None:
+            from ..executor import make_executor
+
+            executor = stack.enter_context(make_executor(args.scheduler, args.workers))
+        if args.max_margin is not None:
+            result = tune_q_shape(args.observer, args.envs, w_q_hz=args.max_margin, uncertainty=args.uncertainty,
+                                  break_at=args.break_at, seed=args.seed, sampled=args.sampled, rate_hz=args.rate_hz,
+                                  delay_samples=args.delay_samples, testbed=testbed, executor=executor)
+        else:
+            with _progress_bar("exact scan", "cutoff") as progress:
+                result = tune_q(args.observer, args.envs, uncertainty=args.uncertainty, min_ratio=args.min_ratio,
+                                band_hz=tuple(args.band), q_family=args.q_family, q_order=args.q_order,
+                                break_at=args.break_at, seed=args.seed, progress=progress, sampled=args.sampled,
+                                rate_hz=args.rate_hz, delay_samples=args.delay_samples,
+                                scan="exact" if args.exact_scan else "bounded", testbed=testbed, executor=executor)
     mapping = require_no_nan(result.to_mapping(), "tune-q")
     if args.plot:
         from ._tradeoff_plot import plot_tune_q_tradeoff

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from ..params import BOARDS, OUTPUT_STAGES
 from ._options import _float_range
 
 __all__ = ["_add_firmware_options", "_firmware_options_from_args"]
@@ -12,8 +13,6 @@ __all__ = ["_add_firmware_options", "_firmware_options_from_args"]
 
 def _add_firmware_options(p: argparse.ArgumentParser) -> None:
     """--firmware, --board, --output-stage, --tau-full-scale, --link-timeout-ms."""
-    from ..export.firmware import BOARDS, OUTPUT_STAGES
-
     g = p.add_argument_group("board firmware (export --firmware, pil)")
     g.add_argument("--firmware", action="store_true",
                    help="write a complete bare-metal firmware project (make builds .elf/.bin) instead of the C only")

@@ -14,16 +14,19 @@ def _configure(p: argparse.ArgumentParser) -> None:
                    help="force controller under test, repeatable (default pd:5:0.1, the paper's)")
     p.add_argument("--compensator", action="append", default=None, metavar="LIST",
                    help="comma list of friction compensators, KIND[:W_Q_HZ] (default none,sfm,ea-fob)")
-    p.add_argument("--envs", default="exp-soft,locked", metavar="SET",
+    p.add_argument("--envs", default=None, metavar="SET",
                    help="environment set: presets (soft,stiff), random:N, inline k_e=..,J_e=.. or a TOML file "
                         "of [[environment]] tables with grids/uncertainty (default exp-soft,locked)")
-    p.add_argument("--repetitions", type=int, default=10, metavar="N", help="runs per cell (default 10, >= 2)")
+    p.add_argument("--repetitions", type=int, default=None, metavar="N", help="runs per cell (default 10, >= 2)")
     p.add_argument("--reference", action="append", default=None, metavar="REF",
                    help="step:AMP[:DURATION_S] or chirp:AMP:F0_HZ:F1_HZ[:DURATION_S], repeatable (default step:0.2)")
     p.add_argument("--duration", type=float, default=1.0, metavar="S", help="length of a step run [s] (default 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the initial angles and noise (default 0)")
     p.add_argument("--viscous-drift", type=float, default=0.0, metavar="FRACTION",
                    help="relative viscous-friction drift per repetition (default 0)")
+    p.add_argument("--runs", default=None, metavar="DIR",
+                   help="benchmark recorded runs instead: a folder of experiments (real or simulated), grouped "
+                        "into cells by their TOML's environment, controller and compensator")
     p.add_argument("--out", required=True, metavar="DIR", help="result folder (table, plots, report, cells/)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run the cells on a Dask cluster, tcp://HOST:PORT (default: local processes)")
@@ -35,27 +38,46 @@ def _configure(p: argparse.ArgumentParser) -> None:
 @_command("benchmark", "benchmark force controllers and friction compensators over an environment set", _configure)
 def _cmd_benchmark(args: argparse.Namespace) -> int:
     from ..benchmark import (BenchmarkSpec, markdown_report, parse_compensators, parse_controller, parse_reference,
-                             result_rows, result_table, run_benchmark, summary, write_report, write_summary,
-                             write_tables)
+                             result_rows, result_table, run_benchmark, run_recorded, summary, write_report,
+                             write_summary, write_tables)
     from ..environments import resolve_environments
     from ..errors import ParameterError
     from ..executor import make_executor
 
     if not (args.duration > 0):
         raise ParameterError(f"--duration must be > 0 [s], got {args.duration}", name="duration")
-    envs = resolve_environments(args.envs, seed=args.seed)
-    for note in envs.notes:
-        print(f"note: {note}", file=sys.stderr)
-    spec = BenchmarkSpec(
-        controllers=tuple(parse_controller(c) for c in (args.controller or ["pd:5:0.1"])),
-        compensators=parse_compensators(args.compensator or ["none,sfm,ea-fob"]),
-        environments=tuple(envs.items()),
-        references=tuple(parse_reference(r, duration_s=args.duration) for r in (args.reference or ["step:0.2"])),
-        repetitions=args.repetitions, seed=args.seed, viscous_drift=args.viscous_drift)
     t0 = time.perf_counter()
-    with make_executor(args.scheduler, args.workers) as executor, \
-            _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
-        cells, info = run_benchmark(spec, out=args.out, executor=executor, progress=progress)
+    if args.runs is not None:
+        given = [f"--{name.replace('_', '-')}" for name in ("controller", "compensator", "envs", "reference",
+                                                            "repetitions") if getattr(args, name) is not None]
+        if given:
+            raise ParameterError(f"--runs takes controllers, compensators, environments, references and repetitions "
+                                 f"from the experiments; drop {', '.join(given)}", name="runs", value=given)
+        with make_executor(args.scheduler, args.workers) as executor, \
+                _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
+            cells, info = run_recorded(args.runs, out=args.out, executor=executor, progress=progress)
+        for why in info["skipped"]:
+            print(f"note: skipped {why}", file=sys.stderr)
+        spec_doc = {"runs": args.runs, "controllers": sorted({c.labels["controller"] for c in cells}),
+                    "compensators": sorted({c.labels["compensator"] for c in cells}),
+                    "environments": {c.labels["environment"]: dict(c.environment) for c in cells},
+                    "references": sorted({c.labels["reference"] for c in cells}),
+                    "repetitions": max(len(c.runs) for c in cells)}
+    else:
+        envs = resolve_environments(args.envs or "exp-soft,locked", seed=args.seed)
+        for note in envs.notes:
+            print(f"note: {note}", file=sys.stderr)
+        spec = BenchmarkSpec(
+            controllers=tuple(parse_controller(c) for c in (args.controller or ["pd:5:0.1"])),
+            compensators=parse_compensators(args.compensator or ["none,sfm,ea-fob"]),
+            environments=tuple(envs.items()),
+            references=tuple(parse_reference(r, duration_s=args.duration) for r in (args.reference or ["step:0.2"])),
+            repetitions=10 if args.repetitions is None else args.repetitions, seed=args.seed,
+            viscous_drift=args.viscous_drift)
+        with make_executor(args.scheduler, args.workers) as executor, \
+                _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
+            cells, info = run_benchmark(spec, out=args.out, executor=executor, progress=progress)
+        spec_doc = spec.to_mapping()
     info["elapsed_s"] = round(time.perf_counter() - t0, 3)
     rows = result_rows(cells)
     paths = write_tables(result_table(cells), args.out)
@@ -73,10 +95,10 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
 
             plt.close(fig)
             plots[caption] = name
-    doc = summary(rows, spec.to_mapping(), info)
+    doc = summary(rows, spec_doc, info)
     doc["files"] = {"parquet": "results.parquet", "csv": "results.csv", "report": "report.md", "plots": plots}
     write_summary(doc, args.out)
-    write_report(markdown_report(rows, spec.to_mapping(), info, plots), args.out)
+    write_report(markdown_report(rows, spec_doc, info, plots), args.out)
     if args.json:
         _write_json(args.json, doc)
     if args.json != "-":

@@ -18,6 +18,13 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from ..experiment import load_experiment
 
     _json_positional(args, "experiment")
+    if args.json not in (None, "-"):
+        from pathlib import Path
+
+        from ..fileio import refuse_overwriting
+
+        toml = Path(args.experiment)
+        refuse_overwriting([args.json], [toml, toml.with_suffix(".csv")])
     summary = load_experiment(args.experiment).summary()
     if args.json:
         _write_json(args.json, summary)

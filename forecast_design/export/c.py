@@ -390,7 +390,9 @@ class ExportResult:
             "prewarp_hz": self.program.prewarp_hz,
             "channels": [{"name": ch.name, "source": ch.source, "sections": int(ch.sos.shape[0]),
                           "group": ch.group, "gain": ch.gain} for ch in self.program.channels],
-            "sfm": self.program.sfm is not None, "tau_max": self.program.tau_max,
+            "sfm": self.program.sfm is not None,
+            # no saturation is null, not Infinity (strict JSON); "tau_max" kept one release beside tau_max_N_m
+            "tau_max": self.program.tau_max if math.isfinite(self.program.tau_max) else None,
             "tau_max_N_m": self.program.tau_max if math.isfinite(self.program.tau_max) else None,
             "n_sections": self.program.n_sections,
             "controller": None if self.design.controller is None else self.design.controller.to_mapping(),
@@ -486,9 +488,11 @@ def _provenance(design: Design, rate_hz: float, method: str, sfm_params: Mapping
 
 def _c_float(v: float) -> str:
     """A float32 literal that round-trips: %.9g of the float32 value."""
-    v32 = float(np.float32(v))
+    with np.errstate(over="ignore"):   # an overflow is this function's one-line error, not a warning
+        v32 = float(np.float32(v))
     if not math.isfinite(v32):
-        raise ExportError(f"coefficient {v!r} overflows float32")
+        raise ExportError(f"coefficient {float(v)!r} overflows float32 (|value| > 3.4e38): check the controller "
+                          f"gains and the design's parameters")
     text = f"{v32:.9g}"
     if "e" not in text and "." not in text:
         text += ".0"

@@ -21,17 +21,13 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..errors import ExportError, ParameterError
-from ..params import Compensator, Design, PDController
+from ..params import BOARDS, OUTPUT_STAGES, Compensator, Design, PDController
 from .c import ControllerProgram, _c_float, export_controller
 from .toolchain import ARM_CFLAGS, M4_CLOCK_HZ
 
 __all__ = ["BOARDS", "OUTPUT_STAGES", "FirmwareOptions", "FirmwareResult", "export_firmware", "build_firmware",
            "sensor_counts", "firmware_measurements", "TEMPLATE_FILES"]
 
-#: Boards the firmware generator knows.
-BOARDS = ("nucleo-f446re",)
-#: ESCON set-value paths: the DAC (PA4, analog set value) or a PWM timer (PA6, PWM set value).
-OUTPUT_STAGES = ("dac", "pwm")
 #: Static sources copied verbatim from ``templates/firmware``.
 TEMPLATE_FILES = ("Makefile", "stm32f446re.ld", "startup.c", "fd_app.c", "fd_drivers.c", "fd_drivers.h",
                   "fd_protocol.c", "fd_protocol.h", "fd_reference.c", "fd_reference.h", "fd_regs.h")
@@ -275,7 +271,7 @@ def build_firmware(out_dir: str | Path, target: str = "board", *, timeout: float
     if target not in ("board", "pil"):
         raise ParameterError(f"firmware target must be board or pil, got {target!r}", name="target", value=target)
     d = Path(out_dir)
-    cmd = ["make", "-C", str(d)] + (["pil"] if target == "pil" else [])
+    cmd = ["make", "-j2", "-C", str(d)] + (["pil"] if target == "pil" else [])
     try:
         subprocess.run(cmd, check=True, capture_output=True, timeout=timeout)
     except FileNotFoundError:

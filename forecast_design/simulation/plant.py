@@ -73,8 +73,8 @@ from ..friction.laws import stribeck_level
 from ..params import Design, Environment
 
 # numba IR-level inlining of the per-substep helpers: measured ~2x faster loops.
-_INLINE = {"_rhs": "always", "_bristle_rate": "always", "rk4_substep": "always", "advance_period": "always",
-           "stribeck_level": "always"}
+_INLINE = {"_rhs": "always", "_bristle_rate": "always", "_angle_terms": "always", "rk4_substep": "always",
+           "advance_period": "always", "stribeck_level": "always"}
 
 def _njit(func):
     return njit(func, inline=_INLINE.get(func.__name__, "never"))
@@ -334,6 +334,33 @@ def stability_check(plant: PlantModel) -> dict[str, float]:
 
 
 @_njit
+def _angle_terms(x0, p, harm):
+    """The angle harmonics at motor angle ``x0`` (absolute angle ``x0 + initial_angle``).
+
+    Returns ``(pos, cog, fsh, lvs)``: position-friction ripple, cogging torque, stiction level
+    F_s harmonics [N m] and ln v_s harmonics [-], each ``sum_i a_i sin(i th) + b_i cos(i th)``
+    (the harmonic table's rows, :data:`H_PA` ...). The one expansion the plant's right-hand
+    side and the bristle rate share; sin/cos of i th by the angle-addition recurrence.
+    """
+    th = x0 + p[I_ANG0]
+    s1 = math.sin(th)
+    c1 = math.cos(th)
+    si = s1
+    ci = c1
+    pos = 0.0
+    cog = 0.0
+    fsh = 0.0
+    lvs = 0.0
+    for i in range(harm.shape[1]):
+        pos += harm[H_PA, i] * si + harm[H_PB, i] * ci
+        cog += harm[H_CA, i] * si + harm[H_CB, i] * ci
+        fsh += harm[H_SA, i] * si + harm[H_SB, i] * ci
+        lvs += harm[H_VA, i] * si + harm[H_VB, i] * ci
+        si, ci = si * c1 + ci * s1, ci * c1 - si * s1
+    return pos, cog, fsh, lvs
+
+
+@_njit
 def _rhs(x0, x1, x2, x3, x4, tau, p, harm, qs):
     """Derivatives and (tau_frc, tau_s) at one state; ``qs``: quasi-steady bristle."""
     # spring with optional backlash dead band
@@ -355,21 +382,7 @@ def _rhs(x0, x1, x2, x3, x4, tau, p, harm, qs):
     fs = p[I_FS]
     vs = p[I_VS]
     if p[I_HARM] > 0.0:
-        th = x0 + p[I_ANG0]
-        s1 = math.sin(th)
-        c1 = math.cos(th)
-        si = s1
-        ci = c1
-        pos = 0.0
-        cog = 0.0
-        fsh = 0.0
-        lvs = 0.0
-        for i in range(harm.shape[1]):
-            pos += harm[H_PA, i] * si + harm[H_PB, i] * ci
-            cog += harm[H_CA, i] * si + harm[H_CB, i] * ci
-            fsh += harm[H_SA, i] * si + harm[H_SB, i] * ci
-            lvs += harm[H_VA, i] * si + harm[H_VB, i] * ci
-            si, ci = si * c1 + ci * s1, ci * c1 - si * s1
+        pos, cog, fsh, lvs = _angle_terms(x0, p, harm)
         frc += cog
         fs += fsh
         if lvs != 0.0:
@@ -405,15 +418,8 @@ def _bristle_rate(x0, x1, p, harm):
     fs = p[I_FS]
     lvs = 0.0
     if p[I_HARM] > 0.0:
-        th = x0 + p[I_ANG0]
-        s1 = math.sin(th)
-        c1 = math.cos(th)
-        si = s1
-        ci = c1
-        for i in range(harm.shape[1]):
-            fs += harm[H_SA, i] * si + harm[H_SB, i] * ci
-            lvs += harm[H_VA, i] * si + harm[H_VB, i] * ci
-            si, ci = si * c1 + ci * s1, ci * c1 - si * s1
+        pos, cog, fsh, lvs = _angle_terms(x0, p, harm)
+        fs += fsh
     vs = p[I_VS] if lvs == 0.0 else p[I_VS] * math.exp(lvs)
     g = _stribeck_level(x1, fs, p[I_FC], vs)
     return p[I_S0] * abs(x1) / g, g

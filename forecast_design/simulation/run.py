@@ -65,7 +65,7 @@ ENCODER_COUNTS = 2_000_000
 #: Default process torque noise (std of a per-period held torque) [N m].
 DEFAULT_PROCESS_NOISE_STD = 1e-3
 
-# Set once the on-disk cache of _loop has been checked against its inlined callees.
+# Kernels whose on-disk cache has been checked against their inlined callees (once per process).
 _KERNEL_CHECKED: list = []
 
 # Columns of the kernel logs.
@@ -401,6 +401,98 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
     >>> r.t.shape
     (100,)
     """
+    prep = _prepare(design, reference=reference, duration_s=duration_s, effects=effects, rate_hz=rate_hz,
+                    substeps=substeps, seed=seed, closed_loop=closed_loop, sfm_params=sfm_params,
+                    derivative_cutoff_hz=derivative_cutoff_hz, velocity_cutoff_hz=velocity_cutoff_hz,
+                    sfm_deadband=sfm_deadband, torque_limit=torque_limit, encoder_counts=encoder_counts,
+                    process_noise_std=process_noise_std, initial_angle=initial_angle,
+                    include_nominal_viscous=include_nominal_viscous, method=method, description=description)
+    meas = np.empty((prep.n, len(_MEAS)))
+    truth = np.empty((prep.n, len(_TRUTH)))
+    _check_kernel_cache(_loop)
+    _loop(*prep.kernel_args(meas, truth))
+    return prep.result(meas, truth)
+
+
+def _check_kernel_cache(kernel) -> None:
+    """Flush a stale on-disk cache of ``kernel`` once per process (:func:`_flush_stale_kernel_cache`)."""
+    if kernel not in _KERNEL_CHECKED:
+        _flush_stale_kernel_cache(kernel)
+        _KERNEL_CHECKED.append(kernel)
+
+
+@dataclass(frozen=True, slots=True)
+class _Prepared:
+    """One run of :func:`simulate`, validated and packed for the kernel ``_loop`` (and the batch kernel).
+
+    ``arrays`` holds the kernel's per-run inputs by name (writable, C-contiguous float64, so every
+    call has one numba signature); :meth:`kernel_args` orders them for ``_loop`` and
+    :meth:`result` turns the kernel's logs into a :class:`SimulationResult`.
+    """
+
+    n: int
+    substeps: int
+    plant: PlantModel
+    stability: Mapping[str, float]
+    closed_loop: bool
+    ref: np.ndarray
+    torque_limit: float
+    enc_step: float
+    k_nominal: float
+    comp_code: int
+    arrays: Mapping[str, np.ndarray]
+    ran: Design
+    options: Mapping[str, Any]
+    effects: tuple
+    initial_angle: float
+    include_nominal_viscous: bool
+    rate_hz: float
+    description: str
+
+    def kernel_args(self, meas: np.ndarray, truth: np.ndarray) -> tuple:
+        """Arguments of ``_loop`` writing into ``meas`` (n, 6) and ``truth`` (n, 8)."""
+        a = self.arrays
+
+        def st(sos):
+            return np.zeros((sos.shape[0], 2))
+
+        return (self.n, self.substeps, int(self.plant.delay_substeps), a["p"], a["harm"], np.zeros(5),
+                self.closed_loop, a["ref"], a["ol"], self.torque_limit, self.enc_step, a["noise"], self.k_nominal,
+                a["pd_sos"], st(a["pd_sos"]), self.comp_code, a["sfm_coef"], a["sfm_harm"], a["vel_sos"],
+                st(a["vel_sos"]), a["gm_sos"], st(a["gm_sos"]), a["gs_sos"], st(a["gs_sos"]), a["gt_sos"],
+                st(a["gt_sos"]), meas, truth, np.zeros(history_length(self.substeps, self.plant.delay_substeps)))
+
+    def result(self, meas: np.ndarray, truth: np.ndarray) -> SimulationResult:
+        """The run's :class:`SimulationResult` from the kernel's logs (columns copied, read-only)."""
+        n, ref, closed_loop = self.n, self.ref, self.closed_loop
+        cols = {name: np.ascontiguousarray(meas[:, i]) for i, name in enumerate(_MEAS)}
+        tr = {name: np.ascontiguousarray(truth[:, i]) for i, name in enumerate(_TRUTH)}
+        for arr in list(cols.values()) + list(tr.values()):
+            arr.flags.writeable = False
+        t = np.arange(n) / float(self.rate_hz)
+        t.flags.writeable = False
+        if closed_loop:
+            ref = ref.copy()
+            ref.flags.writeable = False
+        return SimulationResult(
+            design=self.ran, rate_hz=float(self.rate_hz), t=t, tau_m=cols["tau_m"], theta=cols["theta"], q=cols["q"],
+            tau_s=cols["tau_s"], tau_r=ref if closed_loop else None, u=cols["u"], tau_frc_hat=cols["tau_frc_hat"],
+            truth=SimulationTruth(effects=tuple(self.effects), environment=self.plant.environment,
+                                  initial_angle=float(self.initial_angle),
+                                  include_nominal_viscous=self.include_nominal_viscous, **tr),
+            options=dict(self.options), stability=self.stability, description=self.description,
+        )
+
+
+def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequence[Any] = (),
+             rate_hz: float = 2000.0, substeps: int = 10, seed: int = 0, closed_loop: bool = True,
+             sfm_params: Mapping[str, float] | None = None,
+             derivative_cutoff_hz: float = DEFAULT_DERIVATIVE_CUTOFF_HZ,
+             velocity_cutoff_hz: float = DEFAULT_VELOCITY_CUTOFF_HZ, sfm_deadband: float = 0.0,
+             torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
+             process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
+             include_nominal_viscous: bool = True, method: str = "tustin", description: str = "") -> _Prepared:
+    """Validate :func:`simulate`'s arguments and pack one run for the kernel (no simulation)."""
     if not (isinstance(duration_s, (int, float)) and duration_s > 0 and math.isfinite(duration_s)):
         raise ParameterError(f"duration_s must be > 0 [s], got {duration_s!r}", name="duration_s", value=duration_s)
     if not (torque_limit > 0):
@@ -446,29 +538,12 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
 
     noise = process_noise(seed, process_noise_std, n)
     enc_step = 2.0 * math.pi / encoder_counts if encoder_counts else 0.0
-    x = np.zeros(5)
-    meas = np.empty((n, len(_MEAS)))
-    truth = np.empty((n, len(_TRUTH)))
-
-    def st(sos):
-        return np.zeros((sos.shape[0], 2))
 
     def rw(a):
         # one numba signature for every call: writable, C-contiguous float64 copies
         return np.array(a, dtype=float, order="C")
 
-    if not _KERNEL_CHECKED:
-        _flush_stale_kernel_cache(_loop)
-        _KERNEL_CHECKED.append(True)
     pd_sos, vel_sos, gm_sos, gs_sos, gt_sos = (rw(a) for a in (pd.sos, vel_sos, gm_sos, gs_sos, gt_sos))
-    sfm_coef, sfm_harm = rw(sfm_coef), rw(sfm_harm)
-
-    _loop(n, int(substeps), int(plant.delay_substeps), rw(plant.params), rw(plant.harmonics), x, bool(closed_loop),
-          ref, ol, float(torque_limit), float(enc_step), noise, float(design.testbed.k),
-          pd_sos, st(pd_sos), comp_code, sfm_coef, sfm_harm, vel_sos, st(vel_sos),
-          gm_sos, st(gm_sos), gs_sos, st(gs_sos), gt_sos, st(gt_sos), meas, truth,
-          np.zeros(history_length(substeps, plant.delay_substeps)))
-
     ran = dataclasses.replace(design, controller=controller,
                               compensator=(design.compensator if closed_loop else None))
     options = {
@@ -483,22 +558,15 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         "q_order": comp.q_order if comp.is_observer else None,
         "delay_substeps": int(plant.delay_substeps),
     }
-    cols = {name: np.ascontiguousarray(meas[:, i]) for i, name in enumerate(_MEAS)}
-    tr = {name: np.ascontiguousarray(truth[:, i]) for i, name in enumerate(_TRUTH)}
-    for arr in list(cols.values()) + list(tr.values()):
-        arr.flags.writeable = False
-    t = np.arange(n) / float(rate_hz)
-    t.flags.writeable = False
-    if closed_loop:
-        ref.flags.writeable = False
-    return SimulationResult(
-        design=ran, rate_hz=float(rate_hz), t=t, tau_m=cols["tau_m"], theta=cols["theta"], q=cols["q"],
-        tau_s=cols["tau_s"], tau_r=ref if closed_loop else None, u=cols["u"], tau_frc_hat=cols["tau_frc_hat"],
-        truth=SimulationTruth(effects=tuple(effects), environment=plant.environment,
-                              initial_angle=float(initial_angle), include_nominal_viscous=include_nominal_viscous,
-                              **tr),
-        options=options, stability=stability, description=description,
-    )
+    arrays = {"p": rw(plant.params), "harm": rw(plant.harmonics), "ref": ref, "ol": ol, "noise": noise,
+              "pd_sos": pd_sos, "sfm_coef": rw(sfm_coef), "sfm_harm": rw(sfm_harm), "vel_sos": vel_sos,
+              "gm_sos": gm_sos, "gs_sos": gs_sos, "gt_sos": gt_sos}
+    return _Prepared(n=n, substeps=int(substeps), plant=plant, stability=stability, closed_loop=bool(closed_loop),
+                     ref=ref, torque_limit=float(torque_limit), enc_step=float(enc_step),
+                     k_nominal=float(design.testbed.k), comp_code=comp_code, arrays=arrays, ran=ran,
+                     options=options, effects=tuple(effects), initial_angle=float(initial_angle),
+                     include_nominal_viscous=include_nominal_viscous, rate_hz=float(rate_hz),
+                     description=description)
 
 
 def save_simulation(result: SimulationResult, path: str | os.PathLike[str]) -> dict[str, Path]:

@@ -126,16 +126,7 @@ void fd_uart_init(fd_uart *u, fd_usart_regs *usart, fd_dma_regs *dma, uint32_t p
         rx->CR = (4u << 25) | (1u << 10) | (1u << 8);  /* CHSEL 4, MINC, CIRC, periph-to-memory */
         rx->CR |= 1u;                          /* EN */
     }
-    /* UE, TE, RE; without DMA also RXNEIE: the USART2 interrupt fills the ring (fd_uart_rx_irq) */
-    usart->CR1 = (1u << 13) | (1u << 3) | (1u << 2) | (dma != 0 ? 0u : (1u << 5));
-}
-
-void fd_uart_rx_irq(fd_uart *u)
-{
-    while (u->usart->SR & (1u << 5)) {         /* RXNE: drain the data register into the ring */
-        u->rx[u->rx_head] = (uint8_t)u->usart->DR;
-        u->rx_head = (u->rx_head + 1u) % FD_RX_SIZE;
-    }
+    usart->CR1 = (1u << 13) | (1u << 3) | (1u << 2);   /* UE, TE, RE */
 }
 
 static uint32_t fd_rx_head(fd_uart *u)
@@ -143,12 +134,11 @@ static uint32_t fd_rx_head(fd_uart *u)
     if (u->dma != 0) {
         return (FD_RX_SIZE - u->dma->S[5].NDTR) % FD_RX_SIZE;
     }
+    while (u->usart->SR & (1u << 5)) {         /* RXNE: drain the data register into the ring */
+        u->rx[u->rx_head] = (uint8_t)u->usart->DR;
+        u->rx_head = (u->rx_head + 1u) % FD_RX_SIZE;
+    }
     return u->rx_head;
-}
-
-int fd_uart_rx_pending(fd_uart *u)
-{
-    return u->rx_tail != fd_rx_head(u) || u->tx_tail != u->tx_head;
 }
 
 int fd_uart_getc(fd_uart *u)

@@ -44,7 +44,8 @@ void fd_gpio_write(fd_gpio_regs *g, unsigned pin, int high);
  * 8N1 at FD_BAUD. Reception: DMA1 stream 5 channel 4 (RM0390 Table 28) in circular mode into a
  * ring; the write position is FD_RX_SIZE - NDTR. Transmission: DMA1 stream 6 channel 4 from the
  * tx ring, one contiguous chunk at a time. Without DMA (the PIL build: qemu models no DMA) the
- * RXNE interrupt fills the same ring and transmission polls SR.TXE. */
+ * main loop polls SR.RXNE / SR.TXE into and out of the same rings (a busy-polling core also keeps
+ * qemu's -icount virtual clock tied to executed instructions). */
 #define FD_RX_SIZE 512u
 #define FD_TX_SIZE 2048u
 typedef struct {
@@ -65,7 +66,5 @@ void fd_uart_init(fd_uart *u, fd_usart_regs *usart, fd_dma_regs *dma, uint32_t p
 int fd_uart_getc(fd_uart *u);                     /* -1 when nothing arrived */
 int fd_uart_put(fd_uart *u, const uint8_t *p, uint32_t n); /* 0 ok, -1 ring full (nothing queued) */
 void fd_uart_kick(fd_uart *u);                    /* move queued bytes toward the line */
-void fd_uart_rx_irq(fd_uart *u);                  /* no-DMA mode: the USART2 interrupt handler's body */
-int fd_uart_rx_pending(fd_uart *u);               /* 1: bytes to read or to send */
 
 #endif /* FD_DRIVERS_H */

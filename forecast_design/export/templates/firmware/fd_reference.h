@@ -2,8 +2,10 @@
  * square: offset + amplitude for the first half of each period, offset - amplitude for the second;
  * sine: offset + amplitude sin(2 pi t / period); step: offset before the delay, offset + amplitude
  * from it on. When period (or delay) x rate is a whole number of samples (within 1e-3), the
- * switching instants are decided on the integer sample index, exactly as the host's float64
- * generator (forecast_design.simulation.references) decides them. */
+ * switching instants are decided on the integer sample index. The host's float64 generator
+ * (forecast_design.simulation.references) agrees when its edge times are exact binary fractions
+ * (periods such as 0.5 s or 0.125 s at 2 kHz); for others (0.1 s) its mod() may switch one sample
+ * early at some edges, which the firmware does not copy. */
 #ifndef FD_REFERENCE_H
 #define FD_REFERENCE_H
 

@@ -150,6 +150,5 @@ typedef struct {
 #define FD_SCB_ICSR  (*(volatile uint32_t *)0xE000ED04u)  /* PENDSTSET bit 26 (PM0214 4.4.3) */
 #define FD_SCB_SHPR3 (*(volatile uint32_t *)0xE000ED20u)  /* SysTick priority [31:24] (PM0214 4.4.8) */
 #define FD_SCB_CPACR (*(volatile uint32_t *)0xE000ED88u)  /* CP10/CP11 [23:20] (PM0214 4.6.1) */
-#define FD_NVIC_ISER1 (*(volatile uint32_t *)0xE000E104u) /* enable IRQ 32..63 (PM0214 4.2.2) */
 
 #endif /* FD_REGS_H */

@@ -8,7 +8,6 @@ int main(void);
 void fd_safe_off(void);
 void fd_reset_handler(void);
 void SysTick_Handler(void);
-void USART2_IRQHandler(void);
 static void fd_default_handler(void);
 static void fd_hard_fault_handler(void);
 
@@ -27,9 +26,7 @@ static void (*const fd_vectors[FD_N_VECTORS])(void) = {
     [12] = fd_default_handler,        /* DebugMon */
     [14] = fd_default_handler,        /* PendSV */
     [15] = SysTick_Handler,
-    [16 ... 16 + 37] = fd_default_handler,
-    [16 + 38] = USART2_IRQHandler,    /* USART2 global interrupt (IRQ 38) */
-    [16 + 39 ... FD_N_VECTORS - 1] = fd_default_handler,
+    [16 ... FD_N_VECTORS - 1] = fd_default_handler,
 };
 
 void fd_reset_handler(void)

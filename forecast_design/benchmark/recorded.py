@@ -1,0 +1,264 @@
+"""Benchmark recorded runs: a folder of experiments (real or simulated) grouped into cells by their TOML.
+
+``forecast-design benchmark --runs DIR`` in library form. Every ``*.toml`` under the folder
+whose ``format`` is the experiment format's (``forecast-experiment/1``) is one run; other TOML
+files (scenarios, environment sets) are left alone. Runs are grouped into cells by what their
+TOML declares (``[environment]``, ``[controller]``, ``[compensator]``) and by the reference
+they recorded (``tau_r``), so a cell holds the repetitions of one benchmark condition, and
+each cell gets the indicators of :mod:`.metrics`, exactly as a simulated cell does
+(:func:`~.runner.run_cell`):
+
+* ``repeatability``: mean pairwise zero-lag cross-correlation of the runs' ``tau_s`` (Table 3),
+  per run its mean correlation with the others; the runs of a cell are cut to the shortest;
+* ``mae_N_m``: against the frictionless expected response, the recorded controller on the
+  TOML's nominal plant with d_m = 0, no compensator, no noise, driven by the recorded
+  ``tau_r`` (the red dashed lines of Figs. 10-12);
+* rise time, overshoot, settling time and steady-state error when ``tau_r`` is a step
+  (two levels, one jump); NaN otherwise (the bandwidth needs the chirp's band, which an
+  experiment does not record: NaN);
+* ``disk_margin``: of the declared loop (:func:`~.metrics.disk_margin_of`).
+
+Open-loop runs (no ``[controller]`` or no ``tau_r``) are skipped and counted. A cell's key
+hashes its files' bytes, so reruns with ``--out`` reuse unchanged cells.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..environments import resolve_environments
+from ..errors import ExperimentFormatError, ParameterError
+from ..executor import Executor, LocalExecutor
+from ..experiment import load_experiment
+from ..experiment_io import FORMAT, parse_toml, read_toml
+from ..params import Compensator
+from ..simulation import simulate
+from .metrics import METRICS, disk_margin_of, pairwise_xcorr, repeatability_per_run, step_metrics
+from .runner import CellResult, _decimate
+from .spec import compensator_label, controller_label
+
+__all__ = ["find_runs", "group_runs", "recorded_cell", "run_recorded", "step_of"]
+
+
+def find_runs(folder: str | os.PathLike[str]) -> list[Path]:
+    """The experiment TOML files under ``folder`` (recursively, sorted by path).
+
+    Parameters
+    ----------
+    folder : path
+        A folder of experiments (``RUN.toml`` + ``RUN.csv`` pairs).
+
+    Returns
+    -------
+    list of Path
+        Files whose ``format`` is ``forecast-experiment/1``.
+
+    Raises
+    ------
+    ParameterError
+        When ``folder`` is not a folder.
+    """
+    root = Path(folder)
+    if not root.is_dir():
+        raise ParameterError(f"--runs {os.fspath(folder)}: not a folder of experiments", name="runs",
+                             value=os.fspath(folder))
+    out = []
+    for path in sorted(root.rglob("*.toml")):
+        try:
+            doc, _ = read_toml(path)
+        except ExperimentFormatError:
+            continue                       # not TOML at all: not an experiment
+        if doc.get("format") == FORMAT:
+            out.append(path)
+    return out
+
+
+def step_of(tau_r: np.ndarray, rate_hz: float) -> tuple[float, float, float] | None:
+    """``(amplitude, t0, offset)`` when ``tau_r`` is one step (two levels, one jump), else None.
+
+    A constant non-zero ``tau_r`` is a step at t = 0 from 0 (the reference before the run).
+
+    Parameters
+    ----------
+    tau_r : ndarray
+        Recorded reference [N m].
+    rate_hz : float
+        Sample rate [Hz]; ``t0`` is the time of the first sample at the new level [s].
+    """
+    r = np.asarray(tau_r, dtype=float)
+    jumps = np.nonzero(np.diff(r) != 0.0)[0]
+    if r.size >= 10 and jumps.size == 0 and r[0] != 0.0:
+        return float(r[0]), 0.0, 0.0          # a step at t = 0 from the reference 0 before the run
+    if r.size < 10 or jumps.size != 1:
+        return None
+    i = int(jumps[0]) + 1
+    return float(r[i] - r[0]), i / float(rate_hz), float(r[0])
+
+
+def _reference_label(tau_r: np.ndarray, rate_hz: float) -> str:
+    dur = tau_r.size / rate_hz
+    step = step_of(tau_r, rate_hz)
+    if step is not None:
+        amp, t0, offset = step
+        extra = "" if t0 == 0.0 and offset == 0.0 else f" (t0 {t0:g} s, offset {offset:g} N m)"
+        return f"step:{amp:g}:{dur:g}{extra}"
+    digest = hashlib.sha256(np.round(tau_r, 9).tobytes()).hexdigest()[:8]
+    return f"recorded:{digest}:{dur:g}"
+
+
+def group_runs(paths: list[Path]) -> tuple[list[tuple[dict[str, str], tuple[Path, ...]]], list[str]]:
+    """Group experiments into cells by environment, controller, compensator and recorded reference.
+
+    Parameters
+    ----------
+    paths : list of Path
+        Experiment TOML files (:func:`find_runs`).
+
+    Returns
+    -------
+    cells : list of (labels, paths)
+        ``labels``: ``controller``, ``compensator``, ``environment``, ``reference``; in order of
+        first appearance.
+    skipped : list of str
+        ``"PATH: why"`` of each run that cannot be benchmarked (open loop, no ``tau_r``).
+    """
+    groups: dict[str, list[Path]] = {}
+    labels: dict[str, dict[str, str]] = {}
+    skipped = []
+    for path in paths:
+        exp = load_experiment(path)
+        design, tau_r = exp.design, exp.signals.tau_r
+        if design.controller is None or tau_r is None:
+            skipped.append(f"{path}: open loop (no [controller] or no tau_r column)")
+            continue
+        comp = design.compensator or Compensator(kind="none")
+        lab = {"controller": controller_label(design.controller), "compensator": compensator_label(comp),
+               "environment": resolve_environments(design.environment).names[0],
+               "reference": _reference_label(np.asarray(tau_r), exp.rate_hz)}
+        key = json.dumps([design.testbed.to_mapping(), design.environment.to_mapping(),
+                          design.controller.to_mapping(), comp.to_mapping(), exp.rate_hz, lab["reference"]],
+                         sort_keys=True, default=str)
+        groups.setdefault(key, []).append(path)
+        labels.setdefault(key, lab)
+    return [(labels[k], tuple(v)) for k, v in groups.items()], skipped
+
+
+def _cell_key(paths: tuple[Path, ...]) -> str:
+    h = hashlib.sha256(b"recorded-cell/1")
+    for p in paths:
+        exp_toml = Path(p)
+        h.update(exp_toml.name.encode())
+        h.update(exp_toml.read_bytes())
+        doc, _ = read_toml(exp_toml)
+        _, _, _, data = parse_toml(doc, str(exp_toml))
+        h.update((exp_toml.parent / data).read_bytes())
+    return h.hexdigest()[:20]
+
+
+def recorded_cell(task: tuple) -> CellResult:
+    """The indicators of one group of recorded runs (the task of :func:`run_recorded`).
+
+    Parameters
+    ----------
+    task : tuple
+        ``(key, labels, paths)`` from :func:`group_runs`.
+
+    Returns
+    -------
+    CellResult
+        As :func:`~.runner.run_cell` gives for a simulated cell; ``initial_angle_rad`` is NaN
+        (a recording does not know it).
+    """
+    key, labels, paths = task
+    exps = [load_experiment(p) for p in paths]
+    n = min(e.n_samples for e in exps)
+    rate = exps[0].rate_hz
+    design = exps[0].design
+    comp = design.compensator or Compensator(kind="none")
+    tau = np.array([np.asarray(e.signals.tau_s[:n], dtype=float) for e in exps])
+    tau_r = np.asarray(exps[0].signals.tau_r[:n], dtype=float)
+    t = np.arange(n) / rate
+    expected = simulate(dataclasses.replace(design, compensator=Compensator(kind="none")), reference=tau_r,
+                        duration_s=n / rate, rate_hz=rate, include_nominal_viscous=False, process_noise_std=0.0,
+                        encoder_counts=None, description="benchmark: frictionless expected response").tau_s
+    margin = disk_margin_of(design, comp)
+    step = step_of(tau_r, rate)
+    per_run = repeatability_per_run(tau) if len(exps) >= 2 else np.full(1, math.nan)
+    rows = []
+    for i, y in enumerate(tau):
+        m: dict[str, Any] = dict.fromkeys(METRICS, math.nan)
+        m.update(repeatability=float(per_run[i]), mae_N_m=float(np.mean(np.abs(y - expected))), disk_margin=margin)
+        if step is not None:
+            sm = step_metrics(t, y - step[2], amplitude=step[0], t0=step[1])
+            for k in ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m"):
+                m[k] = sm[k]
+        rows.append({"repetition": i, "initial_angle_rad": math.nan, "source": str(paths[i]), **m})
+    dec = _decimate(n)
+    return CellResult(key=key, labels=labels, environment=design.environment.to_mapping(), runs=tuple(rows),
+                      repeatability=pairwise_xcorr(tau) if len(exps) >= 2 else math.nan, disk_margin=margin,
+                      t=t[dec], tau_s=tau[:, dec], expected=np.asarray(expected)[dec], tau_r=tau_r[dec])
+
+
+def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] | None = None,
+                 executor: Executor | None = None, progress: Callable[[int, int], None] | None = None
+                 ) -> tuple[list[CellResult], dict[str, Any]]:
+    """Benchmark the recorded runs of a folder of experiments.
+
+    Parameters
+    ----------
+    folder : path
+        The experiments (searched recursively).
+    out : path, optional
+        Result folder; finished cells are read from and written to ``out/cells``.
+    executor : Executor, optional
+        Where cells are computed; default: this process.
+    progress : callable, optional
+        ``progress(done, total)`` over the cells to compute.
+
+    Returns
+    -------
+    cells : list of CellResult
+        One per group, in order of first appearance.
+    info : dict
+        ``runs`` (experiments found), ``cells``, ``computed``, ``reused``, ``skipped`` (why),
+        ``single_run_cells`` (labels of cells with one run: no repeatability) and the executor.
+
+    Raises
+    ------
+    ParameterError
+        A missing folder, or a folder without a closed-loop experiment.
+    ExperimentFormatError
+        An experiment that does not load (one line naming the file and key or CSV line).
+    """
+    paths = find_runs(folder)
+    groups, skipped = group_runs(paths)
+    if not groups:
+        raise ParameterError(f"--runs {os.fspath(folder)}: no closed-loop experiment (forecast-experiment/1 TOML with "
+                             f"[controller] and a tau_r column) found among {len(paths)} experiment(s)",
+                             name="runs", value=os.fspath(folder))
+    keys = [_cell_key(p) for _, p in groups]
+    store = None if out is None else Path(out) / "cells"
+    found: dict[str, CellResult] = {}
+    if store is not None:
+        for k in keys:
+            stored = CellResult.load(store, k)
+            if stored is not None:
+                found[k] = stored
+    todo = [(k, lab, p) for k, (lab, p) in zip(keys, groups) if k not in found]
+    ex = executor or LocalExecutor(1)
+    for res in ex.map(recorded_cell, todo, progress=progress):
+        found[res.key] = res
+        if store is not None:
+            res.save(store)
+    info = {"runs": len(paths), "cells": len(groups), "computed": len(todo), "reused": len(groups) - len(todo),
+            "skipped": skipped, "single_run_cells": [dict(lab) for lab, p in groups if len(p) < 2],
+            **ex.describe()}
+    return [found[k] for k in keys], info

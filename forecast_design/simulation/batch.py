@@ -1,0 +1,304 @@
+"""Many runs of the virtual testbed in one call: Monte-Carlo over seeds, parameters, environments and effects.
+
+:func:`simulate_batch` runs a list of :class:`BatchRun` (each its own design, effects, noise
+seed, initial angle and optionally reference) with shared options (duration, rate, substeps,
+encoders, ...). Every run is prepared exactly as :func:`~.run.simulate` prepares it (the same
+validation, plant packing :func:`~.plant.build_plant`, stability check and controllers of
+:mod:`.controllers`) and stepped by the same compiled closed loop ``run._loop`` (which steps
+the plant through :func:`~.plant.advance_period`), one run per thread of numba's pool
+(``prange``): run ``i`` of a batch equals ``simulate`` with the same arguments bit for bit
+(``tests/test_simulation_batch.py``).
+
+Each thread works on private copies of its run's inputs and logs: numba reference-counts the
+arrays the inlined plant step receives, and two threads counting on the same array (slices of
+one batch array share its counter) would contend for one cache line on every substep.
+
+Memory: the logs take 112 bytes per sample and run (6 measured and 8 true float64 columns),
+e.g. 4.5 MB for a 20 s run at 2 kHz; split larger Monte-Carlo studies into batches.
+
+:func:`simulate_scenario` runs every repetition of a scenario's ``[variability]`` (paper
+Section 2: each repetition from its own initial angle, hence its own angle-dependent stiction
+level and Stribeck velocity, with drifting viscous friction) as one batch.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+
+from ..discrete import njit, prange
+from ..errors import ParameterError
+from ..params import Design
+from .plant import history_length
+from .run import _MEAS, _TRUTH, SimulationResult, _check_kernel_cache, _loop, _prepare, _Prepared
+from .scenario import Scenario
+
+__all__ = ["BatchRun", "BatchResult", "simulate_batch", "simulate_scenario", "scenario_runs"]
+
+#: Options of :func:`~.run.simulate` shared by every run of a batch.
+SHARED_OPTIONS = ("derivative_cutoff_hz", "velocity_cutoff_hz", "sfm_deadband", "torque_limit", "encoder_counts",
+                  "process_noise_std", "include_nominal_viscous", "method", "sfm_params")
+
+
+@dataclass(frozen=True, slots=True)
+class BatchRun:
+    """One run of a batch: what may differ from run to run.
+
+    Attributes
+    ----------
+    design : Design
+        Nominal testbed and environment, controller and compensator (observers are built on it).
+    effects : tuple
+        Unmodelled effects of this run's hardware (:mod:`forecast_design.effects`), e.g. a
+        :class:`~forecast_design.effects.Stiction` with its angle harmonics.
+    seed : int
+        Process-noise seed.
+    initial_angle : float
+        Absolute motor angle at theta = 0 [rad].
+    reference : Reference, callable or array, optional
+        This run's force reference (closed loop) or torque profile (open loop); None: the
+        batch's.
+    description : str
+        Free text of the run's experiment.
+    """
+
+    design: Design
+    effects: tuple = ()
+    seed: int = 0
+    initial_angle: float = 0.0
+    reference: Any = None
+    description: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class BatchResult:
+    """The logs of a batch, stacked: ``measured[i]`` and ``true[i]`` are run ``i``'s.
+
+    Attributes
+    ----------
+    t : ndarray, shape (n,)
+        Sample times [s].
+    measured : ndarray, shape (runs, n, 6)
+        Columns ``theta`` [rad], ``q`` [rad], ``tau_s`` [N m], ``tau_m`` [N m], ``u`` [N m],
+        ``tau_frc_hat`` [N m] (:data:`MEASURED`).
+    true : ndarray, shape (runs, n, 8)
+        Columns ``theta`` [rad], ``omega`` [rad/s], ``q`` [rad], ``v`` [rad/s], ``z`` [rad],
+        ``tau_frc`` [N m], ``tau_s`` [N m], ``tau_m_applied`` [N m] (:data:`TRUE`).
+    """
+
+    t: np.ndarray
+    measured: np.ndarray
+    true: np.ndarray
+    _prepared: tuple = ()
+
+    def __len__(self) -> int:
+        return self.measured.shape[0]
+
+    def column(self, name: str) -> np.ndarray:
+        """A measured column of every run, shape (runs, n): ``tau_s``, ``tau_m``, ... (:data:`MEASURED`)."""
+        if name not in _MEAS:
+            raise ParameterError(f"unknown measured column {name!r}; allowed: {', '.join(_MEAS)}", name="column",
+                                 value=name)
+        return self.measured[:, :, _MEAS.index(name)]
+
+    def true_column(self, name: str) -> np.ndarray:
+        """A true column of every run, shape (runs, n): ``tau_frc``, ``omega``, ... (:data:`TRUE`)."""
+        if name not in _TRUTH:
+            raise ParameterError(f"unknown true column {name!r}; allowed: {', '.join(_TRUTH)}", name="column",
+                                 value=name)
+        return self.true[:, :, _TRUTH.index(name)]
+
+    def result(self, index: int) -> SimulationResult:
+        """Run ``index`` as the :class:`~.run.SimulationResult` :func:`~.run.simulate` returns."""
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < len(self):
+            raise ParameterError(f"run index must be in 0..{len(self) - 1}, got {index!r}", name="index",
+                                 value=index)
+        return self._prepared[index].result(self.measured[index], self.true[index])
+
+    def results(self) -> Iterator[SimulationResult]:
+        """Every run as a :class:`~.run.SimulationResult`, in order."""
+        return (self.result(i) for i in range(len(self)))
+
+
+#: Measured and true column names of :class:`BatchResult`.
+MEASURED, TRUE = _MEAS, _TRUTH
+
+
+def _pad(arrays: Sequence[np.ndarray], axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-padded stack of 2-D arrays whose length along ``axis`` varies, and those lengths."""
+    sizes = np.array([a.shape[axis] for a in arrays], dtype=np.int64)
+    shape = list(arrays[0].shape)
+    shape[axis] = int(sizes.max())
+    out = np.zeros((len(arrays), *shape))
+    for i, a in enumerate(arrays):
+        out[i, :a.shape[0], :a.shape[1]] = a
+    return out, sizes
+
+
+@njit(parallel=True)
+def _batch_loop(n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
+                PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH):
+    """Run ``i`` of the batch is ``run._loop`` on row ``i`` of every input (private copies per thread)."""
+    for i in prange(P.shape[0]):
+        p = P[i].copy()
+        harm = HARM[i, :, :nh[i]].copy()
+        pd = PD[i, :npd[i]].copy()
+        vel = VEL[i, :nvel[i]].copy()
+        gm = GM[i, :ngm[i]].copy()
+        gs = GS[i, :ngs[i]].copy()
+        gt = GT[i, :ngt[i]].copy()
+        sfm_harm = SFMH[i, :, :nsh[i]].copy()
+        meas = np.empty((n, MEAS.shape[2]))
+        truth = np.empty((n, TRUTH.shape[2]))
+        _loop(n, nsub, dsub[i], p, harm, np.zeros(5), closed, REF[i].copy(), OL[i].copy(), torque_limit, enc_step,
+              NOISE[i].copy(), KNOM[i], pd, np.zeros((pd.shape[0], 2)), COMP[i], SFMC[i].copy(), sfm_harm,
+              vel, np.zeros((vel.shape[0], 2)), gm, np.zeros((gm.shape[0], 2)), gs, np.zeros((gs.shape[0], 2)),
+              gt, np.zeros((gt.shape[0], 2)), meas, truth, np.zeros(HL[i]))
+        MEAS[i] = meas
+        TRUTH[i] = truth
+
+
+def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: Any = None, rate_hz: float = 2000.0,
+                   substeps: int = 10, closed_loop: bool = True, threads: int | None = None,
+                   **options: Any) -> BatchResult:
+    """Simulate many runs of the testbed in one call, in parallel (numba ``prange``).
+
+    Parameters
+    ----------
+    runs : sequence of BatchRun
+        What differs per run: design (environment, controller, compensator), effects, seed,
+        initial angle, optionally the reference.
+    duration_s : float
+        Length of every run [s].
+    reference : Reference, callable or array, optional
+        Reference of the runs that give none (see :func:`~.run.simulate`).
+    rate_hz : float
+        Control rate [Hz].
+    substeps : int
+        RK4 steps per period [-].
+    closed_loop : bool
+        Force control (True) or open-loop torque (False).
+    threads : int, optional
+        Threads of numba's pool for this call (default: numba's, i.e. every core).
+    **options
+        The other options of :func:`~.run.simulate`, shared by every run:
+        ``derivative_cutoff_hz``, ``velocity_cutoff_hz``, ``sfm_deadband``, ``torque_limit``,
+        ``encoder_counts``, ``process_noise_std``, ``include_nominal_viscous``, ``method``.
+
+    Returns
+    -------
+    BatchResult
+        Stacked logs; ``result(i)`` equals ``simulate(runs[i].design, effects=runs[i].effects,
+        seed=runs[i].seed, initial_angle=runs[i].initial_angle, ...)`` exactly.
+
+    Raises
+    ------
+    ParameterError
+        No runs, an unknown option, or any error :func:`~.run.simulate` raises for a run
+        (the message names the run).
+    """
+    runs = list(runs)
+    if not runs:
+        raise ParameterError("simulate_batch needs at least one run", name="runs", value=0)
+    for key in options:
+        if key not in SHARED_OPTIONS:
+            raise ParameterError(f"unknown batch option {key!r}; allowed: {', '.join(SHARED_OPTIONS)}", name=key,
+                                 value=options[key])
+    prepared: list[_Prepared] = []
+    for i, run in enumerate(runs):
+        if not isinstance(run, BatchRun):
+            raise ParameterError(f"run {i} must be a BatchRun, got {type(run).__name__}", name="runs", value=i)
+        ref = run.reference if run.reference is not None else reference
+        if ref is None:
+            raise ParameterError(f"run {i} has no reference and the batch gives none", name="reference", value=i)
+        try:
+            prepared.append(_prepare(run.design, reference=ref, duration_s=duration_s, effects=tuple(run.effects),
+                                     rate_hz=rate_hz, substeps=substeps, seed=run.seed, closed_loop=closed_loop,
+                                     initial_angle=run.initial_angle, description=run.description, **options))
+        except ParameterError as exc:
+            raise ParameterError(f"run {i}: {exc}", name=exc.name, value=exc.value) from None
+    first = prepared[0]
+    n = first.n
+
+    def arr(key: str) -> list[np.ndarray]:
+        return [p.arrays[key] for p in prepared]
+
+    P = np.stack(arr("p"))
+    HARM, nh = _pad(arr("harm"), 1)            # harmonics: each run keeps its own count
+    SFMH, nsh = _pad(arr("sfm_harm"), 1)
+    PD, npd = _pad(arr("pd_sos"), 0)            # sections: each run keeps its own count
+    VEL, nvel = _pad(arr("vel_sos"), 0)
+    GM, ngm = _pad(arr("gm_sos"), 0)
+    GS, ngs = _pad(arr("gs_sos"), 0)
+    GT, ngt = _pad(arr("gt_sos"), 0)
+    dsub = np.array([int(p.plant.delay_substeps) for p in prepared], dtype=np.int64)
+    hl = np.array([history_length(int(substeps), d) for d in dsub], dtype=np.int64)
+    knom = np.array([p.k_nominal for p in prepared])
+    comp = np.array([p.comp_code for p in prepared], dtype=np.int64)
+    meas = np.empty((len(runs), n, len(_MEAS)))
+    truth = np.empty((len(runs), n, len(_TRUTH)))
+    _check_kernel_cache(_batch_loop)
+    previous = None
+    if threads is not None:
+        import numba
+
+        if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+            raise ParameterError(f"threads must be an integer in 1..{numba.config.NUMBA_NUM_THREADS}, got {threads!r}",
+                                 name="threads", value=threads)
+        previous = numba.get_num_threads()
+        numba.set_num_threads(threads)
+    try:
+        _batch_loop(n, int(substeps), dsub, P, HARM, nh, bool(closed_loop), np.stack(arr("ref")), np.stack(arr("ol")),
+                    first.torque_limit, first.enc_step, np.stack(arr("noise")), knom, PD, npd, comp,
+                    np.stack(arr("sfm_coef")), SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, hl, meas, truth)
+    finally:
+        if previous is not None:
+            import numba
+
+            numba.set_num_threads(previous)
+    t = np.arange(n) / float(rate_hz)
+    t.flags.writeable = False
+    return BatchResult(t=t, measured=meas, true=truth, _prepared=tuple(prepared))
+
+
+def scenario_runs(scenario: Scenario) -> list[BatchRun]:
+    """The repetitions of a scenario as batch runs (as :meth:`Scenario.run` simulates repetition ``i``).
+
+    Repetition ``i`` starts at the ``i``-th initial angle of the scenario's
+    :class:`~.scenario.Variability`, with its drifted effects and process-noise seed
+    ``seed + i``; without ``[variability]`` the scenario's one run.
+    """
+    opts = dict(scenario.options)
+    v = scenario.variability
+    if v is None:
+        return [BatchRun(design=scenario.design, effects=tuple(scenario.effects), seed=int(opts.get("seed", 0)),
+                         initial_angle=float(opts.get("initial_angle", 0.0)), description=scenario.description)]
+    angles = v.initial_angles(opts.get("initial_angle", 0.0))
+    return [BatchRun(design=scenario.design, effects=v.effects_of(scenario.effects, i),
+                     seed=int(opts.get("seed", 0)) + i, initial_angle=float(angles[i]),
+                     description=f"{scenario.description} (repetition {i})".strip())
+            for i in range(v.repetitions)]
+
+
+def simulate_scenario(scenario: Scenario, *, threads: int | None = None) -> BatchResult:
+    """Every repetition of a scenario as one batch (:func:`scenario_runs`, :func:`simulate_batch`).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        From :func:`~.scenario.load_scenario`.
+    threads : int, optional
+        Threads of numba's pool (default: every core).
+
+    Returns
+    -------
+    BatchResult
+        ``result(i)`` equals ``scenario.run(i)``.
+    """
+    opts = {k: v for k, v in scenario.options.items() if k not in ("seed", "initial_angle", "duration_s", "substeps")}
+    return simulate_batch(scenario_runs(scenario), duration_s=scenario.options["duration_s"],
+                          reference=scenario.reference, rate_hz=scenario.rate_hz,
+                          substeps=scenario.options.get("substeps", 10), closed_loop=scenario.closed_loop,
+                          threads=threads, **opts)
