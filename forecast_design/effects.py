@@ -263,16 +263,27 @@ class Cogging(_EffectBase):
 class Backlash(_EffectBase):
     """Play in the motor-spring coupling: a dead band of total width ``width_rad``.
 
-    The true spring torque is ``k * dz(theta - q)`` with
-    ``dz(x) = x - clip(x, -width_rad/2, width_rad/2)``; the encoders still
-    report ``theta`` and ``q``, so the measured ``k (theta - q)`` differs.
+    The true spring torque is ``k * dz(theta - q - c)`` with
+    ``dz(x) = x - clip(x, -width_rad/2, width_rad/2)`` and the band's centre
+    ``c = -position * width_rad / 2``; the encoders still report ``theta`` and
+    ``q``, so the measured ``k (theta - q)`` differs. ``position`` is where the
+    coupling sits inside its play at the start (theta = q = 0): 0 in the middle
+    (``width_rad / 2`` of motor travel to either flank), +1 against the flank
+    that transmits positive torque (engaged at once), -1 against the other
+    (``width_rad`` of travel before a positive torque is transmitted).
     """
 
     effect: ClassVar[Effect] = Effect.BACKLASH
     width_rad: float = 1e-3   # total dead-band width      [rad]
+    position: float = 0.0     # start inside the play      [-1 .. 1]
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "width_rad", _num("backlash", "width_rad", self.width_rad))
+        pos = _num("backlash", "position", self.position, nonneg=False)
+        if not -1.0 <= pos <= 1.0:
+            raise ParameterError(f"backlash position must be in [-1, 1] (a flank of the play), got {pos!r}",
+                                 name="position", value=pos)
+        object.__setattr__(self, "position", pos)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)

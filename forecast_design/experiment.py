@@ -42,8 +42,23 @@ RATE_TOLERANCE = 0.01
 LOCKED_Q_TOLERANCE = 1e-9
 
 
+class _Adopt:
+    """A column a loader hands over to :class:`Signals` (it keeps no other use of it): kept without a copy."""
+
+    __slots__ = ("array",)
+
+    def __init__(self, array: np.ndarray) -> None:
+        self.array = array
+
+
 def _readonly(name: str, values: Any) -> np.ndarray:
-    """A read-only 1-D float64 copy of ``values``; errors name the column."""
+    """A read-only 1-D float64 copy of ``values`` (an adopted float64 column: itself); errors name the column."""
+    if isinstance(values, _Adopt):
+        arr = values.array
+        if isinstance(arr, np.ndarray) and arr.dtype == np.float64 and arr.ndim == 1:
+            arr.flags.writeable = False
+            return arr
+        values = arr
     if np.iscomplexobj(values):   # float64 would drop the imaginary part with a mere warning
         raise ExperimentFormatError(f"signal '{name}' must be real, got complex values", key=name)
     try:
@@ -587,9 +602,10 @@ def load_experiment(path: str | os.PathLike[str]) -> Experiment:
     origin = _Origin(prefix=f"{files.csv_label}: ", rate_label=f"[sampling] rate_hz of {toml_label}",
                      locked_label=f"locked = true in {toml_label}", path=files.csv_label, first_line=2)
     columns = files.columns
+    # The reader's columns are handed over: Signals keeps them (read-only) without a copy.
     signals = Signals(
-        **{name: columns.get(name) for name in _SPEC_COLUMNS},
-        extra={name: columns[name] for name in files.names if name not in _SPEC_COLUMNS},
+        **{name: (_Adopt(columns[name]) if name in columns else None) for name in _SPEC_COLUMNS},
+        extra={name: _Adopt(columns[name]) for name in files.names if name not in _SPEC_COLUMNS},
     )
     try:  # Experiment applies the sample rules once; a failure is reported again naming CSV lines
         return Experiment(design=files.design, rate_hz=files.rate_hz, signals=signals,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -42,10 +43,21 @@ class RationalTF:
     name: str = ""
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "num", _trim(self.num))
-        object.__setattr__(self, "den", _trim(self.den))
+        for label in ("num", "den"):
+            value = getattr(self, label)
+            try:
+                coeffs = _trim(np.atleast_1d(np.asarray(value, dtype=float)))
+            except (TypeError, ValueError):
+                coeffs = ()
+            if not coeffs or not all(map(math.isfinite, coeffs)) or isinstance(value, (str, bytes)):
+                raise ParameterError(f"RationalTF {self.name!r}: {label} must be a non-empty sequence of finite "
+                                     f"real numbers, got {value!r:.80}", name=label, value=value)
+            object.__setattr__(self, label, coeffs)
         if self.den == (0.0,):
-            raise ZeroDivisionError(f"RationalTF {self.name!r}: denominator is zero")
+            raise ParameterError(f"RationalTF {self.name!r}: the denominator is zero", name="den", value=self.den)
+        if self.dt is not None and not (isinstance(self.dt, (int, float)) and math.isfinite(self.dt) and self.dt > 0):
+            raise ParameterError(f"RationalTF {self.name!r}: dt must be None or a sample period > 0 [s], "
+                                 f"got {self.dt!r:.80}", name="dt", value=self.dt)
 
     def normalized(self) -> "RationalTF":
         """Same TF with the denominator's leading coefficient equal to 1."""

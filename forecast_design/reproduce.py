@@ -61,14 +61,16 @@ from .errors import ParameterError
 from .environments import resolve_environments, resolve_testbed
 from .margins import _skew, disk_margin, json_float
 from .params import COMPENSATOR_KINDS, Compensator, Design, PDController
-from .table3 import (PAPER_TABLE3, TABLE3_SFM_DEADBAND, TABLE3_TRUTH, Table3Result, Table3Row, identify_extended_sfm,
-                     pairwise_xcorr, reproduce_table3)
+from .table3 import (PAPER_TABLE3, TABLE3_PLAY_PROBE, TABLE3_SFM_DEADBAND, TABLE3_TRUTH, XCORR_MODES, Table3Result,
+                     Table3Row, identify_extended_sfm, pairwise_xcorr, reproduce_table3)
 
 __all__ = [
     "PAPER_FIG7",
     "PAPER_TABLE3",
     "TABLE3_TRUTH",
     "TABLE3_SFM_DEADBAND",
+    "TABLE3_PLAY_PROBE",
+    "XCORR_MODES",
     "Fig7Choices",
     "Fig7Result",
     "reproduce_fig7",

@@ -7,6 +7,7 @@ import contextlib
 import json
 import os
 import sys
+import warnings
 from typing import Any, Callable, Sequence
 
 from .. import __version__
@@ -71,15 +72,34 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _print_warnings(caught: Sequence[warnings.WarningMessage]) -> None:
+    """One line per distinct warning: the toolbox's own plainly, others (numpy's) with their category."""
+    seen: set[str] = set()
+    for w in caught:
+        text = (str(w.message).strip().splitlines() or [""])[0]
+        if not w.category.__module__.startswith("forecast_design"):
+            text = f"{w.category.__name__}: {text}"
+        if text not in seen:
+            seen.add(text)
+            print(f"forecast-design: warning: {text}", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit code (0 ok, 2 bad input)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "handler", None):
-        parser.print_help()
+        print("forecast-design: error: give a command (forecast-design --help lists them)", file=sys.stderr)
         return 2
     try:
-        return int(args.handler(args) or 0)
+        # Python warnings (the toolbox's own, numpy's) become one line each, printed only when the verb
+        # succeeds: an error path prints its one error line and nothing else.
+        with warnings.catch_warnings(record=True) as caught:
+            if not args.debug:
+                warnings.simplefilter("default")
+            code = int(args.handler(args) or 0)
+        _print_warnings(caught)
+        return code
     except ForecastError as exc:
         if args.debug:
             raise

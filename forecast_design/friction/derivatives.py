@@ -175,8 +175,34 @@ class Kinematics:
     acceleration: np.ndarray
 
 
+@lru_cache(maxsize=32)
+def _butterworth(order: int, wn: float, output: str) -> tuple[np.ndarray, ...]:
+    out = signal.butter(order, wn, output=output)
+    return tuple(out) if output == "ba" else (out,)
+
+
+def butterworth(order: int, wn: float, output: str = "ba") -> tuple[np.ndarray, ...]:
+    """``scipy.signal.butter(order, wn, output=output)``, designed once per argument set.
+
+    Parameters
+    ----------
+    order : int
+        Filter order [-].
+    wn : float
+        Cut-off as a fraction of Nyquist [-].
+    output : str
+        ``"ba"`` (returns ``(b, a)``) or ``"sos"`` (returns ``(sos,)``).
+
+    Returns
+    -------
+    tuple of ndarray
+        Copies of the cached coefficients (scipy's filters need writable arrays).
+    """
+    return tuple(arr.copy() for arr in _butterworth(int(order), float(wn), output))
+
+
 def _lowpass(x: np.ndarray, settings: FilterSettings) -> np.ndarray:
-    b, a = signal.butter(settings.filter_order, settings.position_cutoff_hz / (settings.rate_hz / 2.0))
+    b, a = butterworth(settings.filter_order, settings.position_cutoff_hz / (settings.rate_hz / 2.0))
     return signal.filtfilt(b, a, x, axis=0)
 
 
@@ -312,7 +338,7 @@ def settling_samples(settings: FilterSettings) -> tuple[int, int]:
         further.
     """
     wn = settings.position_cutoff_hz / (settings.rate_hz / 2.0)
-    b, a = signal.butter(settings.filter_order, wn)
+    b, a = butterworth(settings.filter_order, wn)
     der = _halfwidth(tuple(b), tuple(a)) + 2
     if not np.isfinite(settings.decimation_cutoff_hz):
         return der, 0

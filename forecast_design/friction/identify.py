@@ -446,6 +446,10 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
     solver's convergence is not a verdict on it.
     """
     model = _resolve_model(model)
+    for label, value, kind in (("settings", settings, FilterSettings), ("scales", scales, LogScales)):
+        if value is not None and not isinstance(value, kind):
+            raise ParameterError(f"{label} must be a {kind.__name__} or None, got {type(value).__name__}", name=label,
+                                 value=value)
     if nonlinear_options and model.is_linear:
         raise ParameterError(f"option(s) {', '.join(sorted(nonlinear_options))} apply to nonlinear models "
                              f"only; model {model.name!r} is linear", name=sorted(nonlinear_options)[0])

@@ -43,7 +43,8 @@ from ..experiment import Experiment
 from ..plausibility import DATASHEET_TOLERANCE, LogScales, log_scales
 from scipy import signal
 
-from ..friction.derivatives import FilterSettings, decimate_columns, default_filter_settings, settling_samples
+from ..friction.derivatives import (FilterSettings, butterworth, decimate_columns, default_filter_settings,
+                                    settling_samples)
 
 __all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
            "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "near_rest"]
@@ -201,7 +202,7 @@ def lowpass(x: np.ndarray, settings: FilterSettings) -> np.ndarray:
     ndarray, shape (n,)
         The filtered signal (``scipy.signal.sosfiltfilt``), same unit.
     """
-    sos = signal.butter(settings.filter_order, settings.position_cutoff_hz / (settings.rate_hz / 2.0), output="sos")
+    sos, = butterworth(settings.filter_order, settings.position_cutoff_hz / (settings.rate_hz / 2.0), "sos")
     return signal.sosfiltfilt(sos, np.asarray(x, dtype=float))
 
 
@@ -540,6 +541,9 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
         If a signal is not finite.
     """
     options = GapOptions() if options is None else options
+    if not isinstance(options, GapOptions):
+        raise ParameterError(f"options must be a GapOptions, got {type(options).__name__}", name="options",
+                             value=options)
     rate = experiment.rate_hz
     sig = experiment.signals
     R = max(1, int(round(rate / options.decimated_rate_hz)))

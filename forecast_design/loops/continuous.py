@@ -149,6 +149,9 @@ def force_loop(
             f"controller must be a PDController, got {type(controller).__name__}",
             name="controller", value=controller,
         )
+    if not isinstance(true_design, Design):
+        raise ParameterError(f"true_design must be a Design (Design.nominal('soft')), got {type(true_design).__name__}",
+                             name="true_design", value=true_design)
     filters = observer_filters(compensator, believed if believed is not None else true_design)
     N_s, N_theta, D = _plant_polynomials(true_design)
     D_o = np.asarray(filters.den, dtype=float)

@@ -91,7 +91,8 @@ I_JM, I_DM, I_K, I_MODE, I_J, I_D, I_KE, I_BL = 0, 1, 2, 3, 4, 5, 6, 7
 I_CFC, I_CVR = 8, 9
 I_LUGRE, I_FS, I_FC, I_S2, I_VS, I_S1, I_S0 = 10, 11, 12, 13, 14, 15, 16
 I_PFC, I_PVR, I_GAIN, I_ANG0, I_H, I_QS, I_HARM = 17, 18, 19, 20, 21, 22, 23
-N_PARAMS = 24
+I_BLC = 24                        # backlash: centre of the dead band in theta - q [rad]
+N_PARAMS = 25
 # Rows of the harmonic table: position friction a/b, cogging a/b, LuGre F_s a/b, LuGre ln v_s a/b.
 H_PA, H_PB, H_CA, H_CB, H_SA, H_SB, H_VA, H_VB = 0, 1, 2, 3, 4, 5, 6, 7
 N_HARM_ROWS = 8
@@ -200,6 +201,7 @@ def build_plant(design: Design, effects: Sequence[Any] = (), *, rate_hz: float =
     p[I_J], p[I_D], p[I_KE] = env.J, env.d, env.k_e
     bl = _first(effects, Backlash)
     p[I_BL] = 0.0 if bl is None else bl.width_rad / 2.0
+    p[I_BLC] = 0.0 if bl is None else -bl.position * bl.width_rad / 2.0
     c = _first(effects, Coulomb)
     if c is not None:
         p[I_CFC], p[I_CVR] = c.F_c, c.v_reg
@@ -367,6 +369,7 @@ def _rhs(x0, x1, x2, x3, x4, tau, p, harm, qs):
     delta = x0 - x2
     bl = p[I_BL]
     if bl > 0.0:
+        delta = delta - p[I_BLC]
         if delta > bl:
             delta = delta - bl
         elif delta < -bl:

@@ -39,6 +39,7 @@ from ..errors import ParameterError
 from ..experiment_io import csv_chunks
 from ..discrete import njit as _njit, sos_step
 from ..params import Compensator, Design, Environment, PDController
+from ..plausibility import check_limit
 from .controllers import (
     DEFAULT_DERIVATIVE_CUTOFF_HZ,
     DEFAULT_VELOCITY_CUTOFF_HZ,
@@ -493,6 +494,9 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
              include_nominal_viscous: bool = True, method: str = "tustin", description: str = "") -> _Prepared:
     """Validate :func:`simulate`'s arguments and pack one run for the kernel (no simulation)."""
+    if not isinstance(design, Design):
+        raise ParameterError(f"simulate needs a Design (e.g. Design.nominal('exp-soft')), got {type(design).__name__}",
+                             name="design", value=design)
     if not (isinstance(duration_s, (int, float)) and duration_s > 0 and math.isfinite(duration_s)):
         raise ParameterError(f"duration_s must be > 0 [s], got {duration_s!r}", name="duration_s", value=duration_s)
     if not (torque_limit > 0):
@@ -512,6 +516,7 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
     if n < 1:
         raise ParameterError(f"duration_s * rate_hz must give at least one sample, got {duration_s!r}",
                              name="duration_s", value=duration_s)
+    check_limit(f"duration_s x rate_hz = {duration_s * rate_hz:.3g} samples", "simulation_samples", n)
     values = _reference_samples(reference, n, rate_hz, "reference")
     ref = values if closed_loop else np.zeros(n)
     ol = np.zeros(n) if closed_loop else values

@@ -51,6 +51,7 @@ sections, plus the hidden truth, the reference and the simulation options::
     repetitions = 10                 # runs of the scenario [-]
     initial_angle = "random"         # "random": uniform in [0, 2 pi) per repetition; "fixed": [truth]'s
     viscous_drift = 0.0              # relative change of the viscous friction per repetition [-]
+    backlash_position = "fixed"      # "random": the backlash effect starts anywhere in its play
     seed = 0                         # seed of the initial angles
 
     [reference]                      # force reference (closed loop) or torque profile (open loop)
@@ -87,7 +88,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..effects import PositionFriction, Stiction, effect_from_mapping, effects_to_mappings
+from ..effects import Backlash, PositionFriction, Stiction, effect_from_mapping, effects_to_mappings
 from ..environments import resolve_environments
 from ..errors import ExperimentFormatError, ParameterError
 from ..params import Compensator, Design, Environment, PDController, Testbed
@@ -119,7 +120,9 @@ class Variability:
     :class:`~forecast_design.effects.PositionFriction` ripple and cogging. Each repetition
     starts from its own absolute motor angle, so each sees its own stiction level and
     Stribeck curve, as the testbed did from each initial position. A slow drift (e.g. the
-    lubricant warming up) changes the viscous friction from one repetition to the next.
+    lubricant warming up) changes the viscous friction from one repetition to the next. The
+    couplings' play (a :class:`~forecast_design.effects.Backlash` effect) can start at a
+    different place inside the gap in each repetition (``backlash_position``).
 
     Attributes
     ----------
@@ -132,14 +135,19 @@ class Variability:
         Relative change of the viscous friction per repetition [-]: repetition ``i`` has the
         stiction's ``sigma2`` (and the position friction's mean level) times
         ``1 + viscous_drift * i`` (> -1 / (repetitions - 1) so that it stays positive).
+    backlash_position : str
+        ``"fixed"``: the backlash effect's own ``position`` in every repetition; ``"random"``:
+        repetition ``i`` starts at ``backlash_positions()[i]``, uniform in [-1, 1] (anywhere
+        between the two flanks of the play).
     seed : int
-        Seed of the initial angles.
+        Seed of the initial angles (and of the backlash positions).
     """
 
     repetitions: int = 1
     initial_angle: str = "random"
     viscous_drift: float = 0.0
     seed: int = 0
+    backlash_position: str = "fixed"
 
     def __post_init__(self) -> None:
         if isinstance(self.repetitions, bool) or not isinstance(self.repetitions, int) or self.repetitions < 1:
@@ -157,6 +165,10 @@ class Variability:
         if isinstance(self.seed, bool) or not isinstance(self.seed, int):
             raise ParameterError(f"variability seed must be an integer, got {self.seed!r}", name="seed",
                                  value=self.seed)
+        if self.backlash_position not in ("random", "fixed"):
+            raise ParameterError(f"variability backlash_position must be 'random' or 'fixed', got "
+                                 f"{self.backlash_position!r}", name="backlash_position",
+                                 value=self.backlash_position)
 
     def initial_angles(self, fixed: float = 0.0) -> np.ndarray:
         """Absolute motor angle of each repetition [rad], shape (repetitions,).
@@ -170,8 +182,16 @@ class Variability:
             return np.full(self.repetitions, float(fixed))
         return np.random.default_rng(self.seed).uniform(0.0, 2.0 * math.pi, self.repetitions)
 
+    def backlash_positions(self) -> np.ndarray:
+        """Start of each repetition inside the backlash play [-], uniform in [-1, 1], shape (repetitions,).
+
+        Drawn from ``numpy.random.default_rng([seed, 1])``, a stream independent of the initial angles.
+        """
+        return np.random.default_rng([self.seed, 1]).uniform(-1.0, 1.0, self.repetitions)
+
     def effects_of(self, effects: tuple, index: int) -> tuple:
-        """The hardware's effects in repetition ``index``: viscous levels drifted (:attr:`viscous_drift`).
+        """The hardware's effects in repetition ``index``: viscous levels drifted (:attr:`viscous_drift`),
+        the backlash's start inside its play drawn (:attr:`backlash_position`).
 
         Parameters
         ----------
@@ -180,6 +200,9 @@ class Variability:
         index : int
             Repetition [-], 0-based.
         """
+        if self.backlash_position == "random":
+            pos = float(self.backlash_positions()[index])
+            effects = tuple(dataclasses.replace(e, position=pos) if isinstance(e, Backlash) else e for e in effects)
         if self.viscous_drift == 0.0 or index == 0:
             return tuple(effects)
         scale = 1.0 + self.viscous_drift * index
@@ -196,7 +219,7 @@ class Variability:
     def to_mapping(self) -> dict[str, Any]:
         """The ``[variability]`` table."""
         return {"repetitions": self.repetitions, "initial_angle": self.initial_angle,
-                "viscous_drift": self.viscous_drift, "seed": self.seed}
+                "viscous_drift": self.viscous_drift, "backlash_position": self.backlash_position, "seed": self.seed}
 
 
 @dataclass(frozen=True, slots=True)
@@ -492,7 +515,7 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
     variability = None
     var_table = _table(doc, "variability", prefix, source, required=False)
     if var_table is not None:
-        allowed = ("repetitions", "initial_angle", "viscous_drift", "seed")
+        allowed = ("repetitions", "initial_angle", "viscous_drift", "backlash_position", "seed")
         for key in var_table:
             if key not in allowed:
                 raise ExperimentFormatError(f"{prefix}[variability] unknown key '{key}'; allowed: "

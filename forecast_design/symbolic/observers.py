@@ -280,8 +280,14 @@ def observer_filters(compensator: Compensator | None, believed: Design) -> Obser
     ParameterError
         If the Q order is below the nominal plant's relative degree (the
         observer would be improper) or the nominal plant is identically
-        zero (LD-DOB with J_l = d_l = 0).
+        zero (LD-DOB with J_l = d_l = 0), or an argument is of the wrong type.
     """
+    if compensator is not None and not isinstance(compensator, Compensator):
+        raise ParameterError(f"compensator must be a Compensator or None (Compensator(kind='ea-fob')), got "
+                             f"{type(compensator).__name__} {compensator!r:.40}", name="compensator", value=compensator)
+    if not isinstance(believed, Design):
+        raise ParameterError(f"the believed design must be a Design, got {type(believed).__name__}", name="believed",
+                             value=believed)
     if compensator is None or not compensator.is_observer:
         return _zero_filters("none" if compensator is None else compensator.kind)
     kind = compensator.kind
