@@ -27,6 +27,10 @@ __all__ = [
     "disk_center_radius",
     "disk_margin_from_polynomials",
     "check_skew",
+    "resolve_skew",
+    "as_loop",
+    "continuous_equivalent",
+    "frequency_rad_s",
     "json_float",
     "STABILITY_TOLERANCE",
 ]
@@ -154,8 +158,21 @@ class DiskMarginCurve:
 # ---------------------------------------------------------------------------------------------
 
 
-def _skew(skew: float, sigma: float | None) -> float:
-    """``skew``, or its alias ``sigma`` when given (both differing is an error)."""
+def resolve_skew(skew: float, sigma: float | None) -> float:
+    """``skew``, or its alias ``sigma`` when given (both differing is an error).
+
+    Parameters
+    ----------
+    skew : float
+        Disk skew [-] (python-control and MATLAB name).
+    sigma : float or None
+        Its alias [-].
+
+    Returns
+    -------
+    float
+        The skew to use.
+    """
     if sigma is not None and skew not in (0.0, sigma):
         raise ParameterError(f"give skew or its alias sigma, not both ({skew!r} and {sigma!r})", name="skew")
     return skew if sigma is None else sigma
@@ -549,7 +566,19 @@ def _peak(G: _Scaled) -> tuple[float, float]:
     return float(best), float(best_v)
 
 
-def _continuous_equivalent(L: RationalTF) -> tuple[np.ndarray, np.ndarray]:
+def continuous_equivalent(L: RationalTF) -> tuple[np.ndarray, np.ndarray]:
+    """Numerator and denominator of L in s, or of its bilinear map when L is discrete, padded to one length.
+
+    Parameters
+    ----------
+    L : RationalTF
+        The loop.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(num, den)``, highest power first, equal lengths.
+    """
     num, den = np.asarray(L.num, float), np.asarray(L.den, float)
     if L.dt is not None:
         num, den = _bilinear(num, den)
@@ -557,8 +586,21 @@ def _continuous_equivalent(L: RationalTF) -> tuple[np.ndarray, np.ndarray]:
     return poly.pad(num, n), poly.pad(den, n)
 
 
-def _to_rad_s(L: RationalTF, v: float) -> float:
-    """Map a frequency of the (possibly bilinear-mapped) loop back to [rad/s]."""
+def frequency_rad_s(L: RationalTF, v: float) -> float:
+    """Map a frequency of the (possibly bilinear-mapped) loop back to [rad/s].
+
+    Parameters
+    ----------
+    L : RationalTF
+        The loop (``dt`` [s] or None).
+    v : float
+        Frequency of :func:`continuous_equivalent` [rad/s or bilinear units].
+
+    Returns
+    -------
+    float
+        The loop's frequency [rad/s].
+    """
     if L.dt is None:
         return v
     return math.pi / L.dt if math.isinf(v) else 2.0 / L.dt * math.atan(v)
@@ -603,7 +645,7 @@ def _delay_margin(L: RationalTF, num: np.ndarray, den: np.ndarray, w0: float) ->
         Lv = _horner(n0, s) / _horner(d0, s)
         if not math.isfinite(abs(Lv)) or abs(abs(Lv) - 1.0) > 1e-9:
             continue                    # a spurious (complex) root, not a crossover
-        w = _to_rad_s(L, v * w0)
+        w = frequency_rad_s(L, v * w0)
         if w > 0.0:
             best = min(best, ((math.atan2(Lv.imag, Lv.real) + math.pi) % (2.0 * math.pi)) / w)
     return best
@@ -614,8 +656,19 @@ def _delay_margin(L: RationalTF, num: np.ndarray, den: np.ndarray, w0: float) ->
 # ---------------------------------------------------------------------------------------------
 
 
-def _check_loop(L: Any) -> RationalTF:
-    """The loop as a RationalTF (python-control TransferFunction/StateSpace accepted), checked."""
+def as_loop(L: Any) -> RationalTF:
+    """The loop as a RationalTF (python-control TransferFunction/StateSpace accepted), checked.
+
+    Parameters
+    ----------
+    L : RationalTF or control.TransferFunction or control.StateSpace
+        The loop.
+
+    Returns
+    -------
+    RationalTF
+        The loop, checked (positive finite ``dt`` when discrete).
+    """
     if not isinstance(L, RationalTF):
         if type(L).__module__.split(".")[0] != "control":
             raise ParameterError(f"loop L must be a RationalTF or a python-control TransferFunction/StateSpace, "
@@ -692,9 +745,9 @@ def disk_margin(L: RationalTF, skew: float = 0.0, *, closed_loop_stable: bool | 
     >>> round(dm.alpha, 4), round(dm.gain_margin_db[1], 2), round(dm.phase_margin_deg, 1)
     (0.4581, 4.05, 25.8)
     """
-    L = _check_loop(L)
-    sigma = check_skew(_skew(skew, sigma))
-    num, den = _continuous_equivalent(L)
+    L = as_loop(L)
+    sigma = check_skew(resolve_skew(skew, sigma))
+    num, den = continuous_equivalent(L)
     if closed_loop_stable is None:
         _, _, char = _char_poly(L)
         stable = _is_stable(L, char)
@@ -735,7 +788,7 @@ def disk_margin_from_polynomials(L: RationalTF, num: np.ndarray, den: np.ndarray
     G = _scaled_G(num, den, 0.5 * (sigma - 1.0))
     peak, v = _peak(G)
     alpha = 1.0 / peak if peak > 0.0 else math.inf
-    w = _to_rad_s(L, v * G.w0) if math.isfinite(v) else _to_rad_s(L, math.inf)
+    w = frequency_rad_s(L, v * G.w0) if math.isfinite(v) else frequency_rad_s(L, math.inf)
     lo, hi = disk_gain_margin(alpha, sigma)
     db = lambda g: 20.0 * math.log10(g) if g > 0.0 else -math.inf  # noqa: E731
     return DiskMargin(
@@ -776,8 +829,8 @@ def disk_margin_curve(L: RationalTF, w_rad_s: Sequence[float] | np.ndarray,
     ParameterError
         If ``L`` is not a RationalTF or ``sigma`` is not finite.
     """
-    L = _check_loop(L)
-    sigma = check_skew(_skew(skew, sigma))
+    L = as_loop(L)
+    sigma = check_skew(resolve_skew(skew, sigma))
     w = np.asarray(w_rad_s, dtype=float).ravel()
     c = 0.5 * (sigma - 1.0)
     x = 1j * w if L.dt is None else np.exp(1j * w * L.dt)

@@ -27,7 +27,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .lti import RationalTF
-from .margins import STABILITY_TOLERANCE, _check_loop, _continuous_equivalent, _to_rad_s, check_skew
+from .margins import STABILITY_TOLERANCE, as_loop, continuous_equivalent, frequency_rad_s, check_skew
 
 __all__ = ["DiskMarginBatch", "disk_margins"]
 
@@ -219,11 +219,11 @@ def disk_margins(loops: Sequence[Any], skew: float = 0.0) -> DiskMarginBatch:
     is tested equal to that routine to 1e-9 relative on random SEA loops.
     """
     sigma = check_skew(skew)
-    loops = [_check_loop(L) for L in loops]
+    loops = [as_loop(L) for L in loops]
     if not loops:
         raise ParameterError("disk_margins needs at least one loop", name="loops", value=loops)
     c = (sigma - 1.0) / 2.0
-    pairs = [_continuous_equivalent(L) for L in loops]
+    pairs = [continuous_equivalent(L) for L in loops]
     alpha = np.zeros(len(loops))
     w_peak = np.full(len(loops), np.nan)
     stable = np.zeros(len(loops), dtype=bool)
@@ -238,5 +238,5 @@ def disk_margins(loops: Sequence[Any], skew: float = 0.0) -> DiskMarginBatch:
             stable[i] = bool(stab[k])
             if stab[k] and math.isfinite(peak[k]) and peak[k] > 0.0:
                 alpha[i] = 1.0 / peak[k]
-                w_peak[i] = _to_rad_s(loops[i], float(w_at[k]))
+                w_peak[i] = frequency_rad_s(loops[i], float(w_at[k]))
     return DiskMarginBatch(alpha=alpha, w_peak_rad_s=w_peak, stable=stable, sigma=sigma)

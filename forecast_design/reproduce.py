@@ -59,7 +59,7 @@ import numpy as np
 from .effects import Stiction
 from .errors import ParameterError
 from .environments import resolve_environments, resolve_testbed
-from .margins import _skew, disk_margin, json_float
+from .margins import resolve_skew, disk_margin, json_float
 from .params import COMPENSATOR_KINDS, Compensator, Design, PDController
 from .table3 import (PAPER_TABLE3, TABLE3_PLAY_PROBE, TABLE3_SFM_DEADBAND, TABLE3_TRUTH, XCORR_MODES, Table3Result,
                      Table3Row, identify_extended_sfm, pairwise_xcorr, reproduce_table3)
@@ -451,7 +451,7 @@ def fig6_table(
                 f"fig6_table: observer must be one of {', '.join(COMPENSATOR_KINDS)}, got {kind!r}",
                 name="observers", value=kind)
     from .loops import force_loop
-    skew = _skew(skew, sigma)
+    skew = resolve_skew(skew, sigma)
     tb = resolve_testbed(testbed)
     rows: list[MarginRow] = []
     for env, environment in resolve_environments(environments, testbed=tb):

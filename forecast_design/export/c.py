@@ -31,6 +31,7 @@ from ..discrete import METHODS, DiscreteFilter
 
 __all__ = [
     "SOURCES",
+    "c_float_literal",
     "Channel",
     "SfmBlock",
     "ControllerProgram",
@@ -486,8 +487,24 @@ def _provenance(design: Design, rate_hz: float, method: str, sfm_params: Mapping
     return tuple(rows)
 
 
-def _c_float(v: float) -> str:
-    """A float32 literal that round-trips: %.9g of the float32 value."""
+def c_float_literal(v: float) -> str:
+    """A float32 C literal that round-trips: %.9g of the float32 value.
+
+    Parameters
+    ----------
+    v : float
+        The value.
+
+    Returns
+    -------
+    str
+        The literal with an ``f`` suffix.
+
+    Raises
+    ------
+    ExportError
+        When the value overflows float32.
+    """
     with np.errstate(over="ignore"):   # an overflow is this function's one-line error, not a warning
         v32 = float(np.float32(v))
     if not math.isfinite(v32):
@@ -529,7 +546,7 @@ def emit_c(program: ControllerProgram, out_dir: str | Path) -> tuple[Path, Path]
     offset = 0
 
     def table(name: str, sos: np.ndarray, note: str) -> None:
-        rows = ",\n".join("    {" + ", ".join(_c_float(r[j]) for j in (0, 1, 2, 4, 5)) + "}" for r in sos)
+        rows = ",\n".join("    {" + ", ".join(c_float_literal(r[j]) for j in (0, 1, 2, 4, 5)) + "}" for r in sos)
         coeffs.append(f"/* {note} */\nstatic const float fd_sos_{name}[{sos.shape[0]}][5] = {{\n{rows}\n}};")
 
     def cascade(name: str, src: str, n: int) -> None:
@@ -544,7 +561,7 @@ def emit_c(program: ControllerProgram, out_dir: str | Path) -> tuple[Path, Path]
         table(ch.name, ch.sos, f"{ch.name}: {ch.source} -> {ch.group}, {n} section(s), gain {ch.gain!r}")
         body.append(f"    /* {ch.name} */")
         cascade(ch.name, ch.source, n)
-        term = "y" if ch.gain == 1.0 else f"{_c_float(ch.gain)} * y"
+        term = "y" if ch.gain == 1.0 else f"{c_float_literal(ch.gain)} * y"
         body.append(f"    {ch.group} = {ch.group} + {term};")
     needs_libm = False
     if program.sfm is not None:
@@ -553,19 +570,19 @@ def emit_c(program: ControllerProgram, out_dir: str | Path) -> tuple[Path, Path]
         table("velocity", sfm.velocity_sos, "sfm velocity estimate v_hat [rad/s] from theta")
         body.append("    /* sfm: viscous v + coulomb sign(v) + offset + angle harmonics */")
         cascade("velocity", "theta", sfm.velocity_sos.shape[0])
-        body.append(f"    sgn = (y > {_c_float(c[3])}) ? 1.0f : ((y < -{_c_float(c[3])}) ? -1.0f : 0.0f);")
-        body.append(f"    hat = hat + ((({_c_float(c[0])} * y) + ({_c_float(c[1])} * sgn)) + {_c_float(c[2])});")
+        body.append(f"    sgn = (y > {c_float_literal(c[3])}) ? 1.0f : ((y < -{c_float_literal(c[3])}) ? -1.0f : 0.0f);")
+        body.append(f"    hat = hat + ((({c_float_literal(c[0])} * y) + ({c_float_literal(c[1])} * sgn)) + {c_float_literal(c[2])});")
         if sfm.has_harmonics:
             needs_libm = True
-            body.append(f"    th = theta + {_c_float(c[4])};")
+            body.append(f"    th = theta + {c_float_literal(c[4])};")
             for i in range(sfm.harm.shape[1]):
                 h = sfm.harm[:, i]
                 if not np.any(h):
                     continue
                 body.append(f"    sn = sinf({float(i + 1)!r}f * th);")
                 body.append(f"    cs = cosf({float(i + 1)!r}f * th);")
-                body.append(f"    hat = hat + (({_c_float(h[0])} * sn) + ({_c_float(h[1])} * cs))"
-                            f" + sgn * (({_c_float(h[2])} * sn) + ({_c_float(h[3])} * cs));")
+                body.append(f"    hat = hat + (({c_float_literal(h[0])} * sn) + ({c_float_literal(h[1])} * cs))"
+                            f" + sgn * (({c_float_literal(h[2])} * sn) + ({c_float_literal(h[3])} * cs));")
     locals_ = ["float y;", "float u = 0.0f;", "float hat = 0.0f;", "float tau_m;"]
     if program.sfm is not None:
         locals_.append("float sgn;")
@@ -573,19 +590,19 @@ def emit_c(program: ControllerProgram, out_dir: str | Path) -> tuple[Path, Path]
             locals_ += ["float th;", "float sn;", "float cs;"]
     saturation = ""
     if math.isfinite(program.tau_max):
-        lim = _c_float(program.tau_max)
+        lim = c_float_literal(program.tau_max)
         saturation = (f"    if (tau_m > {lim}) {{\n        tau_m = {lim};\n    }} else if (tau_m < -{lim}) {{\n"
                       f"        tau_m = -{lim};\n    }}\n")
     values = {
         "version": __version__, "provenance": provenance,
-        "rate_hz": repr(float(program.rate_hz)), "rate_hz_c": _c_float(program.rate_hz),
+        "rate_hz": repr(float(program.rate_hz)), "rate_hz_c": c_float_literal(program.rate_hz),
         "n_sections": str(max(program.n_sections, 1)),
         "coefficients": "\n\n".join(coeffs) if coeffs else "/* no filters */",
         "body": "\n".join(body),
         "locals": "\n".join("    " + line for line in locals_),
         "saturation": saturation,
         "includes": "#include <math.h> /* sinf, cosf: float versions only */\n" if needs_libm else "",
-        "tau_max_c": _c_float(program.tau_max) if math.isfinite(program.tau_max) else "0.0f",
+        "tau_max_c": c_float_literal(program.tau_max) if math.isfinite(program.tau_max) else "0.0f",
         "has_tau_max": "1" if math.isfinite(program.tau_max) else "0",
     }
     header = _render("fd_controller.h.in", **values)

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import ExportError, ParameterError
 from ..params import BOARDS, OUTPUT_STAGES, Compensator, Design, PDController
-from .c import ControllerProgram, _c_float, export_controller
+from .c import ControllerProgram, c_float_literal, export_controller
 from .toolchain import ARM_CFLAGS, M4_CLOCK_HZ
 
 __all__ = ["BOARDS", "OUTPUT_STAGES", "FirmwareOptions", "FirmwareResult", "export_firmware", "build_firmware",
@@ -169,11 +169,11 @@ def _config_header(program: ControllerProgram, design: Design, opt: FirmwareOpti
         f"#define FD_RATE_HZ_U {int(round(rate))}u         /* control rate [Hz] */",
         f"#define FD_SYSTICK_LOAD {int(M4_CLOCK_HZ / rate) - 1}u     /* SysTick reload: one period */",
         f"#define FD_COUNTS_PER_REV {opt.encoder_counts}  /* after x4 decoding */",
-        f"#define FD_RAD_PER_COUNT {_c_float(opt.rad_per_count)}   /* 2 pi / counts [rad] */",
-        f"#define FD_K_RAD_PER_COUNT {_c_float(k * opt.rad_per_count)}   /* k 2 pi / counts, k = {k!r} N m/rad */",
+        f"#define FD_RAD_PER_COUNT {c_float_literal(opt.rad_per_count)}   /* 2 pi / counts [rad] */",
+        f"#define FD_K_RAD_PER_COUNT {c_float_literal(k * opt.rad_per_count)}   /* k 2 pi / counts, k = {k!r} N m/rad */",
         f"#define FD_LOCKED {1 if design.environment.locked else 0}     /* 1: q = 0 (locked output) */",
-        f"#define FD_TAU_LIMIT {_c_float(opt.tau_limit_N_m)}   /* torque limit [N m] */",
-        f"#define FD_TAU_FULL_SCALE {_c_float(opt.tau_full_scale_N_m)}   /* torque at full-scale set value [N m] */",
+        f"#define FD_TAU_LIMIT {c_float_literal(opt.tau_limit_N_m)}   /* torque limit [N m] */",
+        f"#define FD_TAU_FULL_SCALE {c_float_literal(opt.tau_full_scale_N_m)}   /* torque at full-scale set value [N m] */",
         f"#define FD_OUTPUT_PWM {1 if opt.output == 'pwm' else 0}      /* 0: DAC on PA4, 1: PWM on PA6 */",
         f"#define FD_PWM_ARR {int(round(_TIMER_CLOCK_HZ / opt.pwm_hz)) - 1}u    /* TIM3 at 84 MHz: {opt.pwm_hz!r} Hz */",
         "#define FD_PIN_ENABLE 8u          /* PA8 (D7): ESCON enable */",
