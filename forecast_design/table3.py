@@ -448,6 +448,11 @@ def _table3_explanation(result: Table3Result) -> str:
                      f"{'the closest' if best_m else 'not the closest'} to the frictionless response.")
         if n.paper_xcorr is not None and not pd_least:
             parts.append(_locked_deviation(result, env, n))
+        elif n.paper_xcorr is not None and abs(n.xcorr - n.paper_xcorr) > 0.1 and \
+                result.choices.get("xcorr", "pearson") == "raw":
+            parts.append(f"{env}: PD alone {n.xcorr:.2f} vs the paper's {n.paper_xcorr:.2f}: the 'raw' reading keeps "
+                         "the means, and with them no settling step response falls far below 1 (x-corr "
+                         "readings below).")
         elif n.paper_xcorr is not None and abs(n.xcorr - n.paper_xcorr) > 0.1:
             parts.append(f"{env}: PD alone {n.xcorr:.2f} vs the paper's {n.paper_xcorr:.2f}: the spread of the "
                          "simulated stiction (F_s 0.47-0.93 N m, v_s 0.01-0.3 rad/s over the angles) is a guess "
@@ -469,7 +474,8 @@ def _table3_explanation(result: Table3Result) -> str:
             parts.append(f"{env}: the SFM's x-corr {s.xcorr:.3f} is below the paper's {s.paper_xcorr:.2f}: the "
                          "feed-forward cannot follow the angle-dependent static level, so some runs stop early.")
     if result.readings:
-        parts.append("x-corr readings (Section 7 says only 'mean cross-correlation among step responses'): " + "; ".join(
+        parts.append("x-corr readings (Section 7 says only 'mean cross-correlation among step "
+                     "responses'): " + "; ".join(
             f"{r['environment']}/{r['compensator']} " + ", ".join(f"{m} {r[m]:.3f}" for m in XCORR_MODES)
             for r in result.readings) + ". Keeping the means ('raw') gives >= 0.99 to every cell, PD alone in "
             "the soft environment included (paper 0.73), so the paper's values need the means removed; the best "
@@ -500,11 +506,12 @@ def _locked_deviation(result: Table3Result, env: str, n: Table3Row) -> str:
                  "k (theta - q), so while the motor crosses it the PD sees the same k theta rise and only the "
                  "loop stiffness changes (k (1 + P) to k P); it leaves PD alone repeatable with the output "
                  "locked and costs the compensated loops repeatability in the soft environment instead.")
-    text += (" Also measured and rejected (locked x-corr PD / SFM / EA-FOB): a wider stiction spread (F_s 0.7 "
-             "-> 1.0 N m with +-0.5 N m harmonics): 0.982 / 0.987 / 0.976 while soft PD falls to 0.43; stiffer "
-             "bristles (sigma0 1000-30000 N m/rad, so the 3 mrad are true sliding): 0.992-0.995 / 0.995-0.997 / "
-             "0.95-0.87; a motor torque limit of 1.2-10 N m: 0.990-0.999 / 0.994-0.998 / 0.982-0.994; a 20-50 Hz "
-             "derivative filter: 0.993-0.995 / 0.996-0.997 / 0.993-0.995; runs back to back from the previous run's end state: 0.998; a spring "
+    text += (" Also measured and rejected (locked Pearson x-corr PD / SFM / EA-FOB): a wider stiction "
+             "spread (F_s 0.7 -> 1.0 N m with +-0.5 N m harmonics): 0.982 / 0.987 / 0.976 while soft PD falls "
+             "to 0.43; stiffer bristles (sigma0 1000-30000 N m/rad, so the 3 mrad are true sliding): "
+             "0.992-0.995 / 0.995-0.997 / 0.95-0.87; a motor torque limit of 1.2-10 N m: 0.990-0.999 / "
+             "0.994-0.998 / 0.982-0.994; a 20-50 Hz derivative filter: 0.993-0.995 / 0.996-0.997 / "
+             "0.993-0.995; runs back to back from the previous run's end state: PD 0.998; a spring "
              "pre-load held by stiction (+-0.2 N m): 0.97 / 0.97 / 0.95; a 0.5-4 mrad play between the spring "
              "and the lock, outside the measured deflection (so q moves and the measured torque waits for the "
              "gap to close; not the format's locked q = 0): 0.986-0.887 / 0.992-0.919 / 0.986-0.940, every cell "

@@ -73,7 +73,8 @@ def test_variability_draws_a_start_inside_the_play_per_repetition():
     v = Variability(repetitions=8, seed=3, backlash_position="random")
     p = v.backlash_positions()
     assert p.shape == (8,) and np.all((p >= -1.0) & (p <= 1.0)) and len(set(p)) == 8
-    np.testing.assert_array_equal(p, Variability(repetitions=8, seed=3, backlash_position="random").backlash_positions())
+    again = Variability(repetitions=8, seed=3, backlash_position="random").backlash_positions()
+    np.testing.assert_array_equal(p, again)
     effects = (Stiction(), Backlash(width_rad=2e-3))
     for i in range(8):
         drawn = v.effects_of(effects, i)

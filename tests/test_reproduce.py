@@ -17,6 +17,7 @@ from forecast_design.reproduce import (
     FIG7_VARIATIONS,
     PAPER_TABLE3,
     TABLE3_TRUTH,
+    XCORR_MODES,
     Fig7Choices,
     pairwise_xcorr,
     reproduce_fig7,
@@ -116,14 +117,44 @@ def test_table3_shows_the_papers_pattern_within_stated_tolerances(table3):
     assert soft["none"].xcorr < soft["sfm"].xcorr - 0.2 and soft["none"].xcorr < soft["ea-fob"].xcorr - 0.2
 
 
-def test_table3_locked_pd_deviation_is_stated(table3):
-    # known deviation: with the output locked, the virtual testbed's PD alone is about as repeatable
-    # as the compensated loops (paper 0.90); the explanation must say so rather than claim the pattern
-    n = table3.row("locked", "none")
-    least = n.xcorr < min(table3.row("locked", k).xcorr for k in ("sfm", "ea-fob"))
-    assert least or "locked: deviation: PD alone" in table3.explanation
+def test_table3_pd_is_least_repeatable_or_the_deviation_is_explained_with_measurements(table3):
+    # Table 3's pattern: PD alone the least repeatable cell in both environments (paper 0.73 / 0.90;
+    # "least" with a margin of 0.03 and within 0.07 of the paper's value counts as reached). Where it
+    # is not reached (the locked output, issue 17c), the explanation must say so and carry the
+    # mechanism probe's measured cells, and the probe's numbers must bear out what it claims.
+    for env in ("exp-soft", "locked"):
+        n = table3.row(env, "none")
+        others = min(table3.row(env, k).xcorr for k in ("sfm", "ea-fob"))
+        reached = n.xcorr < others - 0.03 and abs(n.xcorr - n.paper_xcorr) <= (0.15 if env == "exp-soft" else 0.07)
+        if reached:
+            continue
+        assert f"{env}: deviation: PD alone ({n.xcorr:.3f})" in table3.explanation
+        probe = {(m["environment"], m["compensator"]): m for m in table3.mechanisms}
+        assert set(probe) == {(e, k) for e in ("exp-soft", "locked") for k in ("none", "sfm", "ea-fob")}
+        for (e, k), m in probe.items():
+            assert f"{e}/{k} {m['xcorr']:.3f}" in table3.explanation
+        # claimed: the play leaves locked PD alone repeatable (not the least by 0.03) ...
+        assert probe[(env, "none")]["xcorr"] > min(probe[(env, k)]["xcorr"] for k in ("sfm", "ea-fob")) - 0.03
+        # ... and costs the soft environment's compensated loops repeatability instead
+        assert probe[("exp-soft", "sfm")]["xcorr"] < table3.row("exp-soft", "sfm").xcorr - 0.02
     for r in table3:
         assert f"{r.environment}/{r.compensator}: xcorr {r.xcorr:.3f} (paper {r.paper_xcorr:.2f})" in table3.explanation
+
+
+def test_table3_xcorr_readings_are_reported_and_only_pearson_can_reach_the_paper(table3):
+    # the rows use the default reading; every reading is reported per cell; keeping the means
+    # ('raw') rates every settled step response >= 0.99, so it cannot give the paper's 0.73
+    assert table3.choices["xcorr"] == "pearson"
+    readings = {(r["environment"], r["compensator"]): r for r in table3.readings}
+    assert set(readings) == set(PAPER_TABLE3)
+    for r in table3:
+        got = readings[(r.environment, r.compensator)]
+        assert got["pearson"] == r.xcorr
+        assert got["pearson-max-lag"] >= got["pearson"] - 1e-12          # lag 0 is one of the lags
+        assert got["raw"] >= 0.99
+    assert readings[("exp-soft", "none")]["pearson"] == pytest.approx(0.73, abs=0.15)
+    doc = table3.to_document()
+    assert len(doc["readings"]) == 6 and len(doc["mechanisms"]) == 6
 
 
 def test_table3_rows_are_the_issue_json(table3):
@@ -171,6 +202,26 @@ def test_pairwise_xcorr_is_the_mean_pearson_r(rng):
         pairwise_xcorr(x[:1])
 
 
+def test_pairwise_xcorr_readings_match_independent_formulas(rng):
+    x = rng.normal(size=(4, 60)).cumsum(axis=1) + 3.0
+    pairs = [(i, j) for i in range(4) for j in range(i + 1, 4)]
+    raw = np.mean([x[i] @ x[j] / np.sqrt((x[i] @ x[i]) * (x[j] @ x[j])) for i, j in pairs])
+    assert pairwise_xcorr(x, "raw") == pytest.approx(raw, rel=1e-12)
+    xc = x - x.mean(axis=1, keepdims=True)
+    lagged = np.mean([np.max(np.correlate(xc[i], xc[j], mode="full")) / np.sqrt((xc[i] @ xc[i]) * (xc[j] @ xc[j]))
+                      for i, j in pairs])
+    assert pairwise_xcorr(x, "pearson-max-lag") == pytest.approx(lagged, rel=1e-9)
+    # a delayed copy: the best lag recovers it, zero lag does not
+    base = np.concatenate([np.zeros(20), np.ones(80)])
+    shifted = np.array([base, np.roll(base, 10)])
+    assert pairwise_xcorr(shifted, "pearson-max-lag") > pairwise_xcorr(shifted, "pearson") + 0.1
+    assert set(XCORR_MODES) == {"pearson", "pearson-max-lag", "raw"}
+    with pytest.raises(ParameterError, match="xcorr mode must be one of"):
+        pairwise_xcorr(x, "spearman")
+    with pytest.raises(ParameterError, match="table3 xcorr must be one of"):
+        reproduce_table3(xcorr="spearman")
+
+
 @settings(max_examples=30, deadline=None)
 @given(scale=st.floats(0.01, 100.0), shift=st.floats(-10.0, 10.0), n=st.integers(2, 6))
 def test_pairwise_xcorr_is_one_for_affine_copies(scale, shift, n):
@@ -191,3 +242,19 @@ def test_plots_write_png(fig7, table3, tmp_path):
     import matplotlib.pyplot as plt
 
     plt.close("all")
+
+
+def test_cli_reproduce_table3_takes_the_xcorr_reading(table3, capsys):
+    from forecast_design.cli import main
+
+    code = main(["reproduce", "table3", "--xcorr", "pearson-max-lag", "--json"])
+    rows = json.loads(capsys.readouterr().out)
+    readings = {(r["environment"], r["compensator"]): r["pearson-max-lag"] for r in table3.readings}
+    assert code == 0 and len(rows) == 6
+    for r in rows:
+        assert r["xcorr"] == pytest.approx(readings[(r["environment"], r["compensator"])], rel=1e-12)
+    for argv, fragment in ((["table3", "--xcorr", "spearman"], "table3 xcorr must be one of"),
+                           (["fig7", "--xcorr", "raw"], "--xcorr applies to table3 only")):
+        code = main(["reproduce", *argv])
+        err = capsys.readouterr().err
+        assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1

@@ -5,7 +5,7 @@ State ``x = [theta, omega, q, v, z]``: motor angle [rad] and velocity
 deflection [rad]. Equations (experiment format, "Plant equations")::
 
     J_m omega' = tau_app - tau_s - tau_frc
-    tau_s      = k dz(theta - q)                (dz: backlash dead band, identity without it)
+    tau_s      = k dz(theta - q - c)            (dz: backlash dead band centred at c, identity without it)
     J v' + d v + k_e q = tau_s                   (locked: q = v = 0;
                                                   J = 0, d > 0: d q' + k_e q = tau_s)
     tau_frc    = d_m omega + F_c sat(omega / v_reg)                        (coulomb)
