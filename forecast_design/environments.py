@@ -37,7 +37,7 @@ from .params import (
     Design,
     Environment,
     Testbed,
-    _critically_damped,
+    critically_damped,
     check_number,
     environment_preset,
 )
@@ -349,7 +349,7 @@ def _random(item: str, seed: int) -> EnvironmentSet:
         k_e = float(10 ** rng.uniform(math.log10(k_lo), math.log10(k_hi)))
         J_e = float(10 ** rng.uniform(math.log10(j_lo), math.log10(j_hi)))
         names.append(f"random{i}")
-        envs.append(Environment(J_e=J_e, d_e=_critically_damped(k_e, J_e), k_e=k_e))
+        envs.append(Environment(J_e=J_e, d_e=critically_damped(k_e, J_e), k_e=k_e))
     return EnvironmentSet(tuple(names), tuple(envs), source=item)
 
 
@@ -404,7 +404,7 @@ def _build(values: Mapping[str, Any], link: Mapping[str, float], where: str) -> 
         if "d_e" not in kwargs:
             for key in ("k_e", "J_e"):
                 check_number("[environment]", key, kwargs[key])
-            kwargs["d_e"] = _critically_damped(kwargs["k_e"], kwargs["J_e"])
+            kwargs["d_e"] = critically_damped(kwargs["k_e"], kwargs["J_e"])
             notes = (_CRITICAL_NOTE,)
     else:
         for key in ("J_e", "d_e", "k_e"):

@@ -20,6 +20,7 @@ from .plausibility import check_limit, check_physical
 __all__ = [
     "Testbed",
     "Environment",
+    "critically_damped",
     "PDController",
     "Compensator",
     "Design",
@@ -228,8 +229,24 @@ class Environment:
                 "J_l": self.J_l, "d_l": self.d_l, "locked": self.locked}
 
 
-def _critically_damped(k_e: float, J_e: float) -> float:
-    # Section 5: "d_e is set to reach a critically damped environment".
+def critically_damped(k_e: float, J_e: float) -> float:
+    """Critical damping d_e = 2 sqrt(k_e J_e) of an environment [N m s/rad].
+
+    Section 5: "d_e is set to reach a critically damped environment" (with the
+    environment's own inertia J_e, as the presets use it).
+
+    Parameters
+    ----------
+    k_e : float
+        Environment stiffness [N m/rad].
+    J_e : float
+        Environment inertia [kg m^2].
+
+    Returns
+    -------
+    float
+        The damping [N m s/rad].
+    """
     return 2.0 * math.sqrt(k_e * J_e)
 
 
@@ -238,9 +255,9 @@ def _critically_damped(k_e: float, J_e: float) -> float:
 #: the paper gives none); ``exp-soft``: Section 7 (d_e as in the format's example);
 #: ``locked``: q == 0; ``link-only``: the bare link, E = J_l s^2 + d_l s.
 ENVIRONMENT_PRESETS: Mapping[str, Environment] = {
-    "soft": Environment(J_e=1e-3, d_e=_critically_damped(0.1, 1e-3), k_e=0.1),
-    "stiff": Environment(J_e=0.1, d_e=_critically_damped(100.0, 0.1), k_e=100.0),
-    "fig7": Environment(J_e=1.0, d_e=_critically_damped(100.0, 1.0), k_e=100.0),
+    "soft": Environment(J_e=1e-3, d_e=critically_damped(0.1, 1e-3), k_e=0.1),
+    "stiff": Environment(J_e=0.1, d_e=critically_damped(100.0, 0.1), k_e=100.0),
+    "fig7": Environment(J_e=1.0, d_e=critically_damped(100.0, 1.0), k_e=100.0),
     "exp-soft": Environment(J_e=1e-3, d_e=0.063, k_e=5.0),
     # The link values stay in the locked preset: the plant ignores them (q == 0) but the
     # LD-DOB's nominal plant is the link's, whatever the output is attached to.
