@@ -191,7 +191,8 @@ def _newton(P: np.ndarray, Q: np.ndarray, v0: np.ndarray) -> np.ndarray:
     return v.reshape(K, S)
 
 
-def disk_margins(loops: Sequence[Any], skew: float = 0.0) -> DiskMarginBatch:
+def disk_margins(loops: Sequence[Any], skew: float = 0.0, *,
+                 closed_loop_stable: Sequence[bool] | None = None) -> DiskMarginBatch:
     """Disk margins of many SISO loops in one vectorised evaluation.
 
     Parameters
@@ -201,6 +202,11 @@ def disk_margins(loops: Sequence[Any], skew: float = 0.0) -> DiskMarginBatch:
         :func:`forecast_design.margins.disk_margin`); loops of equal order are evaluated together.
     skew : float
         Skew sigma of the disk [-]: 0 balanced, 1 uses S, -1 uses T.
+    closed_loop_stable : sequence of bool, optional
+        Nominal closed-loop stability of each loop if known from elsewhere (e.g.
+        ``ForceLoop.stable``, which also sees hidden pole-zero cancellations), as the argument
+        of the same name of :func:`forecast_design.margins.disk_margin`; default: the roots of
+        den(L) + num(L) of each loop.
 
     Returns
     -------
@@ -222,6 +228,12 @@ def disk_margins(loops: Sequence[Any], skew: float = 0.0) -> DiskMarginBatch:
     loops = [as_loop(L) for L in loops]
     if not loops:
         raise ParameterError("disk_margins needs at least one loop", name="loops", value=loops)
+    known = None
+    if closed_loop_stable is not None:
+        known = np.asarray(closed_loop_stable, dtype=bool).reshape(-1)
+        if known.size != len(loops):
+            raise ParameterError(f"closed_loop_stable has {known.size} entries for {len(loops)} loops",
+                                 name="closed_loop_stable", value=known.size)
     c = (sigma - 1.0) / 2.0
     pairs = [continuous_equivalent(L) for L in loops]
     alpha = np.zeros(len(loops))
@@ -234,6 +246,8 @@ def disk_margins(loops: Sequence[Any], skew: float = 0.0) -> DiskMarginBatch:
         num = np.array([pairs[i][0] for i in members], dtype=float).reshape(len(members), n)
         den = np.array([pairs[i][1] for i in members], dtype=float).reshape(len(members), n)
         peak, w_at, stab = _group(num, den, c)
+        if known is not None:   # as disk_margin: the given flag, unless 1 + L(inf) = 0
+            stab = known[members] & (num[:, 0] + den[:, 0] != 0.0)
         for k, i in enumerate(members):
             stable[i] = bool(stab[k])
             if stab[k] and math.isfinite(peak[k]) and peak[k] > 0.0:

@@ -468,6 +468,7 @@ COMPUTATION_LIMITS: Mapping[str, tuple[int, int, str]] = {
     "q_order": (1, 8, "order of the Q filter"),
     "random_environments": (1, 1000, "environments of random:N"),
     "substeps": (1, 1000, "RK4 substeps per control period"),
+    "harmonics": (1, 64, "angle harmonics of a friction term (2 regressor columns each)"),
     "simulation_samples": (1, 10_000_000, "samples of one simulation (duration_s x rate_hz)"),
     "seed": (0, 2**63 - 1, "random seed"),
 }

@@ -90,3 +90,16 @@ def test_bad_input_is_a_parameter_error():
         disk_margins([])
     with pytest.raises(ParameterError):
         disk_margins(["soft"])
+
+
+def test_given_stability_flags_follow_disk_margin():
+    """``closed_loop_stable`` overrides the characteristic-polynomial check as in disk_margin."""
+    loops = _sea_loops(6, seed=5)
+    flags = [True, False, True, False, True, True]
+    batch = disk_margins(loops, closed_loop_stable=flags)
+    for L, flag, alpha, stable in zip(loops, flags, batch.alpha, batch.stable):
+        single = disk_margin(L, closed_loop_stable=flag)
+        assert stable == single.stable == flag
+        assert alpha == pytest.approx(single.alpha, rel=1e-9, abs=0.0)
+    with pytest.raises(ParameterError, match="closed_loop_stable has 2 entries for 6 loops"):
+        disk_margins(loops, closed_loop_stable=[True, True])

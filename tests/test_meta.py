@@ -16,7 +16,7 @@ LAYERS = {
     "errors": 0, "params": 0, "environments": 0, "effects": 0, "experiment": 0, "experiment_io": 0, "fileio": 0, "margins_batch": 0, "lti": 0, "__init__": 0, "plausibility": 0, "polynomials": 0, "margins": 0,
     "symbolic": 1, "friction": 1, "discrete": 1,
     "analysis": 2, "executor": 2, "loops": 2, "simulation": 2, "export": 2, "independent": 2,
-    "tuning": 3, "tradeoff": 3, "gap": 3, "reproduce": 3, "table3": 3, "benchmark": 3,
+    "tuning": 3, "gap": 3, "reproduce": 3, "table3": 3, "benchmark": 3,
     "plotting": 4, "runtime": 4, "reporting": 4,
     "pipeline": 5, "cli": 6, "__main__": 6,
 }
@@ -56,11 +56,36 @@ def test_import_layering_holds():
     assert not violations, "\n".join(violations)
 
 
+def test_private_names_stay_inside_their_package():
+    """A module imports another's private (underscore) names only within one subpackage.
+
+    Across top-level modules or subpackages a shared helper must be public (documented),
+    so that each concept keeps one home that others use through its interface. The CLI
+    package is exempt: it is the top of the stack and its helpers are its own.
+    """
+    violations = []
+    for path, rel, name in _modules():
+        if name.startswith("cli"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (isinstance(node, ast.ImportFrom) and node.level > 0):
+                continue
+            base = list(rel.parts[:-1])
+            if node.level > 1:
+                base = base[: len(base) - (node.level - 1)]
+            target = base + (node.module.split(".") if node.module else [])
+            same_subpackage = len(rel.parts) > 1 and target[:1] == list(rel.parts[:1])
+            for alias in node.names:
+                if alias.name.startswith("_") and not alias.name.startswith("__") and not same_subpackage:
+                    violations.append(f"{name} imports private {'.'.join(target)}.{alias.name}, line {node.lineno}")
+    assert not violations, "\n".join(violations)
+
+
 PUBLIC_MODULES = [
     "forecast_design", "forecast_design.experiment", "forecast_design.symbolic", "forecast_design.analysis", "forecast_design.margins", "forecast_design.loops", "forecast_design.reporting",
     "forecast_design.tuning", "forecast_design.friction", "forecast_design.simulation", "forecast_design.gap",
     "forecast_design.export", "forecast_design.runtime", "forecast_design.reproduce", "forecast_design.pipeline",
-    "forecast_design.independent", "forecast_design.tradeoff",
+    "forecast_design.independent", "forecast_design.tuning.tradeoff",
 ]
 
 

@@ -116,7 +116,7 @@ def test_fig6_disks_beyond_the_frame_are_reported(fig6_rows):
 
 @pytest.mark.parametrize("observer", ["ea-fob", "lo-dob", "ld-dob"])
 def test_tradeoff_curve_passes_through_the_tuners_own_answer(observer):
-    from forecast_design.tradeoff import cutoff_tradeoff
+    from forecast_design.tuning.tradeoff import cutoff_tradeoff
     from forecast_design.tuning import tune_q, worst_case_ratio
 
     result = tune_q(observer, "soft,stiff")
@@ -138,7 +138,7 @@ def test_friction_rejection_is_one_minus_q_with_an_exact_nominal_plant():
     # EA-FOB's nominal plant is P without d_m: with d_m = 0 it is exact, R = 1 - Q, and the
     # 2nd-order Butterworth's |1 - Q(j w)| = 1/sqrt(2) at w^2 = (sqrt(5) - 2) w_q^2.
     from forecast_design.symbolic import compensator_q_tf
-    from forecast_design.tradeoff import friction_rejection, rejection_bandwidth_hz
+    from forecast_design.tuning.tradeoff import friction_rejection, rejection_bandwidth_hz
 
     base = Design(environment=environment_preset("stiff"))
     design = dataclasses.replace(base, testbed=dataclasses.replace(base.testbed, d_m=0.0))
@@ -157,7 +157,7 @@ def test_friction_rejection_equals_the_loop_equations_solved_directly(kind, env,
     # tau_s = P (tau_m - tau_f), theta = P_theta (tau_m - tau_f) per frequency, with and without the observer.
     from forecast_design.loops import force_loop
     from forecast_design.symbolic import motor_angle_tf
-    from forecast_design.tradeoff import friction_rejection
+    from forecast_design.tuning.tradeoff import friction_rejection
 
     true = Design(environment=environment_preset(env))
     bel = Design(environment=environment_preset(believed))
@@ -183,7 +183,7 @@ def test_friction_rejection_equals_the_loop_equations_solved_directly(kind, env,
 def test_tradeoff_plot_draws_each_observer_once_with_the_chosen_cutoff():
     from forecast_design.plotting.style import observer_colour
     from forecast_design.plotting.tuning import figure_tradeoff
-    from forecast_design.tradeoff import cutoff_tradeoff
+    from forecast_design.tuning.tradeoff import cutoff_tradeoff
     from forecast_design.tuning import tune_q
 
     result = tune_q("lo-dob", "soft,stiff")
@@ -207,7 +207,7 @@ def test_tradeoff_plot_draws_each_observer_once_with_the_chosen_cutoff():
 
 
 def test_tradeoff_rejects_bad_arguments():
-    from forecast_design.tradeoff import cutoff_tradeoff
+    from forecast_design.tuning.tradeoff import cutoff_tradeoff
 
     with pytest.raises(ParameterError, match="observer"):
         cutoff_tradeoff("sfm")

@@ -68,15 +68,18 @@ def test_open_loop_batch_and_thread_count_do_not_change_results():
     assert not np.array_equal(one.true[0], one.true[2])
 
 
-def test_scenario_repetitions_equal_scenario_run():
-    doc = {"format": "forecast-scenario/1", "sampling": {"rate_hz": 2000.0},
+def _variability_doc() -> dict:
+    return {"format": "forecast-scenario/1", "sampling": {"rate_hz": 2000.0},
            "testbed": Design.nominal().testbed.to_mapping(), "environment": environment_preset("exp-soft").to_mapping(),
            "controller": {"kind": "pd", "P": 5.0, "D": 0.1}, "compensator": {"kind": "ea-fob", "w_q_hz": 8.0},
            "truth": {"effects": [Stiction(F_s=0.7, F_s_a=(0.2,), F_s_b=(0.0,), v_s_a=(0.5,), v_s_b=(0.2,)).to_mapping()]},
            "variability": {"repetitions": 3, "initial_angle": "random", "seed": 4, "viscous_drift": 0.05},
            "reference": {"kind": "square", "high": 0.4, "low": -0.4, "period_s": 0.1},
            "simulation": {"duration_s": 0.2, "seed": 7}}
-    sc = scenario_from_mapping(doc)
+
+
+def test_scenario_repetitions_equal_scenario_run():
+    sc = scenario_from_mapping(_variability_doc())
     batch = simulate_scenario(sc)
     assert len(batch) == 3
     for i in range(3):
@@ -101,3 +104,45 @@ def test_bad_batches_name_the_problem():
         batch.result(1)
     with pytest.raises(ParameterError, match="unknown measured column 'omega'"):
         batch.column("omega")
+
+
+def test_one_repetition_rule_for_run_and_batch():
+    """Scenario.repetition is the rule: angle i of Variability, seed + i, drifted effects."""
+    sc = scenario_from_mapping(_variability_doc())
+    angles = Variability(repetitions=3, seed=4).initial_angles()
+    assert sc.repetition_count == 3
+    for i in range(3):
+        rep = sc.repetition(i)
+        assert (rep.seed, rep.initial_angle) == (7 + i, angles[i])
+        assert rep.effects == tuple(sc.variability.effects_of(sc.effects, i))
+    assert sc.repetition(2).effects[0].sigma2 == pytest.approx(sc.effects[0].sigma2 * (1 + 0.05 * 2))
+    with pytest.raises(ParameterError, match=r"repetition must be in 0\.\.2"):
+        sc.repetition(3)
+    plain = scenario_from_mapping({k: v for k, v in _variability_doc().items() if k != "variability"})
+    assert plain.repetition_count == 1 and plain.repetition(0).seed == 7
+    with pytest.raises(ParameterError, match="no \\[variability\\]"):
+        plain.repetition(1)
+
+
+def test_simulate_verb_writes_every_repetition_as_the_batch_computes_it(tmp_path, capsys):
+    import json
+    import tomli_w
+
+    from forecast_design.cli import main
+    from forecast_design.experiment import load_experiment
+
+    scenario = tmp_path / "var.toml"
+    scenario.write_text(tomli_w.dumps(_variability_doc()))
+    assert main(["simulate", str(scenario), "--out", str(tmp_path / "run.toml"), "--repetitions", "all",
+                 "--json", str(tmp_path / "out.json")]) == 0
+    sc = scenario_from_mapping(_variability_doc())
+    report = json.loads((tmp_path / "out.json").read_text())
+    assert [r["repetition"] for r in report["repetitions"]] == [0, 1, 2]
+    for i in range(3):
+        written = load_experiment(tmp_path / f"run_{i:03d}.toml")
+        single = sc.run(i).to_experiment()
+        for name, column in single.signals.columns().items():
+            assert np.array_equal(written.signals.columns()[name], column), (i, name)
+        assert (tmp_path / f"run_{i:03d}.truth.csv").is_file()
+    assert main(["simulate", str(scenario), "--out", str(tmp_path / "x.toml"), "--repetitions", "4"]) == 2
+    assert "--repetitions must be 'all' or an integer in 1..3" in capsys.readouterr().err

@@ -93,7 +93,7 @@ def test_bounded_scan_finds_the_same_best_cutoff_as_the_full_exact_scan(observer
 
 
 def test_grid_ratio_is_an_upper_bound_of_the_exact_ratio():
-    from forecast_design.tuning import _exact_ratios, _grid_ratios, _plants, _q_polynomial, _Setting
+    from forecast_design.tuning.plants import _exact_ratios, _grid_ratios, _plants, _q_polynomial, _Setting
     from forecast_design.params import PDController
 
     for sampled in (False, True):
@@ -142,3 +142,21 @@ def test_sampled_band_must_stay_below_nyquist():
 def test_bad_scan_mode_raises():
     with pytest.raises(ParameterError, match="scan"):
         tune_q("ea-fob", "soft", scan="sometimes")
+
+
+@pytest.mark.parametrize("observer", ["ea-fob", "lo-dob"])
+def test_batch_verified_answer_equals_the_one_by_one_answer(monkeypatch, observer):
+    """Exact verification through one margins_batch.disk_margins call per check gives the same
+    tuning as one margins.disk_margin per loop (issue 16)."""
+    from forecast_design.tuning import plants
+
+    kw = dict(uncertainty=0.1, min_ratio=0.9, band_hz=(0.5, 30.0), scan_points=30, seed=3)
+    batch = tune_q(observer, "random:4", **kw)
+    monkeypatch.setattr(plants, "_BATCH_MARGINS", False)
+    single = tune_q(observer, "random:4", **kw)
+    assert batch.plants == single.plants == 36
+    assert batch.scan_w_q_hz == single.scan_w_q_hz
+    assert batch.w_q_hz == pytest.approx(single.w_q_hz, rel=1e-9)
+    assert batch.worst_ratio == pytest.approx(single.worst_ratio, rel=1e-9)
+    assert batch.worst_environment == single.worst_environment
+    assert batch.feasible and single.feasible

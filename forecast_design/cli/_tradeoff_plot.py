@@ -28,7 +28,7 @@ def plot_tune_q_tradeoff(args: argparse.Namespace, result: Any, envs: Any) -> di
         The tuned observer's trade-off as JSON (``tradeoff`` key of the verb's output).
     """
     from ..plotting.tuning import plot_tradeoff
-    from ..tradeoff import cutoff_tradeoff
+    from ..tuning.tradeoff import cutoff_tradeoff
 
     band = tuple(args.band)
     if result.w_q_hz == result.w_q_hz:      # keep the chosen cutoff inside the drawn range

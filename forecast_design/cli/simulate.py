@@ -14,7 +14,10 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--friction", metavar="F.json",
                    help="identified friction (identify --model sfm --json F.json): the run's compensator becomes "
                         "an SFM on these parameters (the scenario's compensator must be none or sfm)")
-    _add_json_option(p, "the written paths and the run's statistics")
+    p.add_argument("--repetitions", metavar="N|all",
+                   help="simulate repetitions 0..N-1 (or all) of the scenario's [variability] in one batch "
+                        "(simulate_batch, one run per core) and write RUN_000.toml, RUN_001.toml, ...")
+    _add_json_option(p, "the written paths and the run's statistics (a list with --repetitions)")
     p.add_argument("--plot", metavar="OUT.png", help="plot the run (torque tracking, friction, motion)")
 
 
@@ -28,9 +31,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from ..simulation.scenario import load_scenario
 
     _json_positional(args, "scenario")
+    if args.repetitions is not None:
+        return _simulate_repetitions(args)
     out = Path(args.out)  # save_simulation writes RUN.toml, RUN.csv, RUN.truth.json, RUN.truth.csv
-    refuse_overwriting([out, out.with_suffix(".csv"), out.with_name(out.stem + ".truth.json"),
-                        out.with_name(out.stem + ".truth.csv")] + ([args.plot] if args.plot else [])
+    refuse_overwriting(_run_files(out) + ([args.plot] if args.plot else [])
                        + ([args.json] if args.json not in (None, "-") else []),
                        [args.scenario] + ([args.friction] if args.friction else []))
     check_writable(out)
@@ -52,4 +56,64 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.json != "-":
         for key, value in paths.items():
             print(f"{key}: {value}")
+    return 0
+
+
+def _run_files(out) -> list:
+    """The four files :func:`~forecast_design.simulation.run.save_simulation` writes for ``RUN.toml``."""
+    return [out, out.with_suffix(".csv"), out.with_name(out.stem + ".truth.json"),
+            out.with_name(out.stem + ".truth.csv")]
+
+
+def _repetition_count(text: str, available: int, source: str) -> int:
+    from ..errors import ParameterError
+
+    if text == "all":
+        return available
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if not 1 <= n <= available:
+        raise ParameterError(f"--repetitions must be 'all' or an integer in 1..{available} (the [variability] "
+                             f"repetitions of {source}), got {text!r}", name="repetitions", value=text)
+    return n
+
+
+def _simulate_repetitions(args: argparse.Namespace) -> int:
+    """``--repetitions``: the scenario's repetitions as one batch, each written as ``RUN_<i>.toml``."""
+    from pathlib import Path
+
+    from ..fileio import check_writable, refuse_overwriting
+    from ..simulation.batch import simulate_scenario
+    from ..simulation.run import save_simulation
+    from ..simulation.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    n = _repetition_count(args.repetitions, scenario.repetition_count, args.scenario)
+    base = Path(args.out)
+    outs = [base.with_name(f"{base.stem}_{i:03d}{base.suffix or '.toml'}") for i in range(n)]
+    refuse_overwriting([f for out in outs for f in _run_files(out)] + ([args.plot] if args.plot else [])
+                       + ([args.json] if args.json not in (None, "-") else []),
+                       [args.scenario] + ([args.friction] if args.friction else []))
+    check_writable(base)
+    if args.friction:
+        scenario = scenario.with_friction(_friction_from_file(args.friction))
+    batch = simulate_scenario(scenario, repetitions=range(n))
+    results = [batch.result(i) for i in range(n)]
+    written = [save_simulation(result, out) for result, out in zip(results, outs)]
+    if args.plot:
+        from ..plotting.simulation import plot_simulation
+
+        plot_simulation({f"repetition {i}": result for i, result in enumerate(results)}, args.plot)
+    if args.json:
+        comp = scenario.design.compensator
+        _write_json(args.json, {"compensator": "none" if comp is None else comp.kind,
+                                "friction": None if comp is None else comp.friction_params,
+                                "repetitions": [{"repetition": i, **{k: str(v) for k, v in paths.items()},
+                                                 "statistics": result.to_mapping()["statistics"]}
+                                                for i, (paths, result) in enumerate(zip(written, results))]})
+    if args.json != "-":
+        for i, paths in enumerate(written):
+            print(f"repetition {i}: {paths['experiment']}")
     return 0

@@ -149,21 +149,10 @@ def prepare_identification_data(t: np.ndarray, position: np.ndarray, force: np.n
     elif not math.isclose(settings.rate_hz, rate, rel_tol=1e-3):
         settings = dataclasses.replace(settings, rate_hz=rate)
     kin = differentiate(position, settings, velocity=velocity)
-    y = force if inertia is None else force - float(inertia) * kin.acceleration
-    Phi = model.regressor(kin.velocity, kin.position, kin.acceleration)
-    p = Phi.shape[1]
+    p = len(model.linear_names)
     dynamic = model.is_dynamic
-    rows = np.empty((4 + p * (2 if dynamic else 1) + int(dynamic), n))
-    rows[0], rows[1], rows[2], rows[3] = y, kin.velocity, kin.position, kin.acceleration
-    rows[4:4 + p] = Phi.T
-    if dynamic:
-        rows[4 + p] = lowpass(force, settings) - (0.0 if inertia is None else float(inertia) * kin.acceleration)
-        Phif = lowpass(Phi, settings) if p else Phi
-        for j, name in enumerate(model.linear_names):
-            if name == "inertia":  # J theta'' is already the filtered acceleration
-                Phif[:, j] = Phi[:, j]
-        rows[5 + p:] = Phif.T
-    dec = decimate_columns(rows, settings, axis=1).T
+    dec = _decimated_block(_raw_columns(force, kin, model, settings, inertia),
+                           4 + p * (2 if dynamic else 1) + int(dynamic), settings)
     rule = resolve_selection(selection)
     step = _observed_step(position) if encoder_step is None else float(encoder_step)
     keep_raw, sel = select_samples(kin.velocity, settings, step, rule)
@@ -182,6 +171,48 @@ def prepare_identification_data(t: np.ndarray, position: np.ndarray, force: np.n
                               dt=settings.decimation_factor / rate, settings=settings, n_raw=n,
                               keep=keep, selection=sel, encoder_step=step, static_keep=static_keep)
 
+
+
+def _raw_columns(force: np.ndarray, kin: Any, model: FrictionModel, settings: FilterSettings,
+                 inertia: float | None):
+    """The raw-rate columns of the identification data, one at a time, in the block's order.
+
+    Order: explained force, velocity, position, acceleration, the regressor's columns; for a
+    dynamic model also the low-passed force and regressor (the inertia column unfiltered: J
+    theta'' is already the filtered acceleration). One term's columns exist at a time, so the
+    preparation holds a few raw columns instead of the whole block (issue 16).
+    """
+    yield force if inertia is None else force - float(inertia) * kin.acceleration
+    yield kin.velocity
+    yield kin.position
+    yield kin.acceleration
+    for term in model.linear_terms:
+        block = term.columns(kin.velocity, kin.position, kin.acceleration)
+        for j in range(block.shape[1]):
+            yield block[:, j]
+        del block
+    if model.is_dynamic:
+        yield lowpass(force, settings) - (0.0 if inertia is None else float(inertia) * kin.acceleration)
+        for term in model.linear_terms:
+            block = term.columns(kin.velocity, kin.position, kin.acceleration)
+            for j, name in enumerate(term.names()):
+                yield block[:, j] if name == "inertia" else lowpass(block[:, j], settings)
+            del block
+
+
+def _decimated_block(columns, k: int, settings: FilterSettings) -> np.ndarray:
+    """Decimate `k` raw columns one by one (:func:`decimate_columns`) into one (m, k) block.
+
+    Column by column gives the same numbers bit for bit as decimating the stacked block
+    (the filters run along each column alone) with a fraction of the memory.
+    """
+    out = None
+    for j, col in enumerate(columns):
+        d = decimate_columns(col, settings)
+        if out is None:
+            out = np.empty((d.size, k))
+        out[:, j] = d
+    return out
 
 
 def _check_identifiable(model: FrictionModel, position: np.ndarray, data: IdentificationData) -> None:
@@ -458,6 +489,10 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
                              value=holdout)
     if inertia is not None and not (math.isfinite(inertia) and inertia >= 0):
         raise ParameterError(f"inertia must be >= 0 [kg m^2], got {inertia!r}", name="inertia", value=inertia)
+    if encoder_step is not None and not (isinstance(encoder_step, (int, float, np.floating))
+                                         and math.isfinite(encoder_step) and encoder_step >= 0):
+        raise ParameterError(f"encoder_step must be a finite number >= 0 [rad or m], got {encoder_step!r}",
+                             name="encoder_step", value=encoder_step)
     rule = resolve_selection(selection)
     if zoh_force:
         force = zoh_align(_check_array("force", force))

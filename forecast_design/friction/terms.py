@@ -16,6 +16,7 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from ..errors import ParameterError
+from ..plausibility import check_limit
 from .laws import clipped_exp, stribeck_level
 
 __all__ = [
@@ -191,6 +192,7 @@ class AsymmetricCoulomb(Term):
 def _check_order(n: int, what: str) -> None:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise ParameterError(f"{what} n must be an integer >= 1, got {n!r}", name="n", value=n)
+    check_limit(f"{what} n (harmonics)", "harmonics", n)   # 2 n regressor columns: bounded time and memory
 
 
 def _harmonic_columns(theta: np.ndarray, n: int) -> np.ndarray:

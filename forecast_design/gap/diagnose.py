@@ -55,6 +55,7 @@ from typing import Any, Mapping
 
 import numpy as np
 from scipy import stats
+from threadpoolctl import threadpool_limits
 
 from ..effects import Effect
 from ..errors import ParameterError
@@ -425,6 +426,14 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
         hint = " (load it first: load_experiment(path))" if isinstance(experiment, (str, os.PathLike)) else ""
         raise ParameterError(f"diagnose needs an Experiment{hint}, got {type(experiment).__name__}",
                              name="experiment", value=experiment)
+    # Hundreds of small least-squares solves (a few thousand rows, ~10 columns): a threaded BLAS
+    # only adds hand-offs, and on a busy machine its spinning threads made the diagnosis 3-8x
+    # slower (issue 16); one BLAS thread also makes the numbers independent of the core count.
+    with threadpool_limits(1, user_api="blas"):
+        return _diagnose(experiment, options, joint)
+
+
+def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -> Diagnosis:
     data = prepare_gap_data(experiment, options)
     opts = data.options
     base = fit_baseline(data)

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Sequence
 
 from ..errors import ParameterError
-from ..tradeoff import CutoffTradeoff
+from ..tuning.tradeoff import CutoffTradeoff
 from . import save_figure
 from .style import observer_colour, observer_label
 
@@ -105,7 +105,7 @@ def plot_tradeoff(tradeoffs: CutoffTradeoff | Sequence[CutoffTradeoff], path: st
     Parameters
     ----------
     tradeoffs : CutoffTradeoff or sequence of CutoffTradeoff
-        From :func:`forecast_design.tradeoff.cutoff_tradeoff`; the first is the tuned observer
+        From :func:`forecast_design.tuning.tradeoff.cutoff_tradeoff`; the first is the tuned observer
         (drawn bold, with its chosen cutoff, binding environment and, for small sets, one curve
         per environment), the others are drawn thinner for comparison.
     path : str or Path

@@ -263,26 +263,28 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
     return BatchResult(t=t, measured=meas, true=truth, _prepared=tuple(prepared))
 
 
-def scenario_runs(scenario: Scenario) -> list[BatchRun]:
-    """The repetitions of a scenario as batch runs (as :meth:`Scenario.run` simulates repetition ``i``).
+def scenario_runs(scenario: Scenario, repetitions: Sequence[int] | None = None) -> list[BatchRun]:
+    """The repetitions of a scenario as batch runs (:meth:`~.scenario.Scenario.repetition`, the rule
+    :meth:`~.scenario.Scenario.run` follows).
 
-    Repetition ``i`` starts at the ``i``-th initial angle of the scenario's
-    :class:`~.scenario.Variability`, with its drifted effects and process-noise seed
-    ``seed + i``; without ``[variability]`` the scenario's one run.
+    Parameters
+    ----------
+    scenario : Scenario
+        From :func:`~.scenario.load_scenario`.
+    repetitions : sequence of int, optional
+        Which repetitions (default all: ``range(scenario.repetition_count)``).
     """
-    opts = dict(scenario.options)
-    v = scenario.variability
-    if v is None:
-        return [BatchRun(design=scenario.design, effects=tuple(scenario.effects), seed=int(opts.get("seed", 0)),
-                         initial_angle=float(opts.get("initial_angle", 0.0)), description=scenario.description)]
-    angles = v.initial_angles(opts.get("initial_angle", 0.0))
-    return [BatchRun(design=scenario.design, effects=v.effects_of(scenario.effects, i),
-                     seed=int(opts.get("seed", 0)) + i, initial_angle=float(angles[i]),
-                     description=f"{scenario.description} (repetition {i})".strip())
-            for i in range(v.repetitions)]
+    indices = range(scenario.repetition_count) if repetitions is None else repetitions
+    runs = []
+    for i in indices:
+        rep = scenario.repetition(i)
+        runs.append(BatchRun(design=scenario.design, effects=rep.effects, seed=rep.seed,
+                             initial_angle=rep.initial_angle, description=rep.description))
+    return runs
 
 
-def simulate_scenario(scenario: Scenario, *, threads: int | None = None) -> BatchResult:
+def simulate_scenario(scenario: Scenario, *, threads: int | None = None,
+                      repetitions: Sequence[int] | None = None) -> BatchResult:
     """Every repetition of a scenario as one batch (:func:`scenario_runs`, :func:`simulate_batch`).
 
     Parameters
@@ -291,14 +293,16 @@ def simulate_scenario(scenario: Scenario, *, threads: int | None = None) -> Batc
         From :func:`~.scenario.load_scenario`.
     threads : int, optional
         Threads of numba's pool (default: every core).
+    repetitions : sequence of int, optional
+        Which repetitions (default all).
 
     Returns
     -------
     BatchResult
-        ``result(i)`` equals ``scenario.run(i)``.
+        ``result(k)`` equals ``scenario.run(repetitions[k])`` (``scenario.run(k)`` for all).
     """
     opts = {k: v for k, v in scenario.options.items() if k not in ("seed", "initial_angle", "duration_s", "substeps")}
-    return simulate_batch(scenario_runs(scenario), duration_s=scenario.options["duration_s"],
+    return simulate_batch(scenario_runs(scenario, repetitions), duration_s=scenario.options["duration_s"],
                           reference=scenario.reference, rate_hz=scenario.rate_hz,
                           substeps=scenario.options.get("substeps", 10), closed_loop=scenario.closed_loop,
                           threads=threads, **opts)

@@ -39,7 +39,7 @@ from ..errors import ParameterError
 from ..experiment_io import csv_chunks
 from ..discrete import njit as _njit, sos_step
 from ..params import Compensator, Design, Environment, PDController
-from ..plausibility import check_limit
+from ..plausibility import check_limit, check_physical
 from .controllers import (
     DEFAULT_DERIVATIVE_CUTOFF_HZ,
     DEFAULT_VELOCITY_CUTOFF_HZ,
@@ -499,6 +499,9 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
                              name="design", value=design)
     if not (isinstance(duration_s, (int, float)) and duration_s > 0 and math.isfinite(duration_s)):
         raise ParameterError(f"duration_s must be > 0 [s], got {duration_s!r}", name="duration_s", value=duration_s)
+    if not (isinstance(rate_hz, (int, float, np.floating)) and math.isfinite(rate_hz)):
+        raise ParameterError(f"rate_hz must be a finite number [Hz], got {rate_hz!r}", name="rate_hz", value=rate_hz)
+    check_physical("simulate", "rate_hz", float(rate_hz))
     if not (torque_limit > 0):
         raise ParameterError(f"torque_limit must be > 0 [N m], got {torque_limit!r}", name="torque_limit",
                              value=torque_limit)

@@ -96,7 +96,7 @@ from ..plausibility import check_limit, check_physical
 from .references import reference_from_mapping
 from .run import SimulationResult, save_simulation, simulate
 
-__all__ = ["SCENARIO_FORMAT", "Scenario", "Variability", "load_scenario", "scenario_from_mapping", "run_scenario"]
+__all__ = ["SCENARIO_FORMAT", "Repetition", "Scenario", "Variability", "load_scenario", "scenario_from_mapping", "run_scenario"]
 
 #: The ``format`` string of scenario files.
 SCENARIO_FORMAT = "forecast-scenario/1"
@@ -223,6 +223,28 @@ class Variability:
 
 
 @dataclass(frozen=True, slots=True)
+class Repetition:
+    """What one repetition of a scenario changes (:meth:`Scenario.repetition`).
+
+    Attributes
+    ----------
+    effects : tuple
+        The repetition's effects (drifted by ``[variability]``).
+    seed : int
+        Process-noise seed.
+    initial_angle : float
+        Absolute motor angle at theta = 0 [rad].
+    description : str
+        Free text of the repetition's experiment.
+    """
+
+    effects: tuple
+    seed: int
+    initial_angle: float
+    description: str
+
+
+@dataclass(frozen=True, slots=True)
 class Scenario:
     """A parsed scenario: everything :func:`~.run.simulate` needs.
 
@@ -258,29 +280,48 @@ class Scenario:
     source: str | None = None
     variability: Variability | None = None
 
-    def run(self, repetition: int = 0) -> SimulationResult:
-        """Simulate the scenario (:func:`~.run.simulate`), repetition ``repetition`` of its variability.
+    @property
+    def repetition_count(self) -> int:
+        """Runs of the scenario: its ``[variability]`` repetitions, or 1 without one."""
+        return 1 if self.variability is None else self.variability.repetitions
+
+    def repetition(self, index: int = 0) -> Repetition:
+        """What repetition ``index`` of the scenario changes: the one rule :meth:`run` and
+        :func:`~.batch.simulate_batch` (through :func:`~.batch.scenario_runs`) follow.
 
         Repetition ``i`` starts at the ``i``-th initial angle of :class:`Variability`, with its
-        drifted effects and process-noise seed ``seed + i``.
+        drifted effects and process-noise seed ``seed + i``; without ``[variability]`` only
+        repetition 0 exists: the scenario's own effects, seed and initial angle.
+
+        Raises
+        ------
+        ParameterError
+            If ``index`` is not in ``0 .. repetition_count - 1``.
         """
-        if self.variability is None:
-            if repetition != 0:
-                raise ParameterError("the scenario has no [variability]: only repetition 0", name="repetition",
-                                     value=repetition)
-            return simulate(self.design, reference=self.reference, effects=self.effects, rate_hz=self.rate_hz,
-                            closed_loop=self.closed_loop, description=self.description, **self.options)
+        opts = self.options
+        seed, angle0 = int(opts.get("seed", 0)), float(opts.get("initial_angle", 0.0))
         v = self.variability
-        if isinstance(repetition, bool) or not isinstance(repetition, int) or not 0 <= repetition < v.repetitions:
-            raise ParameterError(f"repetition must be in 0..{v.repetitions - 1}, got {repetition!r}",
-                                 name="repetition", value=repetition)
-        opts = dict(self.options)
-        angle = float(v.initial_angles(opts.get("initial_angle", 0.0))[repetition])
-        opts["initial_angle"] = angle
-        opts["seed"] = int(opts.get("seed", 0)) + repetition
-        return simulate(self.design, reference=self.reference, effects=v.effects_of(self.effects, repetition),
-                        rate_hz=self.rate_hz, closed_loop=self.closed_loop,
-                        description=f"{self.description} (repetition {repetition})".strip(), **opts)
+        if v is None:
+            if isinstance(index, bool) or index != 0:
+                raise ParameterError("the scenario has no [variability]: only repetition 0", name="repetition",
+                                     value=index)
+            return Repetition(effects=tuple(self.effects), seed=seed, initial_angle=angle0,
+                              description=self.description)
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < v.repetitions:
+            raise ParameterError(f"repetition must be in 0..{v.repetitions - 1}, got {index!r}",
+                                 name="repetition", value=index)
+        index = int(index)
+        return Repetition(effects=tuple(v.effects_of(self.effects, index)), seed=seed + index,
+                          initial_angle=float(v.initial_angles(opts.get("initial_angle", 0.0))[index]),
+                          description=f"{self.description} (repetition {index})".strip())
+
+    def run(self, repetition: int = 0) -> SimulationResult:
+        """Simulate the scenario (:func:`~.run.simulate`), repetition ``repetition`` of its variability
+        (:meth:`repetition`)."""
+        rep = self.repetition(repetition)
+        opts = {**self.options, "seed": rep.seed, "initial_angle": rep.initial_angle}
+        return simulate(self.design, reference=self.reference, effects=rep.effects, rate_hz=self.rate_hz,
+                        closed_loop=self.closed_loop, description=rep.description, **opts)
 
     def runs(self) -> list[SimulationResult]:
         """Every repetition of the scenario (one run without ``[variability]``)."""

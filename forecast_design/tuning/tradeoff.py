@@ -39,10 +39,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .errors import ParameterError
-from .loops.response import loop_response, sensitivity
-from .params import OBSERVER_KINDS, Compensator, Design, PDController
-from .tuning import TuningResult, _exact_ratios, _plants, _q_polynomial, _Setting
+from ..errors import ParameterError
+from ..loops.response import loop_response, sensitivity
+from ..params import OBSERVER_KINDS, Compensator, Design, PDController
+from .plants import _exact_ratios, _plants, _q_polynomial, _Setting
+from .tune import TuningResult
 
 __all__ = ["CutoffTradeoff", "cutoff_tradeoff", "friction_rejection", "rejection_bandwidth_hz",
            "REJECTION_LEVEL"]
