@@ -66,7 +66,7 @@ def main(argv=None) -> int:
                         help="environments of the tune-q command timing (0: skip it)")
     args = parser.parse_args(argv)
     from forecast_design.margins import disk_margin
-    from forecast_design.margins_batch import disk_margins
+    from forecast_design.margins import disk_margins
 
     loops = _loops(args.loops)
     n = len(loops)

@@ -1,4 +1,4 @@
-"""Batched disk margins (forecast_design.margins_batch) against the single-loop exact routine and python-control."""
+"""Batched disk margins (forecast_design.margins.batch) against the single-loop exact routine and python-control."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from forecast_design.loops import force_loop
 from forecast_design.loops.sampled import sampled_force_loop
 from forecast_design.lti import RationalTF
 from forecast_design.margins import disk_margin
-from forecast_design.margins_batch import disk_margins
+from forecast_design.margins import disk_margins
 from forecast_design.params import Compensator, Design
 
 KINDS = ("ea-fob", "lo-dob", "ld-dob", None)

@@ -146,7 +146,7 @@ def test_bad_scan_mode_raises():
 
 @pytest.mark.parametrize("observer", ["ea-fob", "lo-dob"])
 def test_batch_verified_answer_equals_the_one_by_one_answer(monkeypatch, observer):
-    """Exact verification through one margins_batch.disk_margins call per check gives the same
+    """Exact verification through one margins.disk_margins call per check gives the same
     tuning as one margins.disk_margin per loop (issue 16)."""
     from forecast_design.tuning import plants
 

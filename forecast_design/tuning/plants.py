@@ -13,7 +13,7 @@ import numpy as np
 from ..loops.response import LoopResponse, loop_response, observer_responses, q_argument, sensitivity
 from ..executor import Executor
 from ..margins import disk_margin
-from ..margins_batch import disk_margins
+from ..margins import disk_margins
 from ..errors import ParameterError
 from ..plausibility import check_limit, check_physical
 from ..environments import resolve_environments, resolve_testbed
@@ -144,7 +144,7 @@ def _exact_margins(pairs: Sequence[tuple[Design, Design]], compensator: Compensa
     """:func:`_exact_ratio` of many ``(true_design, believed)`` pairs: exact margins and critical
     frequencies [rad/s].
 
-    Continuous loops go through one :func:`~forecast_design.margins_batch.disk_margins` call
+    Continuous loops go through one :func:`~forecast_design.margins.disk_margins` call
     (the same exact peak and the loops' own stability flags); sampled loops, or
     ``_BATCH_MARGINS`` off, one :func:`~forecast_design.margins.disk_margin` per loop.
     """

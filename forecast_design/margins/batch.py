@@ -25,9 +25,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .errors import ParameterError
-from .lti import RationalTF
-from .margins import STABILITY_TOLERANCE, as_loop, continuous_equivalent, frequency_rad_s, check_skew
+from ..errors import ParameterError
+from ..lti import RationalTF
+from .disk import check_skew
+from .exact import STABILITY_TOLERANCE, as_loop, continuous_equivalent, frequency_rad_s
 
 __all__ = ["DiskMarginBatch", "disk_margins"]
 
