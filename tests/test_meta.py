@@ -159,3 +159,13 @@ def test_importing_the_package_keeps_heavy_dependencies_at_the_edges():
             "print(sorted(m for m in ('sympy', 'casadi', 'numba', 'matplotlib', 'cvxpy', 'serial') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+MAX_MODULE_LINES = 800
+
+
+def test_no_module_grows_past_the_size_a_reader_can_hold():
+    """Issue 12: a module holds one topic; past ~800 lines it is split by concept."""
+    long = {name: n for _, rel, name in _modules()
+            if (n := len((PACKAGE / rel).with_suffix(".py").read_text().splitlines())) > MAX_MODULE_LINES}
+    assert not long, long
