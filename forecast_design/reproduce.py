@@ -210,6 +210,9 @@ class Fig7Result:
             "mae_friction_eafob": self.mae_friction_eafob,
             "mae_tracking_sfm": self.mae_tracking_sfm,
             "mae_tracking_eafob": self.mae_tracking_eafob,
+            # the same numbers with their unit in the name (the keys above stay for existing scripts)
+            **{f"{key}_N_m": getattr(self, key) for key in ("mae_friction_sfm", "mae_friction_eafob",
+                                                              "mae_tracking_sfm", "mae_tracking_eafob")},
             "choices": self.choices.to_mapping(),
             "sensitivity": [dict(row) for row in self.sensitivity],
             "explanation": self.explanation,

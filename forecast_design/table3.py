@@ -118,8 +118,14 @@ class Table3Row:
     paper_mae: float | None = None
 
     def to_mapping(self) -> dict[str, Any]:
-        """``{"environment", "compensator", "xcorr", "mae", "paper_xcorr", "paper_mae"}``."""
-        return dataclasses.asdict(self)
+        """``{"environment", "compensator", "xcorr", "mae", "paper_xcorr", "paper_mae"}``.
+
+        ``mae_N_m`` and ``paper_mae_N_m`` repeat the MAE with its unit [N m] in the name
+        (``mae``/``paper_mae`` stay for existing scripts).
+        """
+        out = dataclasses.asdict(self)
+        out["mae_N_m"], out["paper_mae_N_m"] = self.mae, self.paper_mae
+        return out
 
 
 @dataclass(frozen=True, slots=True)

@@ -71,8 +71,9 @@ def test_fig7_eafob_compensation_tracks_better_than_no_compensation(fig7):
 
 def test_fig7_mapping_and_sensitivity_rows(fig7):
     m = fig7.to_mapping()
-    assert set(m) == {"mae_friction_sfm", "mae_friction_eafob", "mae_tracking_sfm", "mae_tracking_eafob",
-                      "choices", "sensitivity", "explanation"}
+    maes = {"mae_friction_sfm", "mae_friction_eafob", "mae_tracking_sfm", "mae_tracking_eafob"}
+    assert set(m) == maes | {f"{k}_N_m" for k in maes} | {"choices", "sensitivity", "explanation"}
+    assert all(m[f"{k}_N_m"] == m[k] for k in maes)
     json.dumps(m, allow_nan=False)
     assert len(m["sensitivity"]) == len(FIG7_VARIATIONS)
     default = m["sensitivity"][0]

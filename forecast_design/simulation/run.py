@@ -294,6 +294,9 @@ class SimulationResult:
         }
         if self.tau_r is not None:
             stats["mae_tracking"] = float(np.mean(np.abs(self.tau_r - self.tau_s)))
+        # the same numbers with their unit in the name (the keys above stay for existing scripts)
+        stats.update({f"{key}_N_m": stats[key] for key in ("max_abs_tau_m", "mae_friction_estimate", "mae_tracking")
+                      if key in stats})
         return {"design": _design_mapping(self.design), "rate_hz": self.rate_hz, "options": dict(self.options),
                 "truth": self.truth.metadata(), "stability": dict(self.stability), "statistics": stats,
                 "description": self.description}
