@@ -11,6 +11,10 @@ Run: ``python benchmarks/bench_simulation_batch.py [--runs 16] [--duration 10] [
    (start-up, simulation, writing the experiment and truth files) against
    ``python -c 'import numpy'``: real-time factor. Target >= 100x real time.
 
+0. The plant kernel alone: CPU ns per RK4 substep of ``integrate_open_loop`` (fig7; no effect,
+   LuGre, LuGre with angle harmonics) against a hand-written numba RK4 of the same linear plant
+   (scalars only: the floor of the arithmetic).
+
 The machine's load average is printed: other processes on the cores lower the wall rates, not
 the CPU rates.
 """
@@ -27,10 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
+from forecast_design.discrete import njit
 from forecast_design.effects import Stiction
 from forecast_design.params import Compensator, Design, PDController
 from forecast_design.simulation import Square, simulate
 from forecast_design.simulation.batch import BatchRun, simulate_batch
+from forecast_design.simulation.plant import build_plant, integrate_open_loop
 
 REF = Square(high=1.0, low=-1.0, period_s=2.0)
 SCENARIO = """format = "forecast-scenario/1"
@@ -60,6 +66,53 @@ duration_s = 20.0
 substeps = 10
 """
 
+
+
+@njit
+def _hand_rk4(x, tau_cmd, nsub, h, jm, dm, k, j, d, ke):
+    """RK4 of the linear two-mass plant (no friction effect), scalars only."""
+    x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
+    for n in range(tau_cmd.shape[0]):
+        tau = tau_cmd[n]
+        for _ in range(nsub):
+            a0, a2 = x1, x3
+            a1 = (tau - k * (x0 - x2) - dm * x1) / jm
+            a3 = (k * (x0 - x2) - d * x3 - ke * x2) / j
+            y0, y1, y2, y3 = x0 + 0.5 * h * a0, x1 + 0.5 * h * a1, x2 + 0.5 * h * a2, x3 + 0.5 * h * a3
+            b0, b2 = y1, y3
+            b1 = (tau - k * (y0 - y2) - dm * y1) / jm
+            b3 = (k * (y0 - y2) - d * y3 - ke * y2) / j
+            y0, y1, y2, y3 = x0 + 0.5 * h * b0, x1 + 0.5 * h * b1, x2 + 0.5 * h * b2, x3 + 0.5 * h * b3
+            c0, c2 = y1, y3
+            c1 = (tau - k * (y0 - y2) - dm * y1) / jm
+            c3 = (k * (y0 - y2) - d * y3 - ke * y2) / j
+            y0, y1, y2, y3 = x0 + h * c0, x1 + h * c1, x2 + h * c2, x3 + h * c3
+            d1 = (tau - k * (y0 - y2) - dm * y1) / jm
+            d3 = (k * (y0 - y2) - d * y3 - ke * y2) / j
+            x0 += h / 6.0 * (a0 + 2.0 * b0 + 2.0 * c0 + y1)
+            x1 += h / 6.0 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
+            x2 += h / 6.0 * (a2 + 2.0 * b2 + 2.0 * c2 + y3)
+            x3 += h / 6.0 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
+    x[0], x[1], x[2], x[3] = x0, x1, x2, x3
+
+
+def _substep_costs(periods: int = 40000, repeats: int = 5) -> None:
+    """Print CPU ns per RK4 substep of the plant kernel and of the hand-written linear RK4."""
+    design = Design.nominal("fig7")
+    cmd = 1.5 * np.sin(np.arange(periods) / 2000.0 * 2 * np.pi * 0.5)
+    harm = Stiction(F_s_a=(0.05,), F_s_b=(0.02,), v_s_a=(0.2,), v_s_b=(0.1,))
+    parts = []
+    for name, effects in (("no effect", ()), ("LuGre", (Stiction(),)), ("LuGre + angle harmonics", (harm,))):
+        plant = build_plant(design, effects, substeps=10)
+        integrate_open_loop(plant, cmd[:10], substeps=10)
+        best = min(_timed(lambda: integrate_open_loop(plant, cmd, substeps=10))[1] for _ in range(repeats))
+        parts.append(f"{name} {best / (10 * periods) * 1e9:.0f} ns")
+    tb, env = design.testbed, design.environment
+    args = (cmd, 10, 1.0 / 20000.0, tb.J_m, tb.d_m, tb.k, env.J, env.d, env.k_e)
+    _hand_rk4(np.zeros(4), cmd[:10], *args[1:])
+    best = min(_timed(lambda: _hand_rk4(np.zeros(4), *args))[1] for _ in range(repeats))
+    parts.append(f"hand-written linear RK4 {best / (10 * periods) * 1e9:.0f} ns")
+    print("CPU per RK4 substep (integrate_open_loop, fig7, 2 kHz x 10): " + "; ".join(parts))
 
 def _runs(count: int) -> list[BatchRun]:
     design = Design.nominal("fig7", controller=PDController(), compensator=Compensator(kind="ea-fob", w_q_hz=10.0))
@@ -94,6 +147,7 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds per run [s]")
     parser.add_argument("--repeats", type=int, default=3, help="interleaved repetitions")
     args = parser.parse_args()
+    _substep_costs()
     runs = _runs(args.runs)
     simulate_batch(runs[:2], duration_s=0.01, reference=REF)   # compilation / cache load
     _single(runs[:1], 0.01)

@@ -324,8 +324,8 @@ class PDController:
     D: float = 0.1  # derivative gain    [N m s / N m]
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "P", _number("[controller]", "P", self.P))
-        object.__setattr__(self, "D", _number("[controller]", "D", self.D))
+        object.__setattr__(self, "P", check_physical("[controller]", "P", _number("[controller]", "P", self.P)))
+        object.__setattr__(self, "D", check_physical("[controller]", "D", _number("[controller]", "D", self.D)))
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "PDController":

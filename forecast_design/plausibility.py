@@ -460,6 +460,8 @@ PHYSICAL_RANGES: Mapping[str, tuple[float, float, str]] = {
     "d_l": (0.0, 1e6, "N m s/rad"),
     "w_q_hz": (1e-3, 1e5, "Hz"),
     "rate_hz": (1.0, 1e6, "Hz"),
+    "P": (0.0, 1e4, "N m/N m"),
+    "D": (0.0, 1e3, "N m s/N m"),
 }
 
 #: Sizes of a computation a user may ask for: name -> (lowest, highest, what it bounds).
@@ -470,6 +472,7 @@ COMPUTATION_LIMITS: Mapping[str, tuple[int, int, str]] = {
     "substeps": (1, 1000, "RK4 substeps per control period"),
     "harmonics": (1, 64, "angle harmonics of a friction term (2 regressor columns each)"),
     "simulation_samples": (1, 10_000_000, "samples of one simulation (duration_s x rate_hz)"),
+    "runs": (1, 100_000, "simulated runs of one benchmark (bench-gap logs, benchmark cells x repetitions)"),
     "seed": (0, 2**63 - 1, "random seed"),
 }
 

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from forecast_design.cli import main
 from forecast_design.errors import ExperimentFormatError, ForecastError, ParameterError
-from forecast_design.params import Compensator, Design, Environment, Testbed
+from forecast_design.params import Compensator, Design, Environment, PDController, Testbed
 from forecast_design.plausibility import COMPUTATION_LIMITS, PHYSICAL_RANGES, require_no_nan
 
 FUZZ = settings(derandomize=True, max_examples=25, deadline=None,
@@ -52,11 +52,30 @@ def time_bound(seconds: float = CASE_SECONDS):
         signal.signal(signal.SIGALRM, previous)
 
 
+@contextlib.contextmanager
+def memory_bound(megabytes: float = 4 * CASE_MEGABYTES):
+    """Cap the process's data segment at its current size + ``megabytes`` for the block (RLIMIT_DATA).
+
+    A case that tries to allocate without bound then meets a MemoryError (a test failure) instead of
+    the kernel's out-of-memory killer (a dead suite, and a starved machine).
+    """
+    with open("/proc/self/status") as status:
+        data_kb = next(int(line.split()[1]) for line in status if line.startswith("VmData:"))
+    previous = resource.getrlimit(resource.RLIMIT_DATA)
+    cap = int((data_kb * 1024) + megabytes * 1024 * 1024)
+    resource.setrlimit(resource.RLIMIT_DATA, (cap if previous[1] == resource.RLIM_INFINITY else min(cap, previous[1]),
+                                              previous[1]))
+    try:
+        yield
+    finally:
+        resource.setrlimit(resource.RLIMIT_DATA, previous)
+
+
 def cli(argv, capsys):
     """Run one CLI case in-process; return (code, stdout, stderr), enforcing the time and memory bounds."""
     rss, t0 = _max_rss_mb(), time.monotonic()
     try:
-        with time_bound(CASE_SECONDS):
+        with time_bound(CASE_SECONDS), memory_bound():
             code = main([str(a) for a in argv])
     except SystemExit as exc:   # argparse's own one-line usage errors exit 2 this way
         code = exc.code
@@ -225,8 +244,8 @@ def test_experiment_from_arrays_rejects_complex_values():
        value=st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([1e300, -1e-300, 1e308])))
 def test_physical_parameters_inside_their_range_or_one_line_error(name, value):
     lo, hi, _ = PHYSICAL_RANGES[name]
-    owner = Testbed if name in ("J_m", "d_m", "k") else Environment
-    base = {} if owner is Testbed else {"J_e": 0.001, "d_e": 0.06, "k_e": 5.0}
+    owner = Testbed if name in ("J_m", "d_m", "k") else PDController if name in ("P", "D") else Environment
+    base = {"J_e": 0.001, "d_e": 0.06, "k_e": 5.0} if owner is Environment else {}
     inside = math.isfinite(value) and lo <= value <= hi and not (name in ("J_m", "k") and value <= 0)
     try:
         made = owner(**{**base, name: value})

@@ -21,9 +21,9 @@ import re
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
-from test_reliability import assert_one_line_error, cli, time_bound, write_experiment
+from test_reliability import assert_one_line_error, cli, memory_bound, time_bound, write_experiment
 
 import forecast_design
 from forecast_design.cli import build_parser
@@ -110,6 +110,9 @@ def workdir(tmp_path, monkeypatch):
     monkeypatch.setattr(forecast_design.executor, "make_executor", _reached)
     monkeypatch.setattr(forecast_design.gap.bench, "make_executor", _reached)
     monkeypatch.setattr(forecast_design.export.toolchain, "check_on_cortex_m4", _reached)
+    import forecast_design.export.firmware
+
+    monkeypatch.setattr(forecast_design.export.firmware, "build_firmware", _reached)   # export --firmware --check-arm
     return tmp_path
 
 
@@ -256,7 +259,7 @@ def _call_hostile(name, param, value, folder):
     if param is not None:
         kwargs[param] = value
     try:
-        with time_bound(20.0):
+        with time_bound(20.0), memory_bound():
             result = func(**kwargs)
     except FORBIDDEN as exc:
         pytest.fail(f"{name}({param}={value!r}) raised {type(exc).__name__}: {exc}")
@@ -306,3 +309,197 @@ def test_run_pipeline_refuses_an_out_dir_of_the_wrong_type(value, tmp_path, monk
     monkeypatch.chdir(tmp_path)
     with time_bound(20.0), pytest.raises(ALLOWED):
         forecast_design.run_pipeline(value)
+
+
+# --- diagnose is finite over the plausible ranges (docs/reliability.md, "Numbers") -----------------------------------
+
+
+def _in_range(name):
+    """Log-uniform over the plausible range of ``name`` (zero included where the range starts at 0)."""
+    from forecast_design.plausibility import PHYSICAL_RANGES
+
+    lo, hi, _ = PHYSICAL_RANGES[name]
+    inner = st.floats(math.log10(max(lo, 1e-6)), math.log10(hi)).map(lambda e: float(10.0 ** e))
+    return st.one_of(st.just(0.0), inner) if lo == 0.0 else inner
+
+
+def _finite_everywhere(obj, path=""):
+    """The first key path holding a NaN or an infinity (None if every number is finite)."""
+    if isinstance(obj, dict):
+        return next((p for k, v in obj.items() if (p := _finite_everywhere(v, f"{path}.{k}"))), None)
+    if isinstance(obj, (list, tuple)):
+        return next((p for i, v in enumerate(obj) if (p := _finite_everywhere(v, f"{path}[{i}]"))), None)
+    if isinstance(obj, (float, np.floating)) and not math.isfinite(obj):
+        return path or "result"
+    return None
+
+
+@pytest.mark.slow
+@settings(FUZZ, max_examples=10)
+@example(tb={"J_m": 1778.2794100389228, "d_m": 0.0, "k": 0.1},   # once a NaN p-value: no held-out unit
+         env={"J_e": 0.0, "d_e": 0.0, "k_e": 0.0, "J_l": 1.0, "d_l": 0.0}, closed=False)
+@given(tb=st.fixed_dictionaries({n: _in_range(n) for n in ("J_m", "d_m", "k")}),
+       env=st.fixed_dictionaries({n: _in_range(n) for n in ("J_e", "d_e", "k_e", "J_l", "d_l")}),
+       closed=st.booleans())
+def test_diagnose_is_finite_or_a_one_line_error_for_every_plausible_testbed_and_environment(tb, env, closed):
+    """Over PHYSICAL_RANGES, a simulated 1 s log is either refused (one line) or diagnosed with finite numbers.
+
+    The simulator may refuse a design it cannot integrate stably at 2 kHz (a ParameterError naming it);
+    whatever it produces, ``diagnose`` answers with a JSON whose every number is finite, or refuses.
+    """
+    from forecast_design import Design, Environment, PDController, Testbed, diagnose, simulate
+    from forecast_design.simulation import references as refs
+
+    try:
+        design = Design(testbed=Testbed(**tb), environment=Environment(**env),
+                        controller=PDController() if closed else None)
+    except ForecastError as exc:   # E(s) = 0 or an output without inertia: in range, refused with a reason
+        assert "\n" not in str(exc)
+        return
+    ref = refs.Multisine(amplitudes=(0.6, 0.4, 0.3), frequencies_hz=(0.7, 2.3, 6.1), phases_rad=(0.0, 1.0, 2.0))
+    with time_bound(60.0), memory_bound():
+        try:
+            experiment = simulate(design, reference=ref, duration_s=1.0, seed=1, closed_loop=closed,
+                                  initial_angle=0.3).to_experiment()
+            mapping = diagnose(experiment).to_mapping()
+        except ForecastError as exc:
+            assert "\n" not in str(exc).strip(), str(exc)
+            return
+    found = _finite_everywhere(mapping)
+    assert found is None, f"diagnosis holds a non-finite number at {found} for {tb} {env}"
+
+
+# --- regressions: each case the fuzz tests found, fixed where the check belongs -------------------------------------
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["export", "--controller", "pd:1e300:0", "--out", "c"], ["P = 1e+300", "plausible range"]),   # params.py
+    (["margins", "--controller", "pd:1e300:0"], ["P = 1e+300"]),                                   # was LinAlgError
+    (["margins", "--sigma", "1e300"], ["sigma", "[-100, 100]"]),                                    # margins/disk.py
+    (["bench-gap", "--per-effect", "100000000000000000"], ["bench-gap logs", "[1, 100000]"]),      # was OOM-killed
+    (["benchmark", "--out", "b", "--repetitions", "100000000"], ["repetitions", "[1, 100000]"]),
+    (["identify", "run.toml", "--harmonics", "1000000"], ["harmonics", "[1, 64]"]),                # was a hang
+    (["identify", "--csv", "", "--time", "t", "--position", "x", "--force", "f"], []),            # was TypeError
+    ([], ["give a command"]),                                                                      # was help, exit 2
+    (["tune-q", "--observer", "ea-fob", "--q-order", "x"], ["tune-q: argument --q-order"]),       # argparse's prefix
+])
+def test_fuzz_findings_are_one_line_errors(argv, words, workdir, capsys):
+    code, out, err = cli(argv, capsys)
+    assert_one_line_error(code, err, *words)
+    assert err.startswith("forecast-design: error: ")
+
+
+def test_export_json_is_strict_json_without_a_torque_limit(workdir, capsys):
+    code, out, _ = cli(["export", "--out", "c", "--json", "-"], capsys)
+    doc = json.loads(out, parse_constant=lambda token: pytest.fail(f"{token} in export JSON"))
+    assert code == 0 and doc["tau_max"] is None and doc["tau_max_N_m"] is None   # no saturation is null
+
+
+def test_a_float32_overflow_is_an_export_error_not_a_numpy_warning():
+    from forecast_design.errors import ExportError
+    from forecast_design.export.c import c_float_literal
+
+    assert c_float_literal(0.5) == "0.5f"
+    with pytest.raises(ExportError, match="overflows float32"):   # filterwarnings=error: a warning would fail here
+        c_float_literal(1e300)
+
+
+def _api_cases():
+    from forecast_design import Design, diagnose, fit_friction, simulate, tune_q
+    from forecast_design.loops import force_loop
+    from forecast_design.lti import RationalTF
+
+    t = np.arange(2000) / 1000.0
+    x = np.sin(t)
+    return [
+        (lambda: RationalTF((1.0,), (0.0,)), "denominator is zero"),            # was ZeroDivisionError
+        (lambda: RationalTF(None, (1.0,)), "num must be"),                       # was a NaN polynomial
+        (lambda: RationalTF((1.0,), (1.0, 1.0), dt=0.0), "dt must be"),
+        (lambda: diagnose(None), "Experiment"),
+        (lambda: simulate(None, reference=[0.1], duration_s=0.1), "Design"),     # was AttributeError
+        (lambda: simulate(Design.nominal("soft"), reference=[0.1], duration_s=0.1, rate_hz=1e-300), "rate_hz"),
+        (lambda: simulate(Design.nominal("soft"), reference=[0.1], duration_s=1e7), "samples"),
+        (lambda: force_loop(None), "true_design"),                              # was AttributeError
+        (lambda: force_loop(Design.nominal("soft"), ""), "Compensator"),        # was AttributeError
+        (lambda: fit_friction(t, x, x, "sfm", settings=""), "settings"),        # was AttributeError
+        (lambda: fit_friction(t, x, x, "sfm", scales=""), "scales"),
+        (lambda: fit_friction(t, x, x, "sfm", encoder_step=math.nan), "encoder_step"),   # was a NaN result
+        (lambda: tune_q(executor=""), "executor"),                               # was AttributeError
+        (lambda: tune_q(band_hz=""), "band"),                                    # was IndexError
+        (lambda: tune_q(sigma=1e300), "sigma"),                                  # was a division by zero
+        (lambda: tune_q(delay_samples=math.inf), "delay_samples"),              # was OverflowError
+    ]
+
+
+@pytest.mark.parametrize("index", range(16))
+def test_fuzz_findings_in_the_api_are_parameter_errors(index):
+    from forecast_design.errors import ParameterError
+
+    assert len(_api_cases()) == 16
+    call, words = _api_cases()[index]
+    with time_bound(20.0), pytest.raises(ParameterError, match=re.escape(words)) as info:
+        call()
+    assert "\n" not in str(info.value)
+
+
+def test_diagnose_with_options_of_the_wrong_type_is_a_parameter_error(tmp_path):
+    from forecast_design import diagnose, load_experiment
+    from forecast_design.errors import ParameterError
+
+    with pytest.raises(ParameterError, match="GapOptions"):
+        diagnose(load_experiment(write_experiment(tmp_path)), options="")   # was AttributeError
+
+
+# --- warnings and solver output: one line each on success, nothing but the error on failure -------------------------
+
+
+def test_python_warnings_are_one_line_on_success_and_absent_on_error(monkeypatch, capsys):
+    import warnings
+
+    import forecast_design.cli as cli_module
+    from forecast_design.errors import ParameterError
+
+    def noisy(fail):
+        def handler(args):
+            warnings.warn("first line\nsecond line", UserWarning)
+            np.float32(1e300)   # numpy's overflow RuntimeWarning
+            if fail:
+                raise ParameterError("--thing is wrong", name="thing")
+            return 0
+        return handler
+
+    help_text, configure, _ = cli_module._COMMANDS["tf"]
+    monkeypatch.setitem(cli_module._COMMANDS, "tf", (help_text, configure, noisy(False)))
+    code, _, err = cli(["tf"], capsys)
+    assert code == 0 and err.splitlines() == ["forecast-design: warning: UserWarning: first line",
+                                              "forecast-design: warning: RuntimeWarning: overflow encountered in cast"]
+    monkeypatch.setitem(cli_module._COMMANDS, "tf", (help_text, configure, noisy(True)))
+    code, _, err = cli(["tf"], capsys)
+    assert_one_line_error(code, err, "--thing is wrong")
+
+
+def test_tune_q_prints_nothing_on_stderr_on_success_and_one_line_on_failure(capfd):
+    """At the file-descriptor level (casadi and ipopt write from C++, below Python's sys.stderr)."""
+    from forecast_design.cli import main
+
+    # an interior optimum (not on the band's ends), so ipopt runs and no at-bound warning is due
+    code = main(["tune-q", "--observer", "ea-fob", "--envs", "soft,stiff", "--uncertainty", "0.3"])
+    out, err = capfd.readouterr()
+    assert code == 0 and err == "", err
+    assert "w_q = 14.14 Hz" in out and "Ipopt" not in out and "EXIT" not in out   # ipopt's banner and summary
+    code = main(["tune-q", "--observer", "ea-fob", "--envs", "soft", "--band", "1e-300", "1e-299"])
+    _, err = capfd.readouterr()
+    assert_one_line_error(code, err, "w_q_hz")
+
+
+def test_every_ipopt_solver_starts_from_the_quiet_options():
+    import pathlib
+
+    from forecast_design.friction.nonlinear import IPOPT_OPTIONS
+
+    assert IPOPT_OPTIONS == {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes"}
+    package = pathlib.Path(forecast_design.__file__).parent
+    for path in package.rglob("*.py"):
+        text = path.read_text()
+        for match in re.finditer(r"nlpsol\([^)]*\)", text):
+            assert "IPOPT_OPTIONS" in text, f"{path.name}: {match.group(0)} without the quiet options"

@@ -68,6 +68,19 @@ def test_open_loop_batch_and_thread_count_do_not_change_results():
     assert not np.array_equal(one.true[0], one.true[2])
 
 
+
+def test_batches_from_two_threads_at_once_equal_the_main_thread_batch():
+    # worker threads (e.g. a Dask worker's) run their batches without numba's pool, which two
+    # threads must not enter at once; the results are the main thread's
+    from concurrent.futures import ThreadPoolExecutor
+
+    runs = _runs()[:3]
+    main = simulate_batch(runs, duration_s=0.1, reference=REF)
+    with ThreadPoolExecutor(2) as pool:
+        got = list(pool.map(lambda k: simulate_batch(runs, duration_s=0.1, reference=REF), range(4)))
+    for b in got:
+        assert np.array_equal(b.measured, main.measured) and np.array_equal(b.true, main.true)
+
 def _variability_doc() -> dict:
     return {"format": "forecast-scenario/1", "sampling": {"rate_hz": 2000.0},
            "testbed": Design.nominal().testbed.to_mapping(), "environment": environment_preset("exp-soft").to_mapping(),

@@ -1,9 +1,10 @@
 """Run a benchmark: every cell on the virtual testbed through the executor, results cached by their inputs.
 
 A cell (one controller, compensator, environment and reference) is one coarse task:
-its ``repetitions`` runs plus the frictionless expected response, simulated where the
-executor puts it (:func:`run_cell`, deterministic by seed: repetition ``i`` starts from
-the ``i``-th initial angle of :class:`~forecast_design.simulation.scenario.Variability`
+its ``repetitions`` runs (one :func:`~forecast_design.simulation.batch.simulate_batch` call)
+plus the frictionless expected response, simulated where the executor puts it
+(:func:`run_cell`, deterministic by seed: repetition ``i`` starts from the
+``i``-th initial angle of :class:`~forecast_design.simulation.scenario.Variability`
 and draws process noise with seed ``seed + 1 + i``, the same in every cell, so cells
 differ only by what is benchmarked). Finished cells are stored as
 ``OUT/cells/<key>.json`` (metrics) and ``<key>.npz`` (traces); the key hashes every input
@@ -15,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import multiprocessing
 import os
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -26,6 +28,7 @@ from ..executor import Executor, LocalExecutor
 from ..params import Compensator, Design
 from ..reproduce import identify_extended_sfm
 from ..simulation import Chirp, simulate
+from ..simulation.batch import BatchRun, simulate_batch
 from ..simulation.scenario import Variability
 from .metrics import METRICS, disk_margin_of, pairwise_xcorr, repeatability_per_run, step_metrics, \
     tracking_bandwidth_hz
@@ -146,10 +149,15 @@ def run_cell(task: tuple) -> CellResult:
     expected = simulate(dataclasses.replace(design, compensator=Compensator(kind="none")), **common,
                         include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None,
                         description="benchmark: frictionless expected response")
-    runs = [simulate(design, **common, effects=var.effects_of(spec.effects, i), initial_angle=float(a),
-                     seed=spec.seed + 1 + i, sfm_params=sfm_params if cell.compensator.kind == "sfm" else None,
-                     sfm_deadband=spec.sfm_deadband if cell.compensator.kind == "sfm" else 0.0)
-            for i, a in enumerate(angles)]
+    sfm = cell.compensator.kind == "sfm"
+    # the repetitions as one batch (each run bit-equal to `simulate` with the same arguments); in a
+    # worker process the executor's processes already fill the cores, so the batch takes one thread
+    batch = simulate_batch([BatchRun(design=design, effects=var.effects_of(spec.effects, i), seed=spec.seed + 1 + i,
+                                     initial_angle=float(a)) for i, a in enumerate(angles)],
+                           duration_s=cell.duration_s, reference=cell.reference, rate_hz=spec.rate_hz,
+                           threads=1 if multiprocessing.parent_process() is not None else None,
+                           sfm_params=sfm_params if sfm else None, sfm_deadband=spec.sfm_deadband if sfm else 0.0)
+    runs = list(batch.results())
     tau = np.array([r.tau_s for r in runs])
     t = runs[0].t
     per_run_rep = repeatability_per_run(tau)

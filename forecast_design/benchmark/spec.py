@@ -21,6 +21,7 @@ from typing import Any, Sequence
 
 from ..effects import effects_to_mappings
 from ..errors import ParameterError
+from ..plausibility import check_limit
 from ..params import COMPENSATOR_KINDS, Compensator, Environment, PDController
 from ..reproduce import TABLE3_TRUTH
 from ..simulation.references import Chirp, Step
@@ -236,6 +237,9 @@ class BenchmarkSpec:
             dup = sorted({n for n in names if names.count(n) > 1})
             raise ParameterError(f"environment names must be unique, repeated: {', '.join(dup)}",
                                  name="environments", value=dup)
+        n_cells = len(self.controllers) * len(self.compensators) * len(self.environments) * len(self.references)
+        check_limit(f"benchmark runs ({n_cells} cells x {self.repetitions} repetitions)", "runs",
+                    n_cells * self.repetitions)
 
     def cells(self) -> list[Cell]:
         """Every (controller, compensator, environment, reference), in that nesting order."""

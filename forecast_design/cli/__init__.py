@@ -437,7 +437,7 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
     if (args.log is None) == (args.csv is None):
         raise ParameterError("give exactly one of LOG.toml or --csv FILE", name="log")
-    log = _load_log(args.csv or args.log, args)
+    log = _load_log(args.csv if args.csv is not None else args.log, args)
     validation = _load_log(args.validate, args) if args.validate else None
     fit = identify(log, args.model, harmonics=args.harmonics, offset=args.offset,
                    estimate_inertia=args.estimate_inertia, holdout=args.holdout, validation_log=validation,

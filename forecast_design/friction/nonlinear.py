@@ -66,7 +66,10 @@ from .terms import FrictionModel, LuGre, Stribeck
 
 __all__ = ["NonlinearResult", "fit_nonlinear", "IPOPT_OPTIONS"]
 
-#: Quiet ipopt (the project's convention; kept for callers, the friction fits no longer use ipopt).
+#: Quiet ipopt (the friction fits themselves no longer use ipopt; the Q tuner's NLP does).
+#: casadi/ipopt options that keep the solver silent (no iteration log, no timing table, no banner):
+#: every ``nlpsol(..., "ipopt", ...)`` of the package starts from these, so a successful command
+#: prints nothing of the solver's on stderr/stdout (``tests/test_reliability_fuzz.py``).
 IPOPT_OPTIONS = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes"}
 _KNOWN_OPTIONS = ("max_iter", "sigma0_init")
 #: Iterations of the Stribeck start of a LuGre fit (not the user's limit).

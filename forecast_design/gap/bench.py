@@ -58,8 +58,8 @@ from ..executor import available_workers, make_executor
 from ..params import Design, PDController, environment_preset
 from ..plausibility import check_limit
 
-__all__ = ["BenchCase", "BenchResult", "benchmark", "draw_case", "run_case", "make_log", "identifiability",
-           "BENCH_WORDS", "PAIRS", "MAX_ATTEMPTS", "available_workers"]
+__all__ = ["BenchCase", "BenchResult", "benchmark", "draw_case", "run_case", "make_log", "make_logs", "simulate_cases",
+           "identifiability", "BENCH_WORDS", "PAIRS", "MAX_ATTEMPTS", "available_workers"]
 
 #: Effect words of the benchmark: every vocabulary word, ``none`` included.
 BENCH_WORDS: tuple[Effect, ...] = tuple(Effect)
@@ -446,19 +446,50 @@ def simulate_case(spec: CaseSpec):
     """
     from ..simulation import simulate
 
-    rng = np.random.default_rng(spec.seed)
-    ref, closed = _reference(spec, rng)
-    true_design = Design.nominal(spec.environment, controller=PDController() if closed else None)
+    ref, closed, true_design = _setup(spec)
     result = simulate(true_design, reference=ref, duration_s=spec.duration_s, effects=spec.effects,
                       seed=spec.seed, closed_loop=closed, initial_angle=spec.initial_angle)
-    tb = true_design.testbed
+    return _recorded(spec, result), result
+
+
+def _setup(spec: CaseSpec):
+    """The case's reference, loop (closed or open) and true design."""
+    ref, closed = _reference(spec, np.random.default_rng(spec.seed))
+    return ref, closed, Design.nominal(spec.environment, controller=PDController() if closed else None)
+
+
+def simulate_cases(specs: Sequence[CaseSpec]) -> list:
+    """:func:`simulate_case` of many cases through :func:`~forecast_design.simulation.batch.simulate_batch`.
+
+    One batch per loop type and duration; each result equals :func:`simulate_case`'s bit for bit
+    (the batch's runs equal ``simulate``'s). Returns ``[(Experiment, SimulationResult), ...]`` in order.
+    """
+    from ..simulation.batch import BatchRun, simulate_batch
+
+    groups: dict[tuple, list] = {}
+    for i, spec in enumerate(specs):
+        ref, closed, true_design = _setup(spec)
+        groups.setdefault((closed, spec.duration_s), []).append(
+            (i, BatchRun(design=true_design, effects=spec.effects, seed=spec.seed, initial_angle=spec.initial_angle,
+                         reference=ref)))
+    out: list = [None] * len(specs)
+    for (closed, duration_s), members in groups.items():
+        batch = simulate_batch([run for _, run in members], duration_s=duration_s, closed_loop=closed)
+        for k, (i, _) in enumerate(members):
+            result = batch.result(k)
+            out[i] = (_recorded(specs[i], result), result)
+    return out
+
+
+def _recorded(spec: CaseSpec, result: Any):
+    """The blind log of a simulated case: the experiment with the (slightly wrong) nominal model."""
+    tb = result.design.testbed
     e = spec.errors
     nominal_tb = dataclasses.replace(tb, J_m=tb.J_m * (1 + e[0]), d_m=tb.d_m * (1 + e[1]), k=tb.k * (1 + e[2]))
     exp = result.to_experiment()
     # the log's TOML holds the (slightly wrong) nominal model; tau_s is what the logger derives from it
     nominal = dataclasses.replace(exp.design, testbed=nominal_tb)
-    exp = dataclasses.replace(exp, design=nominal).replace_signals(tau_s=None)
-    return exp, result
+    return dataclasses.replace(exp, design=nominal).replace_signals(tau_s=None)
 
 
 def identifiability(spec: CaseSpec, result: Any) -> str | None:
@@ -524,19 +555,38 @@ def make_log(word: Effect | Sequence[Effect], index: int, seed: int, *, duration
     ParameterError
         If no identifiable scenario is found in ``MAX_ATTEMPTS`` draws.
     """
-    last = ""
-    for attempt in range(MAX_ATTEMPTS):
-        spec = draw_case(word, index, seed, duration_s=duration_s, attempt=attempt, suite=suite)
-        exp, result = simulate_case(spec)
-        if suite == "hard":
-            return spec, exp, result
-        why = identifiability(spec, result)
-        if why is None:
-            return spec, exp, result
-        last = why
-    raise ParameterError(f"no identifiable scenario for {word} #{index} in {MAX_ATTEMPTS} draws (last: {last})",
-                         name="word", value=word)
+    return make_logs([(word, index, seed, duration_s, suite)])[0]
 
+
+def make_logs(requests: Sequence[tuple]) -> list:
+    """:func:`make_log` of many cases, each redraw round one batch of simulations (:func:`simulate_cases`).
+
+    ``requests``: ``(word, index, seed, duration_s, suite)`` per case. Returns ``(CaseSpec,
+    Experiment, SimulationResult)`` per request, equal to :func:`make_log`'s; raises as it does for
+    the first request without an identifiable scenario.
+    """
+    done: list = [None] * len(requests)
+    last = [""] * len(requests)
+    pending = list(range(len(requests)))
+    for attempt in range(MAX_ATTEMPTS):
+        if not pending:
+            break
+        specs = [draw_case(requests[i][0], requests[i][1], requests[i][2], duration_s=requests[i][3],
+                           attempt=attempt, suite=requests[i][4]) for i in pending]
+        still = []
+        for i, spec, (exp, result) in zip(pending, specs, simulate_cases(specs)):
+            why = None if spec.suite == "hard" else identifiability(spec, result)
+            if why is None:
+                done[i] = (spec, exp, result)
+            else:
+                last[i] = why
+                still.append(i)
+        pending = still
+    if pending:
+        word, index = requests[pending[0]][0], requests[pending[0]][1]
+        raise ParameterError(f"no identifiable scenario for {word} #{index} in {MAX_ATTEMPTS} draws "
+                             f"(last: {last[pending[0]]})", name="word", value=word)
+    return done
 
 def _independent_case(job: tuple) -> BenchCase:
     """One log of the independent generator (:mod:`forecast_design.independent`), diagnosed blind.
@@ -596,12 +646,23 @@ def run_case(job: tuple) -> BenchCase:
     BenchCase
         Truth, verdict and scores.
     """
-    from .diagnose import diagnose
-
     words, index, seed, duration_s, suite, generator, _ = job
     if generator == "independent":
         return _independent_case(job)
     spec, exp, _ = make_log(words, index, seed, duration_s=duration_s, suite=suite)
+    return _diagnosed(spec, exp, suite)
+
+
+def _run_logged(task: tuple) -> BenchCase:
+    """A job whose testbed log the benchmark simulated already (``(job, spec, result)``), or any job (spec None)."""
+    job, spec, result = task
+    return run_case(job) if spec is None else _diagnosed(spec, _recorded(spec, result), job[4])
+
+
+def _diagnosed(spec: CaseSpec, exp: Any, suite: str) -> BenchCase:
+    """Diagnose a testbed case's blind log and score it."""
+    from .diagnose import diagnose
+
     t0 = time.perf_counter()
     diag = diagnose(exp)
     seconds = time.perf_counter() - t0
@@ -671,6 +732,13 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
     if generator == "testbed" and magnitude_scale != 1.0:
         raise ParameterError("magnitude_scale applies to the independent generator only", name="magnitude_scale",
                              value=magnitude_scale)
+    if not (isinstance(duration_s, (int, float)) and math.isfinite(duration_s) and duration_s > 0):
+        raise ParameterError(f"duration_s must be > 0 [s], got {duration_s!r}", name="duration_s", value=duration_s)
+    words = tuple(words)
+    n_logs = per_effect * len(words) + hard * len(HARD) + pairs * len(PAIRS)
+    if n_logs:   # counted before the job list is built: a huge count is an error, not an exhausted memory
+        check_limit(f"bench-gap logs (per_effect x {len(words)} + hard x {len(HARD)} + pairs x {len(PAIRS)} = "
+                    f"{n_logs})", "runs", n_logs)
     g = (generator, float(magnitude_scale))
     jobs = [((Effect(w),), i, seed, duration_s, "main", *g) for w in words for i in range(per_effect)]
     jobs += [((h[0],), i, seed, duration_s, "hard", "testbed", 1.0) for h in HARD for i in range(hard)]
@@ -679,9 +747,26 @@ def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *,
         raise ParameterError("the benchmark has no logs: per_effect, hard and pairs are all 0", name="per_effect",
                              value=per_effect)
     t0 = time.perf_counter()
+    cases: list = []
     with make_executor(scheduler, workers) as executor:
         n_workers = executor.workers
-        cases = executor.map(run_case, jobs, progress=progress if callable(progress) else None)
+        # the testbed logs of a chunk are simulated here as batches (simulate_batch, both cores), then the
+        # chunk's diagnoses run on the executor; the independent generator's logs stay with their jobs.
+        # Chunks of equal size bound the memory (~3 MB per 10 s log); the diagnosis is imported here
+        # first, so local worker processes forked for each chunk start with it loaded.
+        from . import diagnose as _loaded  # noqa: F401
+
+        chunks = -(-len(jobs) // max(32, 16 * n_workers))
+        step = -(-len(jobs) // chunks)
+        for start in range(0, len(jobs), step):
+            chunk = jobs[start:start + step]
+            mine = [k for k, j in enumerate(chunk) if j[5] == "testbed"]
+            logs = dict(zip(mine, make_logs([chunk[k][:5] for k in mine])))
+            # (spec, simulation) travel to the workers, which record the blind log from them
+            tasks = [(j, logs[k][0], logs[k][2]) if k in logs else (j, None, None) for k, j in enumerate(chunk)]
+            del logs
+            report = None if not callable(progress) else (lambda d, n, s=start: progress(s + d, len(jobs)))
+            cases += executor.map(_run_logged, tasks, progress=report)
     return BenchResult(cases=tuple(cases), per_effect=per_effect, seed=seed,
                        elapsed_s=time.perf_counter() - t0, workers=n_workers, generator=generator,
                        magnitude_scale=float(magnitude_scale))

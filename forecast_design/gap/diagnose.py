@@ -308,6 +308,8 @@ def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks:
         n_units = int(units.max()) + 1 if np.any(use) else 0
         a = np.bincount(units[use], weights=reference.residual[use] ** 2, minlength=n_units)
         b = np.bincount(units[use], weights=candidate.residual[use] ** 2, minlength=n_units)
+    if a.size == 0:   # no held-out unit (a log too short or too still to test on): no evidence of improvement
+        return 1.0
     # A unit explained to (numerically) zero, e.g. a stuck motor under a static-friction
     # model, would give an infinite log ratio whose spread hides a consistent improvement:
     # squared errors below 1e-6 of the reference's mean unit are treated as equal.

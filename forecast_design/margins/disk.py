@@ -147,7 +147,14 @@ def check_skew(sigma: float) -> float:
     if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not math.isfinite(sigma):
         raise ParameterError(f"disk margin skew sigma must be a finite number, got {sigma!r}",
                              name="sigma", value=sigma)
+    if abs(sigma) > SKEW_LIMIT:   # beyond it the disk's gain bounds over/underflow (1e300 divides by zero)
+        raise ParameterError(f"disk margin skew sigma must lie in [-{SKEW_LIMIT:g}, {SKEW_LIMIT:g}], got {sigma!r}",
+                             name="sigma", value=sigma)
     return float(sigma)
+
+
+#: Largest |sigma| accepted (sigma = +-1 already gives a disk touching 0 or infinity; 100 is far past any use).
+SKEW_LIMIT = 100.0
 
 
 def _gamma_bounds(alpha: float, sigma: float) -> tuple[float, float]:

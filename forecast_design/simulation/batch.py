@@ -23,6 +23,7 @@ level and Stribeck velocity, with drifting viscous friction) as one batch.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from typing import Any, Iterator, Sequence
 
@@ -137,27 +138,44 @@ def _pad(arrays: Sequence[np.ndarray], axis: int) -> tuple[np.ndarray, np.ndarra
     return out, sizes
 
 
+@njit
+def _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
+               PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH):
+    """Run ``i`` of the batch: ``run._loop`` on row ``i`` of every input (private copies, see the module notes)."""
+    p = P[i].copy()
+    harm = HARM[i, :, :nh[i]].copy()
+    pd = PD[i, :npd[i]].copy()
+    vel = VEL[i, :nvel[i]].copy()
+    gm = GM[i, :ngm[i]].copy()
+    gs = GS[i, :ngs[i]].copy()
+    gt = GT[i, :ngt[i]].copy()
+    sfm_harm = SFMH[i, :, :nsh[i]].copy()
+    meas = np.empty((n, MEAS.shape[2]))
+    truth = np.empty((n, TRUTH.shape[2]))
+    _loop(n, nsub, dsub[i], p, harm, np.zeros(5), closed, REF[i].copy(), OL[i].copy(), torque_limit, enc_step,
+          NOISE[i].copy(), KNOM[i], pd, np.zeros((pd.shape[0], 2)), COMP[i], SFMC[i].copy(), sfm_harm,
+          vel, np.zeros((vel.shape[0], 2)), gm, np.zeros((gm.shape[0], 2)), gs, np.zeros((gs.shape[0], 2)),
+          gt, np.zeros((gt.shape[0], 2)), meas, truth, np.zeros(HL[i]))
+    MEAS[i] = meas
+    TRUTH[i] = truth
+
+
 @njit(parallel=True)
 def _batch_loop(n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
                 PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH):
-    """Run ``i`` of the batch is ``run._loop`` on row ``i`` of every input (private copies per thread)."""
+    """The runs on numba's thread pool, one run per thread (:func:`_batch_run`)."""
     for i in prange(P.shape[0]):
-        p = P[i].copy()
-        harm = HARM[i, :, :nh[i]].copy()
-        pd = PD[i, :npd[i]].copy()
-        vel = VEL[i, :nvel[i]].copy()
-        gm = GM[i, :ngm[i]].copy()
-        gs = GS[i, :ngs[i]].copy()
-        gt = GT[i, :ngt[i]].copy()
-        sfm_harm = SFMH[i, :, :nsh[i]].copy()
-        meas = np.empty((n, MEAS.shape[2]))
-        truth = np.empty((n, TRUTH.shape[2]))
-        _loop(n, nsub, dsub[i], p, harm, np.zeros(5), closed, REF[i].copy(), OL[i].copy(), torque_limit, enc_step,
-              NOISE[i].copy(), KNOM[i], pd, np.zeros((pd.shape[0], 2)), COMP[i], SFMC[i].copy(), sfm_harm,
-              vel, np.zeros((vel.shape[0], 2)), gm, np.zeros((gm.shape[0], 2)), gs, np.zeros((gs.shape[0], 2)),
-              gt, np.zeros((gt.shape[0], 2)), meas, truth, np.zeros(HL[i]))
-        MEAS[i] = meas
-        TRUTH[i] = truth
+        _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
+                   PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH)
+
+
+@njit
+def _batch_serial(n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
+                  PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH):
+    """The runs one after the other in the calling thread, without numba's thread pool (``threads=1``)."""
+    for i in range(P.shape[0]):
+        _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
+                   PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH)
 
 
 def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: Any = None, rate_hz: float = 2000.0,
@@ -181,7 +199,10 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
     closed_loop : bool
         Force control (True) or open-loop torque (False).
     threads : int, optional
-        Threads of numba's pool for this call (default: numba's, i.e. every core).
+        Threads of numba's pool for this call (default: numba's, i.e. every core). ``1`` runs
+        the batch in the calling thread without the pool (e.g. in worker processes that already
+        fill the cores); so does a call from any thread but the main one, since numba's fallback
+        pool (workqueue) must not be entered by two threads at once. The results do not depend on it.
     **options
         The other options of :func:`~.run.simulate`, shared by every run:
         ``derivative_cutoff_hz``, ``velocity_cutoff_hz``, ``sfm_deadband``, ``torque_limit``,
@@ -239,24 +260,30 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
     comp = np.array([p.comp_code for p in prepared], dtype=np.int64)
     meas = np.empty((len(runs), n, len(_MEAS)))
     truth = np.empty((len(runs), n, len(_TRUTH)))
-    _check_kernel_cache(_batch_loop)
-    previous = None
+    args = (n, int(substeps), dsub, P, HARM, nh, bool(closed_loop), np.stack(arr("ref")), np.stack(arr("ol")),
+            first.torque_limit, first.enc_step, np.stack(arr("noise")), knom, PD, npd, comp,
+            np.stack(arr("sfm_coef")), SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, hl, meas, truth)
+    for kernel in (_batch_run, _batch_serial, _batch_loop):
+        _check_kernel_cache(kernel)
     if threads is not None:
         import numba
 
         if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
             raise ParameterError(f"threads must be an integer in 1..{numba.config.NUMBA_NUM_THREADS}, got {threads!r}",
                                  name="threads", value=threads)
+    if threads == 1 or len(runs) == 1 or threading.current_thread() is not threading.main_thread():
+        # numba's fallback thread pool (workqueue) must not be entered by two threads at once
+        _batch_serial(*args)
+    elif threads is None:
+        _batch_loop(*args)
+    else:
+        import numba
+
         previous = numba.get_num_threads()
         numba.set_num_threads(threads)
-    try:
-        _batch_loop(n, int(substeps), dsub, P, HARM, nh, bool(closed_loop), np.stack(arr("ref")), np.stack(arr("ol")),
-                    first.torque_limit, first.enc_step, np.stack(arr("noise")), knom, PD, npd, comp,
-                    np.stack(arr("sfm_coef")), SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, hl, meas, truth)
-    finally:
-        if previous is not None:
-            import numba
-
+        try:
+            _batch_loop(*args)
+        finally:
             numba.set_num_threads(previous)
     t = np.arange(n) / float(rate_hz)
     t.flags.writeable = False

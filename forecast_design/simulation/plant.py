@@ -72,9 +72,12 @@ from ..discrete import HAVE_NUMBA, njit
 from ..friction.laws import stribeck_level
 from ..params import Design, Environment
 
-# numba IR-level inlining of the per-substep helpers: measured ~2x faster loops.
-_INLINE = {"_rhs": "always", "_bristle_rate": "always", "_angle_terms": "always", "rk4_substep": "always",
-           "advance_period": "always", "stribeck_level": "always"}
+# numba IR-level inlining of the per-substep helpers: measured ~2x faster loops. The helpers take
+# scalars and the parameter tuple of _unpack, never an array but the harmonic table (and that only
+# inside the branch for angle harmonics): numba reference-counts each array an inlined call binds,
+# atomically, and that cost 3x the arithmetic of a substep (issue 16).
+_INLINE = {"_rhs": "always", "_level": "always", "_angle_terms": "always", "_substep": "always",
+           "_unpack": "always", "advance_period": "always", "stribeck_level": "always"}
 
 def _njit(func):
     return njit(func, inline=_INLINE.get(func.__name__, "never"))
@@ -336,15 +339,28 @@ def stability_check(plant: PlantModel) -> dict[str, float]:
 
 
 @_njit
-def _angle_terms(x0, p, harm):
+def _unpack(p):
+    """The packed parameter vector as a tuple of scalars (indexed like ``p``: :data:`I_JM` ...).
+
+    The substep helpers take this tuple, not the array: numba reference-counts every array an
+    inlined helper receives (an atomic increment and decrement per call), which cost more than
+    the arithmetic of a substep; a tuple of floats is passed by value and costs nothing.
+    """
+    return (p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11], p[12], p[13], p[14],
+            p[15], p[16], p[17], p[18], p[19], p[20], p[21], p[22], p[23], p[24])
+
+
+@_njit
+def _angle_terms(x0, c, harm):
     """The angle harmonics at motor angle ``x0`` (absolute angle ``x0 + initial_angle``).
 
-    Returns ``(pos, cog, fsh, lvs)``: position-friction ripple, cogging torque, stiction level
-    F_s harmonics [N m] and ln v_s harmonics [-], each ``sum_i a_i sin(i th) + b_i cos(i th)``
-    (the harmonic table's rows, :data:`H_PA` ...). The one expansion the plant's right-hand
-    side and the bristle rate share; sin/cos of i th by the angle-addition recurrence.
+    ``c``: the parameters as :func:`_unpack` gives them. Returns ``(pos, cog, fsh, lvs)``:
+    position-friction ripple, cogging torque, stiction level F_s harmonics [N m] and ln v_s
+    harmonics [-], each ``sum_i a_i sin(i th) + b_i cos(i th)`` (the harmonic table's rows,
+    :data:`H_PA` ...). The one expansion the plant's right-hand side and the bristle rate share;
+    sin/cos of i th by the angle-addition recurrence.
     """
-    th = x0 + p[I_ANG0]
+    th = x0 + c[I_ANG0]
     s1 = math.sin(th)
     c1 = math.cos(th)
     si = s1
@@ -363,99 +379,147 @@ def _angle_terms(x0, p, harm):
 
 
 @_njit
-def _rhs(x0, x1, x2, x3, x4, tau, p, harm, qs):
-    """Derivatives and (tau_frc, tau_s) at one state; ``qs``: quasi-steady bristle."""
+def _level(x1, c, fsh, lvs):
+    """The LuGre bristle's Stribeck level g(omega, theta) [N m] at speed ``x1``, with the angle's F_s and
+    ln v_s harmonics ``fsh``, ``lvs`` (:func:`_angle_terms`); 1 without LuGre."""
+    g = 1.0
+    if c[I_LUGRE] > 0.0:
+        fs = c[I_FS]
+        if c[I_HARM] > 0.0:
+            fs += fsh
+        vs = c[I_VS] if lvs == 0.0 else c[I_VS] * math.exp(lvs)
+        g = _stribeck_level(x1, fs, c[I_FC], vs)
+    return g
+
+
+@_njit
+def _rhs(x0, x1, x2, x3, x4, tau, c, pos, cog, g, qs):
+    """Derivatives and (tau_frc, tau_s) at one state.
+
+    ``c`` from :func:`_unpack`; ``pos, cog`` at this state from :func:`_angle_terms` and ``g`` from :func:`_level`;
+    ``qs``: quasi-steady bristle.
+    """
     # spring with optional backlash dead band
     delta = x0 - x2
-    bl = p[I_BL]
+    bl = c[I_BL]
     if bl > 0.0:
-        delta = delta - p[I_BLC]
+        delta = delta - c[I_BLC]
         if delta > bl:
             delta = delta - bl
         elif delta < -bl:
             delta = delta + bl
         else:
             delta = 0.0
-    tau_s = p[I_K] * delta
+    tau_s = c[I_K] * delta
     w = x1
-    frc = p[I_DM] * w
-    if p[I_CFC] > 0.0:
-        r = w / p[I_CVR]
-        frc += p[I_CFC] * (1.0 if r > 1.0 else (-1.0 if r < -1.0 else r))
-    fs = p[I_FS]
-    vs = p[I_VS]
-    if p[I_HARM] > 0.0:
-        pos, cog, fsh, lvs = _angle_terms(x0, p, harm)
+    frc = c[I_DM] * w
+    if c[I_CFC] > 0.0:
+        r = w / c[I_CVR]
+        frc += c[I_CFC] * (1.0 if r > 1.0 else (-1.0 if r < -1.0 else r))
+    if c[I_HARM] > 0.0:
         frc += cog
-        fs += fsh
-        if lvs != 0.0:
-            vs = vs * math.exp(lvs)
-        if p[I_PFC] > 0.0:
-            r = w / p[I_PVR]
-            frc += (1.0 if r > 1.0 else (-1.0 if r < -1.0 else r)) * (p[I_PFC] + pos)
+        if c[I_PFC] > 0.0:
+            r = w / c[I_PVR]
+            frc += (1.0 if r > 1.0 else (-1.0 if r < -1.0 else r)) * (c[I_PFC] + pos)
     dz = 0.0
-    if p[I_LUGRE] > 0.0:
-        g = _stribeck_level(w, fs, p[I_FC], vs)
-        s0 = p[I_S0]
+    if c[I_LUGRE] > 0.0:
+        s0 = c[I_S0]
         if qs:
-            frc += (g if w > 0.0 else (-g if w < 0.0 else 0.0)) + p[I_S2] * w
+            frc += (g if w > 0.0 else (-g if w < 0.0 else 0.0)) + c[I_S2] * w
         else:
             dz = w - s0 * abs(w) * x4 / g
-            frc += s0 * x4 + p[I_S1] * dz + p[I_S2] * w
-    if p[I_MODE] == MODE_LOCKED:
+            frc += s0 * x4 + c[I_S1] * dz + c[I_S2] * w
+    if c[I_MODE] == MODE_LOCKED:
         dq = 0.0
         dv = 0.0
-    elif p[I_MODE] == MODE_INERTIAL:
+    elif c[I_MODE] == MODE_INERTIAL:
         dq = x3
-        dv = (tau_s - p[I_D] * x3 - p[I_KE] * x2) / p[I_J]
+        dv = (tau_s - c[I_D] * x3 - c[I_KE] * x2) / c[I_J]
     else:
-        dq = (tau_s - p[I_KE] * x2) / p[I_D]
+        dq = (tau_s - c[I_KE] * x2) / c[I_D]
         dv = 0.0
-    dw = (tau - tau_s - frc) / p[I_JM]
+    dw = (tau - tau_s - frc) / c[I_JM]
     return x1, dw, dq, dv, dz, frc, tau_s
 
 
 @_njit
 def _bristle_rate(x0, x1, p, harm):
-    """sigma0 |omega| / g(omega, theta): the sliding bristle's relaxation rate [1/s]."""
-    fs = p[I_FS]
+    """sigma0 |omega| / g(omega, theta): the sliding bristle's relaxation rate [1/s], and g [N m]."""
+    c = _unpack(p)
+    fsh = 0.0
     lvs = 0.0
-    if p[I_HARM] > 0.0:
-        pos, cog, fsh, lvs = _angle_terms(x0, p, harm)
-        fs += fsh
-    vs = p[I_VS] if lvs == 0.0 else p[I_VS] * math.exp(lvs)
-    g = _stribeck_level(x1, fs, p[I_FC], vs)
-    return p[I_S0] * abs(x1) / g, g
+    if c[I_HARM] > 0.0:
+        pos, cog, fsh, lvs = _angle_terms(x0, c, harm)
+    g = _level(x1, c, fsh, lvs)
+    return c[I_S0] * abs(x1) / g, g
+
+
+@_njit
+def _substep(x0, x1, x2, x3, x4, tau, c, harm):
+    """One RK4 step of length ``c[I_H]`` from the state ``x0..x4``; ``c`` from :func:`_unpack`.
+
+    Returns the new state and ``(tau_frc, tau_s)`` at the start state. The start state's angle
+    terms and Stribeck level serve both the quasi-steady switch and the first stage; the harmonic
+    table is read only when the plant has angle harmonics.
+    """
+    h = c[I_H]
+    harmonic = c[I_HARM] > 0.0
+    pos = 0.0
+    cog = 0.0
+    fsh = 0.0
+    lvs = 0.0
+    if harmonic:
+        pos, cog, fsh, lvs = _angle_terms(x0, c, harm)
+    g = _level(x1, c, fsh, lvs)
+    qs = False
+    if c[I_LUGRE] > 0.0:
+        qs = c[I_S0] * abs(x1) / g * h > c[I_QS]
+    a0, a1, a2, a3, a4, f0, ts0 = _rhs(x0, x1, x2, x3, x4, tau, c, pos, cog, g, qs)
+    hh = 0.5 * h
+    y0 = x0 + hh * a0
+    y1 = x1 + hh * a1
+    if harmonic:
+        pos, cog, fsh, lvs = _angle_terms(y0, c, harm)
+    g = _level(y1, c, fsh, lvs)
+    b0, b1, b2, b3, b4, f, ts = _rhs(y0, y1, x2 + hh * a2, x3 + hh * a3, x4 + hh * a4, tau, c, pos, cog, g, qs)
+    y0 = x0 + hh * b0
+    y1 = x1 + hh * b1
+    if harmonic:
+        pos, cog, fsh, lvs = _angle_terms(y0, c, harm)
+    g = _level(y1, c, fsh, lvs)
+    c0, c1, c2, c3, c4, f, ts = _rhs(y0, y1, x2 + hh * b2, x3 + hh * b3, x4 + hh * b4, tau, c, pos, cog, g, qs)
+    y0 = x0 + h * c0
+    y1 = x1 + h * c1
+    if harmonic:
+        pos, cog, fsh, lvs = _angle_terms(y0, c, harm)
+    g = _level(y1, c, fsh, lvs)
+    d0, d1, d2, d3, d4, f, ts = _rhs(y0, y1, x2 + h * c2, x3 + h * c3, x4 + h * c4, tau, c, pos, cog, g, qs)
+    h6 = h / 6.0
+    y0 = x0 + h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
+    y1 = x1 + h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
+    y2 = x2 + h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
+    y3 = x3 + h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
+    y4 = x4 + h6 * (a4 + 2.0 * b4 + 2.0 * c4 + d4)
+    if qs:
+        # Slave z to its equilibrium at the new velocity (quasi-steady bristle).
+        if harmonic:
+            pos, cog, fsh, lvs = _angle_terms(y0, c, harm)
+        g = _level(y1, c, fsh, lvs)
+        y4 = (g if y1 > 0.0 else (-g if y1 < 0.0 else 0.0)) / c[I_S0]
+    return y0, y1, y2, y3, y4, f0, ts0
 
 
 @_njit
 def rk4_substep(x, tau, p, harm, out):
     """One RK4 step of length p[I_H] in place; out[0:2] = (tau_frc, tau_s) at the start state."""
-    h = p[I_H]
-    qs = False
-    if p[I_LUGRE] > 0.0:
-        rate, g = _bristle_rate(x[0], x[1], p, harm)
-        qs = rate * h > p[I_QS]
-    a0, a1, a2, a3, a4, f, ts = _rhs(x[0], x[1], x[2], x[3], x[4], tau, p, harm, qs)
+    y0, y1, y2, y3, y4, f, ts = _substep(x[0], x[1], x[2], x[3], x[4], tau, _unpack(p), harm)
+    x[0] = y0
+    x[1] = y1
+    x[2] = y2
+    x[3] = y3
+    x[4] = y4
     out[0] = f
     out[1] = ts
-    hh = 0.5 * h
-    b0, b1, b2, b3, b4, f, ts = _rhs(x[0] + hh * a0, x[1] + hh * a1, x[2] + hh * a2, x[3] + hh * a3,
-                                     x[4] + hh * a4, tau, p, harm, qs)
-    c0, c1, c2, c3, c4, f, ts = _rhs(x[0] + hh * b0, x[1] + hh * b1, x[2] + hh * b2, x[3] + hh * b3,
-                                     x[4] + hh * b4, tau, p, harm, qs)
-    d0, d1, d2, d3, d4, f, ts = _rhs(x[0] + h * c0, x[1] + h * c1, x[2] + h * c2, x[3] + h * c3,
-                                     x[4] + h * c4, tau, p, harm, qs)
-    h6 = h / 6.0
-    x[0] += h6 * (a0 + 2.0 * b0 + 2.0 * c0 + d0)
-    x[1] += h6 * (a1 + 2.0 * b1 + 2.0 * c1 + d1)
-    x[2] += h6 * (a2 + 2.0 * b2 + 2.0 * c2 + d2)
-    x[3] += h6 * (a3 + 2.0 * b3 + 2.0 * c3 + d3)
-    x[4] += h6 * (a4 + 2.0 * b4 + 2.0 * c4 + d4)
-    if qs:
-        # Slave z to its equilibrium at the new velocity (quasi-steady bristle).
-        rate, g = _bristle_rate(x[0], x[1], p, harm)
-        x[4] = (g if x[1] > 0.0 else (-g if x[1] < 0.0 else 0.0)) / p[I_S0]
 
 
 @_njit
@@ -463,7 +527,9 @@ def advance_period(x, k, nsub, dsub, hist, p, harm, noise_k, out, row):
     """One control period of the true plant: ``nsub`` RK4 substeps under the held, delayed command.
 
     The one place the plant is stepped: the simulator's closed-loop kernel, the open-loop
-    integrator and :class:`PlantStepper` (the board emulator's testbed) all call it.
+    integrator and :class:`PlantStepper` (the board emulator's testbed) all call it. The state
+    and parameters are read into scalars once per period (:func:`_unpack`) and the substeps run
+    on scalars (:func:`_substep`).
 
     Parameters
     ----------
@@ -482,24 +548,43 @@ def advance_period(x, k, nsub, dsub, hist, p, harm, noise_k, out, row):
     noise_k : float
         Process torque noise of this period [N m].
     out : ndarray, shape (2,)
-        Scratch for ``(tau_frc, tau_s)`` of a substep.
+        Set to ``(tau_frc, tau_s)`` at the start of the last substep.
     row : ndarray, shape (8,)
         Filled with the state at ``t_k``, ``tau_frc`` and ``tau_s`` of the first substep and
         the applied torque at ``t_k``.
     """
+    c = _unpack(p)
+    gain = c[I_GAIN]
     mask = hist.shape[0] - 1          # a power of two (history_length)
+    x0 = x[0]
+    x1 = x[1]
+    x2 = x[2]
+    x3 = x[3]
+    x4 = x[4]
+    f = 0.0
+    ts = 0.0
     for j in range(nsub):
         idx = k * nsub + j - dsub
         cmd = hist[(idx // nsub) & mask] if idx >= 0 else 0.0
-        tau = p[I_GAIN] * cmd + noise_k
+        tau = gain * cmd + noise_k
         if j == 0:
-            for m in range(5):
-                row[m] = x[m]
+            row[0] = x0
+            row[1] = x1
+            row[2] = x2
+            row[3] = x3
+            row[4] = x4
             row[7] = tau
-        rk4_substep(x, tau, p, harm, out)
+        x0, x1, x2, x3, x4, f, ts = _substep(x0, x1, x2, x3, x4, tau, c, harm)
         if j == 0:
-            row[5] = out[0]
-            row[6] = out[1]
+            row[5] = f
+            row[6] = ts
+    x[0] = x0
+    x[1] = x1
+    x[2] = x2
+    x[3] = x3
+    x[4] = x4
+    out[0] = f
+    out[1] = ts
 
 
 def history_length(nsub: int, dsub: int) -> int:

@@ -78,8 +78,10 @@ def _dq_casadi(ca, coeffs: np.ndarray, u):
 
 
 def _ipopt(ca, nlp, x0, lbx, ubx, lbg, ubg) -> tuple[np.ndarray, dict]:
-    opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes", "ipopt.max_iter": 300,
-            "ipopt.tol": 1e-10}
+    # the one quiet ipopt setting (print_level 0, no timing table, no banner); imported where casadi is
+    from ..friction.nonlinear import IPOPT_OPTIONS
+
+    opts = {**IPOPT_OPTIONS, "ipopt.max_iter": 300, "ipopt.tol": 1e-10}
     solver = ca.nlpsol("tune", "ipopt", nlp, opts)
     sol = solver(x0=x0, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
     stats = solver.stats()

@@ -42,7 +42,10 @@ class _Setting:
 
     def __post_init__(self) -> None:
         check_physical("tuning", "rate_hz", self.rate_hz)
-        check_limit("delay_samples", "delay_samples", self.delay_samples)
+        delay = self.delay_samples   # given as passed (an integral float is accepted, inf or 1.5 are not)
+        if isinstance(delay, float) and delay.is_integer():
+            delay = int(delay)
+        object.__setattr__(self, "delay_samples", check_limit("delay_samples", "delay_samples", delay))
 
     def grid(self) -> np.ndarray:
         """Constraint grid [rad/s]: 1e-2 ... 3e4, or up to just below Nyquist when sampled."""
@@ -257,7 +260,7 @@ def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("sof
     (float, str)
         The worst ratio [-] and the label of the plant attaining it.
     """
-    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
+    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), delay_samples)
     plants = _plants(compensator, envs, uncertainty, setting, seed, testbed=testbed)
     ratios, _, _ = _exact_ratios(plants, compensator, setting)
     i = int(np.argmin(ratios))

@@ -229,7 +229,7 @@ def cutoff_tradeoff(observer: str = "ea-fob", envs: Any = ("soft", "stiff"), *,
     cutoffs = np.geomspace(band_hz[0], band_hz[1], int(points))
     if chosen_hz is not None:
         cutoffs = np.unique(np.append(cutoffs, float(chosen_hz)))
-    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
+    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), delay_samples)
     base = Compensator(kind=observer, w_q_hz=float(cutoffs[0]), q_family=q_family, q_order=q_order,
                        q_damping=q_damping)
     plants = _plants(base, envs, uncertainty, setting, seed)

@@ -190,7 +190,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     if sampled and band_hz[1] >= rate_hz / 2.0:
         raise ParameterError(f"band upper end {band_hz[1]} Hz must be below Nyquist ({rate_hz / 2.0} Hz)",
                              name="band", value=band_hz)
-    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
+    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), delay_samples)
     base = Compensator(kind=observer, w_q_hz=band_hz[0], q_family=q_family, q_order=q_order)
     plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed, executor=executor)
     coeffs = _q_polynomial(base)
@@ -353,7 +353,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
     active frequencies of every plant (cutting planes as in :func:`tune_q`), over
     (zeta, t). Verified against a dense exact scan over zeta.
     """
-    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), int(delay_samples))
+    setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), delay_samples)
     base = Compensator(kind=observer, w_q_hz=w_q_hz, q_family="butterworth", q_order=2)
     plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed, executor=executor)
     w_q = 2 * math.pi * w_q_hz
