@@ -12,10 +12,6 @@ from .errors import (
     ParameterError,
     SolverError,
 )
-from .effects import Effect
-from .environments import EnvironmentSet, resolve_environments, resolve_testbed
-from .experiment import Experiment, Signals, experiment_from_arrays, load_experiment, save_experiment
-from .lti import RationalTF
 from .params import (
     COMPENSATOR_KINDS,
     ENVIRONMENT_PRESETS,
@@ -71,6 +67,16 @@ __all__ = [
 ]
 
 _LAZY = {
+    "Effect": "effects",
+    "EnvironmentSet": "environments",
+    "resolve_environments": "environments",
+    "resolve_testbed": "environments",
+    "Experiment": "experiment",
+    "Signals": "experiment",
+    "experiment_from_arrays": "experiment",
+    "load_experiment": "experiment",
+    "save_experiment": "experiment",
+    "RationalTF": "lti",
     "transfer_functions": "symbolic",
     "force_loop": "symbolic",
     "disk_margin": "margins",
@@ -87,7 +93,7 @@ _LAZY = {
 
 
 def __getattr__(name: str):
-    """Import the heavier capabilities on first use (PEP 562)."""
+    """Import the capabilities on first use (PEP 562): the command line's parser needs none of them."""
     if name in _LAZY:
         import importlib
 
