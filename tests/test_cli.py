@@ -330,3 +330,19 @@ def test_bench_gap_generator_options_reject_bad_values(capsys, argv, fragment):
     assert _exit_code(argv) == 2
     err = capsys.readouterr().err
     assert fragment in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_an_os_error_without_a_file_name_is_one_line_without_an_empty_name(monkeypatch, capsys):
+    import errno
+
+    from forecast_design import cli
+
+    def full_disk(args):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    parser._subparsers._group_actions[0].choices["tf"].set_defaults(handler=full_disk)  # noqa: SLF001
+    assert cli.main(["tf"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["forecast-design: error: No space left on device"]

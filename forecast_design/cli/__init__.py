@@ -115,7 +115,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         if args.debug:
             raise
-        print(f"forecast-design: error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"forecast-design: error: {where}{exc.strerror or exc}".splitlines()[0], file=sys.stderr)
         return 2
 
 
