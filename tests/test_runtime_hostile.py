@@ -371,3 +371,25 @@ def test_emulator_seed_must_be_non_negative():
 
     with pytest.raises(ParameterError, match="seed"):
         parse_fault(["seed:-1"])
+
+
+def test_a_failing_tcdrain_is_a_link_error_not_a_termios_traceback(monkeypatch):
+    """A board hanging up makes pyserial's flush() raise termios.error (not an OSError): a LinkError."""
+    import termios
+
+    from forecast_design.runtime.link import Link, LinkError as _LinkError
+
+    master, slave, path = open_pty()
+    try:
+        link = Link(path, timeout=0.1)
+
+        def hung_up():
+            raise termios.error(5, "Input/output error")
+
+        monkeypatch.setattr(link._serial, "flush", hung_up)  # noqa: SLF001
+        with pytest.raises(_LinkError, match="write failed"):
+            link.write(b"\x00")
+        link.close()
+    finally:
+        os.close(master)
+        os.close(slave)

@@ -6,6 +6,12 @@ import time
 
 from ..errors import ForecastError
 
+try:   # pyserial's flush() on a POSIX port calls tcdrain, whose failure is termios.error, not OSError
+    from termios import error as _TermiosError
+except ImportError:   # not a POSIX system
+    class _TermiosError(Exception):
+        """Never raised where termios does not exist."""
+
 __all__ = ["BoardError", "LinkError", "Link"]
 
 
@@ -67,7 +73,7 @@ class Link:
         try:
             self._serial.write(data)
             self._serial.flush()
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, _TermiosError) as exc:
             raise LinkError(f"{self.port}: write failed (disconnected?): {exc}") from None
 
     def read(self, max_bytes: int = 4096, timeout: float | None = None) -> bytes:
@@ -97,7 +103,7 @@ class Link:
                 self._serial.timeout = timeout
             waiting = self._serial.in_waiting
             return self._serial.read(min(max(waiting, 1), max_bytes))
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, _TermiosError) as exc:
             raise LinkError(f"{self.port}: read failed (disconnected?): {exc}") from None
 
     def drain(self, quiet_s: float = 0.05, limit_s: float = 1.0) -> int:
