@@ -346,3 +346,22 @@ def test_an_os_error_without_a_file_name_is_one_line_without_an_empty_name(monke
     assert cli.main(["tf"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["forecast-design: error: No space left on device"]
+
+
+def test_identify_errors_about_the_data_name_the_file(tmp_path, capsys):
+    """Issue 14: an error about a log's data names that log, the estimation one or the validation one."""
+    short = tmp_path / "short.csv"
+    short.write_text("t,x,f\n0,0,1\n0.001,0.1,2\n")
+    t = np.arange(2000) / 1000.0
+    ok = tmp_path / "ok.csv"
+    ok.write_text("t,x,f\n" + "\n".join(f"{float(a)!r},{float(np.sin(a))!r},{float(0.3 * np.sign(np.cos(a)) + 0.1 * np.cos(a))!r}"
+                                        for a in t) + "\n")
+    columns = ["--time", "t", "--position", "x", "--force", "f", "--model", "sfm"]
+    for argv in (["--csv", str(short)], ["--csv", str(ok), "--validate", str(short)]):
+        assert main(["identify", *argv, *columns]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"forecast-design: error: {short}: "), err
+    dup = tmp_path / "dup.csv"
+    dup.write_text("t,x,f\n0,0,1\n0.001,0.1,2\n0.001,0.2,3\n")
+    assert main(["identify", "--csv", str(dup), *columns]) == 2
+    assert "(0.001 after 0.001)" in capsys.readouterr().err

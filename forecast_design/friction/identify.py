@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import warnings
@@ -12,7 +13,7 @@ from typing import Any, Mapping
 import numpy as np
 from scipy import stats as sps
 
-from ..errors import IdentifiabilityError, ParameterError
+from ..errors import ForecastError, IdentifiabilityError, ParameterError
 from ..plausibility import LogScales, log_scales
 from . import _lsq
 from .derivatives import FilterSettings, decimate_columns, default_filter_settings, differentiate, lowpass
@@ -698,12 +699,27 @@ def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics
         if wants_inertia and "inertia" not in fm.names:
             fm = Inertia() + fm
     fit_options.setdefault("scales", data.scales)
-    fit = fit_friction(data.t, data.position, data.force, fm,
-                       inertia=None if "inertia" in fm.names else data.inertia,
-                       holdout=holdout, selection=selection, **fit_options)
+    with _naming(data.source):
+        fit = fit_friction(data.t, data.position, data.force, fm,
+                           inertia=None if "inertia" in fm.names else data.inertia,
+                           holdout=holdout, selection=selection, **fit_options)
     if validation_log is not None:
-        fit = fit.with_validation(validate(fit, validation_log))
+        vdata = friction_log(validation_log)
+        with _naming(vdata.source):
+            fit = fit.with_validation(validate(fit, vdata))
     return fit
+
+
+@contextlib.contextmanager
+def _naming(source: str):
+    """Errors about a log's data name the log's file (a one-line error a user can act on)."""
+    try:
+        yield
+    except ForecastError as exc:
+        message = str(exc)
+        if source not in ("arrays", "experiment") and not message.startswith(source):
+            exc.args = (f"{source}: {message}",) + exc.args[1:]
+        raise
 
 
 # --- deprecated entry points (kept for one release; use identify / validate / friction_log) ---

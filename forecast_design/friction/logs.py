@@ -176,7 +176,7 @@ def load_axis_csv(path: str | os.PathLike[str], *, time: str, position: str, for
     if bad.size:
         raise ExperimentFormatError(
             f"{label}: line {bad[0] + 3}: column '{time}' not strictly increasing "
-            f"({t[bad[0] + 1]!r} after {t[bad[0]]!r})", path=label, key=time)
+            f"({float(t[bad[0] + 1])!r} after {float(t[bad[0]])!r})", path=label, key=time)
     mean_dt = (t[-1] - t[0]) / (t.size - 1)
     if rate_hz is None:
         rate = 1.0 / mean_dt
@@ -188,7 +188,7 @@ def load_axis_csv(path: str | os.PathLike[str], *, time: str, position: str, for
         worst = int(np.argmax(np.abs(dts - 1.0 / rate)))
         if abs(dts[worst] - 1.0 / rate) > 0.01 / rate:
             raise ExperimentFormatError(
-                f"{label}: line {worst + 3}: column '{time}' steps by {dts[worst]!r} s, expected "
+                f"{label}: line {worst + 3}: column '{time}' steps by {float(dts[worst])!r} s, expected "
                 f"1/rate_hz = {1.0 / rate!r} s", path=label, key=time)
     force_arr = out["force"] * float(scale_force)
     arrays = {}
