@@ -137,20 +137,38 @@ class HacResult:
 
 
 def _andrews_bandwidth(u: np.ndarray) -> float:
-    """Andrews (1991) AR(1) plug-in bandwidth for the Bartlett kernel, from the score series."""
-    num = den = 0.0
-    for a in range(u.shape[1]):
-        x0, x1 = u[:-1, a], u[1:, a]
-        d = float(x0 @ x0)
-        if d <= 0:
-            continue
-        rho = min(max(float(x1 @ x0) / d, -0.97), 0.97)
-        s2 = float(np.mean((x1 - rho * x0) ** 2))
-        num += 4.0 * rho**2 * s2**2 / ((1.0 - rho) ** 6 * (1.0 + rho) ** 2)
-        den += s2**2 / (1.0 - rho) ** 4
+    """Andrews (1991) AR(1) plug-in bandwidth for the Bartlett kernel, from the score series.
+
+    Every column at once (one AR(1) coefficient per column; columns that never move are skipped).
+    """
+    x0, x1 = u[:-1], u[1:]
+    d = np.einsum("ij,ij->j", x0, x0)
+    ok = d > 0
+    if not ok.any():
+        return 0.0
+    x0, x1 = x0[:, ok], x1[:, ok]
+    rho = np.clip(np.einsum("ij,ij->j", x1, x0) / d[ok], -0.97, 0.97)
+    s2 = np.mean((x1 - rho * x0) ** 2, axis=0)
+    num = float(np.sum(4.0 * rho**2 * s2**2 / ((1.0 - rho) ** 6 * (1.0 + rho) ** 2)))
+    den = float(np.sum(s2**2 / (1.0 - rho) ** 4))
     if den == 0.0:
         return 0.0
     return 1.1447 * (num / den * u.shape[0]) ** (1.0 / 3.0)
+
+
+def _bartlett_lag_sum(eps: np.ndarray, L: int) -> np.ndarray:
+    """``sum_{l=1..L} (1 - l / (L + 1)) eps[l:]^T eps[:-l]`` without a loop over the lags.
+
+    ``Z[t] = sum_l w_l eps[t - l]`` (zeros before the start) is one product of a sliding
+    window over the lagged scores with the weights; the sum is then ``eps^T Z``.
+    """
+    n, k = eps.shape
+    if L <= 0 or n < 2:
+        return np.zeros((k, k))
+    padded = np.concatenate([np.zeros((L, k)), eps[:-1]])          # padded[t + j] = eps[t + j - L]
+    window = np.lib.stride_tricks.sliding_window_view(padded, L, axis=0)[:n]   # (n, k, L)
+    weights = 1.0 - np.arange(L, 0, -1) / (L + 1.0)                 # window slot j is lag L - j
+    return eps.T @ (window @ weights)
 
 
 def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | None = None,
@@ -215,10 +233,8 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
     eps = U1 - U0 @ B.T
     L = int(np.ceil(_andrews_bandwidth(eps))) if lags is None else int(lags)
     L = max(0, min(L, eps.shape[0] // 4))
-    S = eps.T @ eps
-    for lag in range(1, L + 1):
-        G = eps[lag:].T @ eps[:-lag]
-        S += (1.0 - lag / (L + 1.0)) * (G + G.T)
+    G = _bartlett_lag_sum(eps, L)
+    S = eps.T @ eps + (G + G.T)
     C = np.linalg.pinv(np.eye(k) - B)
     S = C @ S @ C.T * (m / (m - k))
     cov_f = Ainv @ S @ Ainv / np.outer(s, s)

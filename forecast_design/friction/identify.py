@@ -11,7 +11,8 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 import numpy as np
-from scipy import stats as sps
+from scipy import special
+from threadpoolctl import threadpool_limits
 
 from ..errors import ForecastError, IdentifiabilityError, ParameterError
 from ..plausibility import LogScales, log_scales
@@ -173,7 +174,6 @@ def prepare_identification_data(t: np.ndarray, position: np.ndarray, force: np.n
                               keep=keep, selection=sel, encoder_step=step, static_keep=static_keep)
 
 
-
 def _raw_columns(force: np.ndarray, kin: Any, model: FrictionModel, settings: FilterSettings,
                  inertia: float | None):
     """The raw-rate columns of the identification data, one at a time, in the block's order.
@@ -181,16 +181,17 @@ def _raw_columns(force: np.ndarray, kin: Any, model: FrictionModel, settings: Fi
     Order: explained force, velocity, position, acceleration, the regressor's columns; for a
     dynamic model also the low-passed force and regressor (the inertia column unfiltered: J
     theta'' is already the filtered acceleration). One term's columns exist at a time, so the
-    preparation holds a few raw columns instead of the whole block (issue 16).
+    preparation holds a few raw columns instead of the whole block (issue 16). A regressor column that
+    *is* the velocity, position or acceleration is yielded as that column's index: decimated once.
     """
     yield force if inertia is None else force - float(inertia) * kin.acceleration
-    yield kin.velocity
-    yield kin.position
-    yield kin.acceleration
+    signals = (kin.velocity, kin.position, kin.acceleration)
+    yield from signals
     for term in model.linear_terms:
         block = term.columns(kin.velocity, kin.position, kin.acceleration)
         for j in range(block.shape[1]):
-            yield block[:, j]
+            same = [i for i, x in enumerate(signals, start=1) if _same_data(block[:, j], x)]
+            yield same[0] if same else block[:, j]
         del block
     if model.is_dynamic:
         yield lowpass(force, settings) - (0.0 if inertia is None else float(inertia) * kin.acceleration)
@@ -201,14 +202,22 @@ def _raw_columns(force: np.ndarray, kin: Any, model: FrictionModel, settings: Fi
             del block
 
 
+def _same_data(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether `a` and `b` are views of the same numbers (same memory, strides, shape and type)."""
+    return (a.shape, a.strides, a.dtype, a.ctypes.data) == (b.shape, b.strides, b.dtype, b.ctypes.data)
+
+
 def _decimated_block(columns, k: int, settings: FilterSettings) -> np.ndarray:
     """Decimate `k` raw columns one by one (:func:`decimate_columns`) into one (m, k) block.
 
     Column by column gives the same numbers bit for bit as decimating the stacked block
-    (the filters run along each column alone) with a fraction of the memory.
+    (the filters run along each column alone) with a fraction of the memory; an index repeats a column.
     """
     out = None
     for j, col in enumerate(columns):
+        if isinstance(col, int):
+            out[:, j] = out[:, col]
+            continue
         d = decimate_columns(col, settings)
         if out is None:
             out = np.empty((d.size, k))
@@ -290,7 +299,7 @@ def _nonneg_mask(model: FrictionModel, names: tuple[str, ...]) -> np.ndarray:
 
 
 def _fit_linear(model: FrictionModel, data: IdentificationData, *, constrain: bool,
-                check: bool = True) -> _Estimate:
+                check: bool = True, covariance: bool = True) -> _Estimate:
     keep = data.used
     W_all, y_all = data.regressor, data.force
     W, y = W_all[keep], y_all[keep]
@@ -314,7 +323,9 @@ def _fit_linear(model: FrictionModel, data: IdentificationData, *, constrain: bo
         p, act = _lsq.solve_nonneg_lstsq(W, y, mask)
         active = tuple(f"{names[j]} >= 0" for j in np.flatnonzero(act))
         free = ~act
-    hac = _lsq.hac_covariance(W_all, y_all - W_all @ p, free, keep)
+    zero = np.zeros((p.size, p.size))   # a refit whose parameters alone are used: no Newey-West sums
+    hac = (_lsq.hac_covariance(W_all, y_all - W_all @ p, free, keep) if covariance
+           else _lsq.HacResult(zero, 0, zero, 1.0))
     held = {names[j]: (0.0, math.inf) for j in range(len(names)) if free is not None and not free[j]}
     return _Estimate(params=p, covariance=hac.covariance, condition_number=cond,
                      condition_number_unscaled=cond_raw, constrained=bool(violated.any() and constrain),
@@ -323,9 +334,11 @@ def _fit_linear(model: FrictionModel, data: IdentificationData, *, constrain: bo
 
 
 def _estimate(model: FrictionModel, data: IdentificationData, *, constrain: bool, check: bool = True,
-              scales: LogScales | None = None, **nl_options: Any) -> _Estimate:
+              scales: LogScales | None = None, covariance: bool = True, **nl_options: Any) -> _Estimate:
     if model.is_linear:
-        return _fit_linear(model, data, constrain=constrain, check=check)
+        # tall, thin products (m x p): 1 BLAS thread is as fast idle, 2-10x faster than 2 on a shared machine
+        with threadpool_limits(1, user_api="blas"):
+            return _fit_linear(model, data, constrain=constrain, check=check, covariance=covariance)
     from ..plausibility import friction_bound
     from . import nonlinear
 
@@ -370,7 +383,7 @@ def _predict_data(model: FrictionModel, params: Mapping[str, float], data: Ident
 
 def _intervals(names, p, std, dof, log_scale: tuple[str, ...] = ()) -> dict[str, tuple[float, float]]:
     """Student-t intervals; on the log scale for strictly positive parameters in `log_scale`."""
-    q = float(sps.t.ppf(0.975, max(dof, 1)))
+    q = float(special.stdtrit(max(dof, 1), 0.975))   # Student-t quantile (scipy.stats.t.ppf's kernel)
     out = {}
     for i, n in enumerate(names):
         if n in log_scale and p[i] > 0 and math.isfinite(std[i]):
@@ -520,7 +533,7 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
             raise ParameterError(f"holdout {holdout} leaves too few samples ({int(keep[:n_head].sum())} of "
                                  f"{m_used} used)", name="holdout", value=holdout)
         head = _estimate(model, data.head(n_head), constrain=constrain, check=False, scales=scales,
-                         **nonlinear_options)
+                         covariance=False, **nonlinear_options)
         y_cv = _predict_data(model, dict(zip(names, head.params)), data)
         tail = keep[n_head:]
         holdout_fit = fit_percent(data.force[n_head:][tail], y_cv[n_head:][tail])
