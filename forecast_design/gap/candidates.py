@@ -123,13 +123,16 @@ def _calibration(data: GapData) -> list[_Coef]:
 
 def _dahl(v: np.ndarray, dt: float, x_p: float) -> np.ndarray:
     """Direction state of a Dahl/LuGre bristle: s' = (v - |v| s) / x_p, implicit Euler, s(0) = sign(v0)."""
-    s = np.empty_like(v)
     a = dt / x_p
+    # the same float operations as (s + a v_k) / (1 + a |v_k|) step by step, the products vectorised
+    step = (a * v).tolist()
+    den = (1.0 + a * np.abs(v)).tolist()
+    out = []
     sk = float(np.sign(v[0]))
-    for k, vk in enumerate(v.tolist()):
-        sk = (sk + a * vk) / (1.0 + a * abs(vk))
-        s[k] = sk
-    return s
+    for ak, dk in zip(step, den):
+        sk = (sk + ak) / dk
+        out.append(sk)
+    return np.array(out, dtype=float)
 
 
 def _sign(data: GapData) -> np.ndarray:
@@ -197,12 +200,11 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         v = data.raw["v"]
         dt = 1.0 / data.experiment.rate_hz
         x_grid, v_grid = np.geomspace(1e-4, 1e-2, 5), np.geomspace(1e-3, 0.3, 6)
+        bumps = [np.exp(-(v / v_s) ** 2) for v_s in v_grid]
         for x_p in x_grid:
             s = _dahl(v, dt, x_p)
-            sgn = data.decimate(s)
-            damp = data.decimate(np.gradient(s, dt) * x_p)
-            for v_s in v_grid:
-                bump = data.decimate(s * np.exp(-(v / v_s) ** 2))
+            sgn, damp, *dec_bumps = data.decimate_many([s, np.gradient(s, dt) * x_p] + [s * b for b in bumps])
+            for v_s, bump in zip(v_grid, dec_bumps):
                 out.append(_Structure(
                     [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
                      _Coef("sigma1", data.stack({"motor": damp}), 0.0)],
@@ -216,9 +218,8 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         # It nests coulomb (dF = 0), so stiction is never worse than coulomb on the fit blocks,
         # whatever the hardware's sticking mechanism (bristles or a true stick-slip switch).
         sign = _sign(data)
-        sgn = data.decimate(sign)
-        for v_s in v_grid:
-            bump = data.decimate(sign * np.exp(-(v / v_s) ** 2))
+        sgn, *dec_bumps = data.decimate_many([sign] + [sign * b for b in bumps])
+        for v_s, bump in zip(v_grid, dec_bumps):
             out.append(_Structure(
                 [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0)],
                 lambda p, v_s=v_s: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s)},
@@ -228,11 +229,15 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         th = data.raw["theta"]
         base = _sign(data) if effect is Effect.POSITION_FRICTION else np.ones_like(th)
         coefs = []
+        raw = [base * f(i * th) for i in range(1, nh + 1) for f in (np.sin, np.cos)]
         if effect is Effect.POSITION_FRICTION:
-            coefs.append(_Coef("F_c", data.stack({"motor": data.decimate(base)}), 0.0))
+            raw.insert(0, base)
+        dec = list(data.decimate_many(raw))
+        if effect is Effect.POSITION_FRICTION:
+            coefs.append(_Coef("F_c", data.stack({"motor": dec.pop(0)}), 0.0))
         for i in range(1, nh + 1):
-            coefs.append(_Coef(f"a{i}", data.stack({"motor": data.decimate(base * np.sin(i * th))})))
-            coefs.append(_Coef(f"b{i}", data.stack({"motor": data.decimate(base * np.cos(i * th))})))
+            coefs.append(_Coef(f"a{i}", data.stack({"motor": dec[2 * i - 2]})))
+            coefs.append(_Coef(f"b{i}", data.stack({"motor": dec[2 * i - 1]})))
         th_sub = c["theta_sub"]
 
         def harm(p: np.ndarray, off: int) -> tuple[list[float], list[float]]:
@@ -255,8 +260,9 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         tau_m = data.raw["tau_m"]
         rate = data.experiment.rate_hz
         d_grid = np.geomspace(0.1e-3, opts.max_delay_s, 30)
-        for delay in d_grid:
-            col = u - data.decimate(delayed_input(tau_m, delay, rate))
+        delayed = data.decimate_many([delayed_input(tau_m, delay, rate) for delay in d_grid])
+        for delay, dec in zip(d_grid, delayed):
+            col = u - dec
             out.append(_Structure([_Coef("c", data.stack({"motor": col}), 0.0, 1.5)],
                                   lambda p, d=delay: {"delay_s": float(d)}, n_params=2,
                                   grid=(("delay_s", float(delay), float(d_grid[0]), float(d_grid[-1])),)))
@@ -266,8 +272,9 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         if span <= 0.0:
             return out
         h_grid = np.geomspace(max(span * 1e-4, 1e-6), 0.8 * span, 30)
-        for half in h_grid:
-            clip = tb.k * data.decimate(np.clip(x, -half, half))
+        clipped = data.decimate_many([np.clip(x, -half, half) for half in h_grid])
+        for half, dec in zip(h_grid, clipped):
+            clip = tb.k * dec
             if data.tau_s_measured:
                 cols = {"coupling": -clip}
             else:
@@ -562,7 +569,7 @@ def _best_structure(data: GapData, effect: Effect, fit: CandidateFit) -> _Struct
 
 
 def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8) -> JointAttribution:
-    """All candidates' linear features at once, with a group-sparsity penalty (cvxpy).
+    """All candidates' linear features at once, with a group-sparsity penalty (Clarabel).
 
     Nonlinear parameters are fixed at each candidate's one-at-a-time optimum. The
     objective is ``||A w - y||^2 / n + lam * sum_g sqrt(p_g) ||w_g||_2`` on the fit
@@ -585,8 +592,6 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
     JointAttribution
         The selected effects and their held-out contributions.
     """
-    import cvxpy as cp
-
     cal = _calibration(data)
     groups: list[tuple[Effect, list[_Coef]]] = []
     for fit in fits:
@@ -605,32 +610,24 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
     idx = idx[:: max(1, idx.size // 3000)]
     Af, yf = As[idx], y[idx]
     n_cal = len(cal)
-    w = cp.Variable(As.shape[1])
-    lam = cp.Parameter(nonneg=True)
-    penalty = 0
     spans = []
     k = n_cal
     for _, g in groups:
         spans.append(slice(k, k + len(g)))
-        penalty = penalty + np.sqrt(len(g)) * cp.norm(w[k:k + len(g)], 2)
         k += len(g)
     lo = np.array([c.lo for c in coefs]) * scale
     hi = np.array([c.hi for c in coefs]) * scale
-    cons = [w[i] >= lo[i] for i in range(len(coefs)) if np.isfinite(lo[i])]
-    cons += [w[i] <= hi[i] for i in range(len(coefs)) if np.isfinite(hi[i])]
     y_rms = float(np.sqrt(np.mean(yf ** 2))) or 1.0
-    prob = cp.Problem(cp.Minimize(cp.sum_squares(Af @ w - yf) / (idx.size * y_rms ** 2) + lam * penalty), cons)
+    # ||Af w - yf||^2 = ||R w - Q'yf||^2 + ||yf - Q Q'yf||^2 for Af = Q R (reduced QR): the same
+    # minimiser from a square problem (the solver's work no longer grows with the rows).
+    Q, R = np.linalg.qr(Af)
     held = data.stacked(data.held_out)
     results = []
-    for value in np.geomspace(1e-1, 1e-5, n_lambda):
-        lam.value = value
-        try:
-            prob.solve(solver=cp.CLARABEL)
-        except cp.error.SolverError:
+    lams = np.geomspace(1e-1, 1e-5, n_lambda)
+    path = _group_lasso_path(R, Q.T @ yf, 1.0 / (idx.size * y_rms ** 2), spans, lo, hi, lams)
+    for value, wv in zip(lams, path):
+        if wv is None:
             continue
-        if w.value is None:
-            continue
-        wv = np.asarray(w.value)
         sel = tuple(i for i, sp in enumerate(spans)
                     if np.linalg.norm(wv[sp]) > 1e-3 * max(1.0, np.linalg.norm(wv[n_cal:])))
         gap = float(np.sqrt(np.mean((y[held] - As[held] @ wv) ** 2)))
@@ -653,3 +650,52 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
     order = sorted(sel, key=lambda i: -contributions[str(groups[i][0])])
     return JointAttribution(effects=tuple(groups[i][0] for i in order), contributions=contributions,
                             lam=float(value), gap_held_out=float(np.sqrt(np.mean(r[held] ** 2))))
+
+
+def _group_lasso_path(R: np.ndarray, c: np.ndarray, weight: float, spans: Sequence[slice], lo: np.ndarray,
+                      hi: np.ndarray, lams: Sequence[float]) -> list[np.ndarray | None]:
+    """``argmin weight ||R w - c||^2 + lam sum_g sqrt(p_g) ||w_g||_2`` s.t. ``lo <= w <= hi``, per ``lam``.
+
+    The conic program that cvxpy built for this problem, given to Clarabel directly (cvxpy's
+    import and canonicalisation cost more than the solves): variables ``(w, t)``, one
+    second-order cone ``||w_g|| <= t_g`` per group ``g`` (``spans``), the finite bounds as
+    non-negative slacks. Returns ``w`` per ``lam``, None where Clarabel reports no solution.
+    """
+    import clarabel
+    from scipy import sparse
+
+    p, n_groups = R.shape[1], len(spans)
+    n = p + n_groups
+    P = np.zeros((n, n))
+    P[:p, :p] = 2.0 * weight * (R.T @ R)
+    q0 = np.zeros(n)
+    q0[:p] = -2.0 * weight * (R.T @ c)
+    rows: list[tuple[int, float]] = []          # (variable, coefficient) of each constraint row
+    b: list[float] = []
+    for i in np.flatnonzero(np.isfinite(lo)):
+        rows.append((int(i), -1.0))             # s = w_i - lo_i >= 0
+        b.append(-float(lo[i]))
+    for i in np.flatnonzero(np.isfinite(hi)):
+        rows.append((int(i), 1.0))              # s = hi_i - w_i >= 0
+        b.append(float(hi[i]))
+    cones: list[Any] = [clarabel.NonnegativeConeT(len(rows))] if rows else []
+    for g, span in enumerate(spans):
+        rows.append((p + g, -1.0))              # s = (t_g, w_g) in the second-order cone
+        b.append(0.0)
+        for i in range(span.start, span.stop):
+            rows.append((i, -1.0))
+            b.append(0.0)
+        cones.append(clarabel.SecondOrderConeT(1 + span.stop - span.start))
+    Acon = sparse.csc_matrix(([v for _, v in rows], ([r for r in range(len(rows))], [j for j, _ in rows])),
+                             shape=(len(rows), n))
+    Pu = sparse.triu(sparse.csc_matrix(P)).tocsc()
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    ok = (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved)
+    out: list[np.ndarray | None] = []
+    for lam in lams:
+        q = q0.copy()
+        q[p:] = [lam * np.sqrt(sp.stop - sp.start) for sp in spans]
+        sol = clarabel.DefaultSolver(Pu, q, Acon, np.array(b), cones, settings).solve()
+        out.append(np.asarray(sol.x[:p], dtype=float) if sol.status in ok else None)
+    return out

@@ -408,7 +408,7 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
     options : GapOptions, optional
         Filter, split and test settings.
     joint : bool
-        Also run the group-lasso joint attribution (cvxpy).
+        Also run the group-lasso joint attribution (Clarabel).
 
     Returns
     -------

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -192,18 +192,18 @@ def lowpass(x: np.ndarray, settings: FilterSettings) -> np.ndarray:
 
     Parameters
     ----------
-    x : ndarray, shape (n,)
-        A raw-rate signal (any unit).
+    x : ndarray, shape (n,) or (k, n)
+        A raw-rate signal, or k of them along the last axis (any unit).
     settings : FilterSettings
         Cut-off ``position_cutoff_hz`` [Hz] and order.
 
     Returns
     -------
-    ndarray, shape (n,)
+    ndarray, same shape as `x`
         The filtered signal (``scipy.signal.sosfiltfilt``), same unit.
     """
     sos, = butterworth(settings.filter_order, settings.position_cutoff_hz / (settings.rate_hz / 2.0), "sos")
-    return signal.sosfiltfilt(sos, np.asarray(x, dtype=float))
+    return signal.sosfiltfilt(sos, np.asarray(x, dtype=float), axis=-1)
 
 
 def _derivatives(position: np.ndarray, rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
@@ -318,6 +318,22 @@ class GapData:
         """
         col = lowpass(np.asarray(raw_column, dtype=float), self.settings)
         return decimate_columns(col[:, None], self.settings)[:, 0]
+
+    def decimate_many(self, raw_columns: Sequence[np.ndarray]) -> np.ndarray:
+        """:meth:`decimate` of several raw-rate columns in one filter pass (bit-equal, fewer calls).
+
+        Parameters
+        ----------
+        raw_columns : sequence of ndarray, each shape (n,)
+            Signals at the log's rate (any unit).
+
+        Returns
+        -------
+        ndarray, shape (len(raw_columns), m)
+            Row ``i`` equals ``decimate(raw_columns[i])``.
+        """
+        X = np.array([np.asarray(c, dtype=float) for c in raw_columns], dtype=float, ndmin=2)
+        return decimate_columns(lowpass(X, self.settings), self.settings, axis=1)
 
     def stack(self, per_equation: Mapping[str, np.ndarray]) -> np.ndarray:
         """Stack per-equation columns in equation order, zeros where an equation is absent.
