@@ -41,6 +41,17 @@ def _error(path: Path, exc: OSError, what: str = "cannot write") -> OutputError:
     return OutputError(f"{path}: {what}: {_reason(exc)}", path=str(path))
 
 
+def _temporary_beside(target: Path, suffix: str) -> tuple[int, str]:
+    """Open a temporary file in ``target``'s folder (created if missing): how every output starts."""
+    if target.is_dir():
+        raise OutputError(f"{target}: is a directory; give a file name", path=str(target))
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        return tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=suffix)
+    except OSError as exc:
+        raise _error(target, exc) from None
+
+
 def check_writable(path: str | os.PathLike[str]) -> Path:
     """Check, before any work is done, that ``path`` can be written atomically.
 
@@ -61,15 +72,9 @@ def check_writable(path: str | os.PathLike[str]) -> Path:
         written (a probe temporary file is created and removed).
     """
     target = Path(path)
-    if target.is_dir():
-        raise OutputError(f"{target}: is a directory; give a file name", path=str(target))
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".probe")
-        os.close(fd)
-        os.unlink(tmp)
-    except OSError as exc:
-        raise _error(target, exc) from None
+    fd, tmp = _temporary_beside(target, ".probe")
+    os.close(fd)
+    _unlink_quietly(tmp)
     return target
 
 
@@ -114,13 +119,7 @@ def _unlink_quietly(tmp: str | None) -> None:
 
 def _write_temporary(target: Path, content: Content) -> str:
     """Write ``content`` to a fsynced temporary file beside ``target``; return its name."""
-    if target.is_dir():
-        raise OutputError(f"{target}: is a directory; give a file name", path=str(target))
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise _error(target, exc) from None
+    fd, tmp = _temporary_beside(target, ".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             for chunk in _chunks(content):
@@ -239,13 +238,7 @@ def atomic_open(path: str | os.PathLike[str]) -> Iterator[IO[bytes]]:
         inside the block discards the temporary file and propagates unchanged.
     """
     target = Path(path)
-    if target.is_dir():
-        raise OutputError(f"{target}: is a directory; give a file name", path=str(target))
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise _error(target, exc) from None
+    fd, tmp = _temporary_beside(target, ".tmp")
     try:
         with os.fdopen(fd, "wb") as fh:
             try:

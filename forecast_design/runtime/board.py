@@ -13,7 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ForecastError, ParameterError
+from .. import fileio
+from ..errors import ForecastError, OutputError, ParameterError
 from ..params import Design
 from ..plausibility import PHYSICAL_RANGES
 from . import protocol as pr
@@ -184,16 +185,10 @@ def check_writable(out: str | Path) -> Path:
     if path.name in ("", ".", ".."):
         raise ParameterError(f"--out {str(out)!r}: expected a file name such as run.toml", name="out", value=str(out))
     for target in (path, path.with_suffix(".csv")):
-        if target.is_dir():
-            raise ParameterError(f"--out {target}: is a folder, expected a file", name="out", value=str(out))
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".probe")
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise ParameterError(f"--out {path}: cannot write there ({exc.strerror or exc})", name="out",
-                             value=str(out)) from None
+        try:
+            fileio.check_writable(target)   # the probe every output uses
+        except OutputError as exc:
+            raise ParameterError(f"--out {exc}", name="out", value=str(out)) from None
     return path
 
 
