@@ -77,6 +77,7 @@ def test_scenario_environment_may_be_a_preset_inline_values_or_a_file_beside_it(
     inline = load_scenario(_scenario(tmp_path, 'environment = "k_e=20,J_e=0.02"'))
     # d_e left out: critically damped (Section 5's rule) on the Table 1 link
     assert inline.design.environment == Environment(J_e=0.02, d_e=2 * math.sqrt(20 * 0.02), k_e=20.0)
+    assert any("critical" in note and "d_e" in note for note in inline.notes) and not stiff.notes
     sub = tmp_path / "sub"
     sub.mkdir()
     (sub / "mine.toml").write_text(TABLE)          # an environment file, found beside the scenario
@@ -284,3 +285,10 @@ def test_fig6_table_takes_an_environment_set_and_the_skew_alias():
     assert fig6_table(environments="soft", observers=("none",), sigma=0.2)[0] == rows[0]
     with pytest.raises(ParameterError, match="skew or its alias sigma, not both"):
         fig6_table(skew=0.1, sigma=0.2)
+
+
+def test_simulate_says_which_defaults_a_scenario_left_to_the_toolbox(tmp_path, capsys):
+    path = _scenario(tmp_path, 'environment = "k_e=20,J_e=0.02"')
+    assert main(["simulate", str(path), "--out", str(tmp_path / "run.toml")]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("forecast-design: note:")]
+    assert len(notes) == 1 and "d_e" in notes[0]

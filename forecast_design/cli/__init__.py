@@ -564,6 +564,7 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
             raise ParameterError("give --scenario or --env/--testbed/--experiment, not both (the scenario holds "
                                  "the testbed and the environment)", name="scenario")
         scenario = load_scenario(args.scenario)
+        _note(scenario.notes)
         return emulate(faults=faults, design=scenario.design, effects=scenario.effects, realtime=args.realtime)
     return emulate(faults=faults, design=_design_from_args(args), realtime=args.realtime)
 

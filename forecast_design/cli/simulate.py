@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import _add_json_option, _command, _friction_from_file, _json_positional, _write_json
+from . import _add_json_option, _command, _friction_from_file, _json_positional, _note, _write_json
 
 
 def _configure_simulate(p: argparse.ArgumentParser) -> None:
@@ -39,6 +39,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                        [args.scenario] + ([args.friction] if args.friction else []))
     check_writable(out)
     scenario = load_scenario(args.scenario)
+    _note(scenario.notes)
     if args.friction:
         scenario = scenario.with_friction(_friction_from_file(args.friction))
     result = scenario.run()
@@ -90,6 +91,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     from ..simulation.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
+    _note(scenario.notes)
     n = _repetition_count(args.repetitions, scenario.repetition_count, args.scenario)
     base = Path(args.out)
     outs = [base.with_name(f"{base.stem}_{i:03d}{base.suffix or '.toml'}") for i in range(n)]

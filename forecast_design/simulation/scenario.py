@@ -268,6 +268,8 @@ class Scenario:
         The file it came from.
     variability : Variability or None
         Run-to-run variability (``[variability]``); None: one run.
+    notes : tuple of str
+        Defaults the file left to the toolbox (e.g. a critically damped d_e), said to the user.
     """
 
     design: Design
@@ -279,6 +281,7 @@ class Scenario:
     description: str = ""
     source: str | None = None
     variability: Variability | None = None
+    notes: tuple[str, ...] = field(default=(), compare=False)
 
     @property
     def repetition_count(self) -> int:
@@ -413,21 +416,25 @@ def _table(doc: Mapping[str, Any], key: str, prefix: str, source: str | None, *,
     return value
 
 
-def _environment(doc: Mapping[str, Any], testbed: Testbed, prefix: str, source: str | None) -> Environment:
+def _environment(doc: Mapping[str, Any], testbed: Testbed, prefix: str,
+                 source: str | None) -> tuple[Environment, tuple[str, ...]]:
     """The scenario's ``[environment]``: a table, or a string naming one environment as everywhere else.
 
     The string is a preset name (``"soft"``), inline values (``"k_e=20,J_e=0.02"``) or an
     environment(-set) file holding exactly one environment, relative to the scenario's folder
-    (docs/environments.md); J_l, d_l default to the Table 1 link.
+    (docs/environments.md); J_l, d_l default to the Table 1 link. Returns the environment and
+    the notes on defaults filled in (e.g. d_e critically damped), for the user to read.
     """
     value = doc.get("environment")
     if not isinstance(value, str):
-        return Environment.from_mapping(_table(doc, "environment", prefix, source, required=True), source=source)
+        table = _table(doc, "environment", prefix, source, required=True)
+        return Environment.from_mapping(table, source=source), ()
     spec = value.strip()
     if spec.lower().endswith(".toml") and source is not None and not os.path.isabs(spec):
         spec = os.path.join(os.path.dirname(source), spec)
     try:
-        return resolve_environments(spec, testbed=testbed).single("a scenario")[1]
+        envset = resolve_environments(spec, testbed=testbed)
+        return envset.single("a scenario")[1], envset.notes
     except (ParameterError, ExperimentFormatError) as exc:
         raise ExperimentFormatError(f"{prefix}environment = {value!r}: {str(exc).splitlines()[0]}", path=source,
                                     key="environment") from None
@@ -496,7 +503,7 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
     except ParameterError as exc:
         raise ExperimentFormatError(f"{prefix}{exc}", path=source, key="sampling.rate_hz") from None
     testbed = Testbed.from_mapping(_table(doc, "testbed", prefix, source, required=True), source=source)
-    environment = _environment(doc, testbed, prefix, source)
+    environment, notes = _environment(doc, testbed, prefix, source)
     ctrl_table = _table(doc, "controller", prefix, source, required=False)
     controller = None if ctrl_table is None else PDController.from_mapping(ctrl_table, source=source)
     comp_table = _table(doc, "compensator", prefix, source, required=False)
@@ -581,7 +588,7 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
                     controller=controller, compensator=compensator)
     return Scenario(design=design, rate_hz=float(rate), closed_loop=controller is not None, reference=reference,
                     effects=tuple(effects), options=options, description=description, source=source,
-                    variability=variability)
+                    variability=variability, notes=notes)
 
 
 def _check_simulation(options: Mapping[str, Any], rate: float, prefix: str, source: str | None) -> None:
