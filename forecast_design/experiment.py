@@ -17,8 +17,6 @@ from .experiment_io import FORMAT, OPTIONAL_COLUMNS, REQUIRED_COLUMNS, SPEC_COLU
 from .experiment_io import check_rate as _check_rate
 from .experiment_io import data_name, read_experiment_files, write_experiment_files
 from .experiment_io import one_line as _one_line
-from .experiment_io import parse_toml as _parse_toml  # noqa: F401 - used by environments.py
-from .experiment_io import read_toml_document as _read_toml  # noqa: F401 - used by environments.py
 from .params import Design
 
 __all__ = [

@@ -22,7 +22,8 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from .metrics import HIGHER_IS_BETTER, METRICS
-from .runner import CellResult
+from ..fileio import atomic_open, atomic_write
+from .runner import CellResult, _jsonable
 
 __all__ = ["result_rows", "result_table", "write_tables", "summary", "COLUMNS", "LABELS", "ENV_COLUMNS"]
 
@@ -145,27 +146,11 @@ def write_tables(df, out: str | os.PathLike[str]) -> dict[str, Path]:
         ``parquet`` and ``csv``.
     """
     folder = Path(out)
-    folder.mkdir(parents=True, exist_ok=True)
     paths = {"parquet": folder / "results.parquet", "csv": folder / "results.csv"}
-    tmp = folder / "results.parquet.tmp"
-    df.to_parquet(tmp, engine="pyarrow", index=False)
-    os.replace(tmp, paths["parquet"])
-    tmp = folder / "results.csv.tmp"
-    df.to_csv(tmp, index=False, float_format="%.17g")
-    os.replace(tmp, paths["csv"])
+    with atomic_open(paths["parquet"]) as fh:
+        df.to_parquet(fh, engine="pyarrow", index=False)
+    atomic_write(paths["csv"], df.to_csv(index=False, float_format="%.17g"))
     return paths
-
-
-def _clean(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
 
 
 def summary(rows: Sequence[Mapping[str, Any]], spec: Mapping[str, Any], info: Mapping[str, Any]) -> dict[str, Any]:
@@ -186,13 +171,9 @@ def summary(rows: Sequence[Mapping[str, Any]], spec: Mapping[str, Any], info: Ma
            "set": [{k: r[k] for k in ("controller", "compensator", "reference", "statistic", "which", *METRICS)}
                    for r in sets],
            "environments": [{k: r[k] for k in (*LABELS, *METRICS)} for r in envs]}
-    return _clean(doc)
+    return _jsonable(doc)
 
 
 def write_summary(doc: Mapping[str, Any], out: str | os.PathLike[str]) -> Path:
     """Write ``summary.json`` atomically."""
-    path = Path(out) / "summary.json"
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return atomic_write(Path(out) / "summary.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")

@@ -24,7 +24,6 @@ hashes its files' bytes, so reruns with ``--out`` reuse unchanged cells.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import math
@@ -40,9 +39,8 @@ from ..executor import Executor, LocalExecutor
 from ..experiment import load_experiment
 from ..experiment_io import FORMAT, parse_toml, read_toml
 from ..params import Compensator
-from ..simulation import simulate
-from .metrics import METRICS, disk_margin_of, pairwise_xcorr, repeatability_per_run, step_metrics
-from .runner import CellResult, _decimate
+from .metrics import disk_margin_of, pairwise_xcorr, repeatability_per_run, step_metrics
+from .runner import _STEP_KEYS, CellResult, _decimate, _expected_response, _run_metrics
 from .spec import compensator_label, controller_label
 
 __all__ = ["find_runs", "group_runs", "recorded_cell", "run_recorded", "step_of"]
@@ -186,20 +184,16 @@ def recorded_cell(task: tuple) -> CellResult:
     tau = np.array([np.asarray(e.signals.tau_s[:n], dtype=float) for e in exps])
     tau_r = np.asarray(exps[0].signals.tau_r[:n], dtype=float)
     t = np.arange(n) / rate
-    expected = simulate(dataclasses.replace(design, compensator=Compensator(kind="none")), reference=tau_r,
-                        duration_s=n / rate, rate_hz=rate, include_nominal_viscous=False, process_noise_std=0.0,
-                        encoder_counts=None, description="benchmark: frictionless expected response").tau_s
+    expected = _expected_response(design, tau_r, n / rate, rate).tau_s
     margin = disk_margin_of(design, comp)
     step = step_of(tau_r, rate)
     per_run = repeatability_per_run(tau) if len(exps) >= 2 else np.full(1, math.nan)
     rows = []
     for i, y in enumerate(tau):
-        m: dict[str, Any] = dict.fromkeys(METRICS, math.nan)
-        m.update(repeatability=float(per_run[i]), mae_N_m=float(np.mean(np.abs(y - expected))), disk_margin=margin)
+        m = _run_metrics(y, expected, per_run[i], margin)
         if step is not None:
             sm = step_metrics(t, y - step[2], amplitude=step[0], t0=step[1])
-            for k in ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m"):
-                m[k] = sm[k]
+            m.update({k: sm[k] for k in _STEP_KEYS})
         rows.append({"repetition": i, "initial_angle_rad": math.nan, "source": str(paths[i]), **m})
     dec = _decimate(n)
     return CellResult(key=key, labels=labels, environment=design.environment.to_mapping(), runs=tuple(rows),

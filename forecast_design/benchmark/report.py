@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
+from ..fileio import atomic_write
 from .metrics import METRICS
 
 __all__ = ["markdown_report", "write_report"]
@@ -94,8 +95,4 @@ def write_report(text: str, out: str | os.PathLike[str]) -> Path:
     out : path
         The result folder.
     """
-    path = Path(out) / "report.md"
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return atomic_write(Path(out) / "report.md", text)

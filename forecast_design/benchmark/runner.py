@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..executor import Executor, LocalExecutor
+from ..fileio import atomic_open, atomic_write
 from ..params import Compensator, Design
 from ..reproduce import identify_extended_sfm
 from ..simulation import Chirp, simulate
@@ -82,13 +83,10 @@ class CellResult:
 
     def save(self, folder: Path) -> None:
         """Write ``<key>.npz`` then ``<key>.json`` (the JSON last: its presence marks a finished cell)."""
-        folder.mkdir(parents=True, exist_ok=True)
-        tmp = folder / f"{self.key}.tmp.npz"
-        np.savez(tmp, t=self.t, tau_s=self.tau_s, expected=self.expected, tau_r=self.tau_r)
-        os.replace(tmp, folder / f"{self.key}.npz")
-        tmp = folder / f"{self.key}.json.tmp"
-        tmp.write_text(json.dumps(_jsonable(self.to_mapping()), indent=1, allow_nan=False) + "\n", encoding="utf-8")
-        os.replace(tmp, folder / f"{self.key}.json")
+        with atomic_open(folder / f"{self.key}.npz") as fh:
+            np.savez(fh, t=self.t, tau_s=self.tau_s, expected=self.expected, tau_r=self.tau_r)
+        atomic_write(folder / f"{self.key}.json",
+                     json.dumps(_jsonable(self.to_mapping()), indent=1, allow_nan=False) + "\n")
 
     @classmethod
     def load(cls, folder: Path, key: str) -> "CellResult | None":
@@ -126,6 +124,26 @@ def _decimate(n: int) -> slice:
     return slice(None, None, max(1, int(math.ceil(n / TRACE_POINTS))))
 
 
+#: The :func:`~.metrics.step_metrics` a step reference adds to a run's metrics.
+_STEP_KEYS = ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m")
+
+
+def _expected_response(design: Design, reference: Any, duration_s: float, rate_hz: float):
+    """The frictionless expected response: the design's controller on its nominal plant, no
+    compensator, no nominal viscous friction, no noise, exact encoders (simulated and recorded cells)."""
+    return simulate(dataclasses.replace(design, compensator=Compensator(kind="none")), reference=reference,
+                    duration_s=duration_s, rate_hz=rate_hz, include_nominal_viscous=False, process_noise_std=0.0,
+                    encoder_counts=None, description="benchmark: frictionless expected response")
+
+
+def _run_metrics(tau_s: np.ndarray, expected: np.ndarray, repeatability: float, margin: float) -> dict[str, Any]:
+    """One run's :data:`~.metrics.METRICS`: repeatability, MAE and disk margin; the rest NaN until filled."""
+    m: dict[str, Any] = dict.fromkeys(METRICS, math.nan)
+    m.update(repeatability=float(repeatability), mae_N_m=float(np.mean(np.abs(tau_s - expected))),
+             disk_margin=margin)
+    return m
+
+
 def run_cell(task: tuple) -> CellResult:
     """Simulate one cell's repetitions and its frictionless expected response; compute the metrics.
 
@@ -145,10 +163,7 @@ def run_cell(task: tuple) -> CellResult:
                     compensator=cell.compensator)
     var = Variability(repetitions=spec.repetitions, viscous_drift=spec.viscous_drift, seed=spec.seed)
     angles = var.initial_angles()
-    common = dict(reference=cell.reference, duration_s=cell.duration_s, rate_hz=spec.rate_hz)
-    expected = simulate(dataclasses.replace(design, compensator=Compensator(kind="none")), **common,
-                        include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None,
-                        description="benchmark: frictionless expected response")
+    expected = _expected_response(design, cell.reference, cell.duration_s, spec.rate_hz)
     sfm = cell.compensator.kind == "sfm"
     # the repetitions as one batch (each run bit-equal to `simulate` with the same arguments); in a
     # worker process the executor's processes already fill the cores, so the batch takes one thread
@@ -166,17 +181,13 @@ def run_cell(task: tuple) -> CellResult:
     rows = []
     for i, (r, a) in enumerate(zip(runs, angles)):
         row: dict[str, Any] = {"repetition": i, "initial_angle_rad": float(a)}
-        m = dict.fromkeys(METRICS, math.nan)
-        m["repeatability"] = float(per_run_rep[i])
-        m["mae_N_m"] = float(np.mean(np.abs(r.tau_s - expected.tau_s)))
-        m["disk_margin"] = margin
+        m = _run_metrics(r.tau_s, expected.tau_s, per_run_rep[i], margin)
         if chirp:
             m["bandwidth_hz"] = tracking_bandwidth_hz(r.tau_r, r.tau_s, spec.rate_hz, cell.reference.f0_hz,
                                                       cell.reference.f1_hz)
         else:
             sm = step_metrics(t, r.tau_s, amplitude=cell.reference.amplitude, t0=cell.reference.t0)
-            for k in ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m"):
-                m[k] = sm[k]
+            m.update({k: sm[k] for k in _STEP_KEYS})
         row.update(m)
         rows.append(row)
     dec = _decimate(t.size)

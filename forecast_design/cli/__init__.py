@@ -108,8 +108,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except BrokenPipeError:
         # The reader went away (e.g. `| head`): stop quietly, as Unix tools do.
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 1
     except OSError as exc:
@@ -506,8 +504,6 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
 
 @_command("export", "export the controller and compensator as C99 for the Nucleo F446RE (2 kHz)", _configure_export)
 def _cmd_export(args: argparse.Namespace) -> int:
-    import math
-
     from ..errors import ParameterError
     from ..export.c import export_controller
 
@@ -522,7 +518,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     result = export_controller(out_dir=args.out, controller=args.controller,
                                compensator=comp if comp is not None else "none", env=env,
                                testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz,
-                               method=args.method, tau_max=args.tau_max if math.isfinite(args.tau_max) else math.inf)
+                               method=args.method, tau_max=args.tau_max)
     mapping = result.to_mapping()
     if args.check_arm:
         from ..export.toolchain import check_on_cortex_m4

@@ -48,12 +48,10 @@ def _note(notes) -> None:
         print(f"forecast-design: note: {note}", file=sys.stderr)
 
 
-def _testbed_from_args(args: argparse.Namespace):
-    """The testbed of --testbed / --experiment (Table 1 when neither is given)."""
-    from ..environments import resolve_testbed
-
-    experiment, testbed = getattr(args, "experiment", None), getattr(args, "testbed", None)
-    if experiment and (testbed or getattr(args, "env", None)):
+def _experiment_from_args(args: argparse.Namespace, *conflicting: str) -> str | None:
+    """The --experiment file, checked: it exists and none of the options ``conflicting`` is given beside it."""
+    experiment = getattr(args, "experiment", None)
+    if experiment and any(getattr(args, name, None) for name in conflicting):
         from ..errors import ParameterError
 
         raise ParameterError("give --experiment or --env/--testbed, not both (the log's TOML holds its testbed "
@@ -62,7 +60,15 @@ def _testbed_from_args(args: argparse.Namespace):
         from ..errors import ExperimentFormatError
 
         raise ExperimentFormatError(f"{experiment}: experiment file not found", path=experiment)
-    return resolve_testbed(experiment or testbed)
+    return experiment
+
+
+def _testbed_from_args(args: argparse.Namespace):
+    """The testbed of --testbed / --experiment (Table 1 when neither is given)."""
+    from ..environments import resolve_testbed
+
+    experiment = _experiment_from_args(args, "testbed", "env")
+    return resolve_testbed(experiment or getattr(args, "testbed", None))
 
 
 def _environments_from_args(args: argparse.Namespace, *, seed: int = 0):
@@ -70,16 +76,7 @@ def _environments_from_args(args: argparse.Namespace, *, seed: int = 0):
     from ..environments import resolve_environments
 
     specs = getattr(args, "env", None)
-    experiment = getattr(args, "experiment", None)
-    if experiment and specs:
-        from ..errors import ParameterError
-
-        raise ParameterError("give --experiment or --env/--testbed, not both (the log's TOML holds its testbed "
-                             "and environment)", name="experiment")
-    if experiment and not os.path.isfile(experiment):
-        from ..errors import ExperimentFormatError
-
-        raise ExperimentFormatError(f"{experiment}: experiment file not found", path=experiment)
+    experiment = _experiment_from_args(args, "env")
     envset = resolve_environments(experiment or specs or args.env_default,
                                   testbed=_testbed_from_args(args), seed=seed)
     _note(envset.notes)

@@ -80,12 +80,12 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         spec_doc = spec.to_mapping()
     info["elapsed_s"] = round(time.perf_counter() - t0, 3)
     rows = result_rows(cells)
-    paths = write_tables(result_table(cells), args.out)
+    df = result_table(cells)
+    paths = write_tables(df, args.out)
     plots = {}
     if not args.no_plots:
         from ..plotting.benchmark import plot_heatmap, plot_indicators, plot_overlays
 
-        df = result_table(cells)
         for caption, name, draw in (("Indicators against environment stiffness", "indicators.png",
                                      lambda p: plot_indicators(df, p)),
                                     ("Repetition overlays", "overlays.png", lambda p: plot_overlays(cells, p)),

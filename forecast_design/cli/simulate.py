@@ -26,7 +26,7 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from ..fileio import check_writable, refuse_overwriting
+    from ..fileio import check_writable
     from ..simulation.run import save_simulation
     from ..simulation.scenario import load_scenario
 
@@ -34,9 +34,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.repetitions is not None:
         return _simulate_repetitions(args)
     out = Path(args.out)  # save_simulation writes RUN.toml, RUN.csv, RUN.truth.json, RUN.truth.csv
-    refuse_overwriting(_run_files(out) + ([args.plot] if args.plot else [])
-                       + ([args.json] if args.json not in (None, "-") else []),
-                       [args.scenario] + ([args.friction] if args.friction else []))
+    _refuse_overwriting_inputs(args, [out])
     check_writable(out)
     scenario = load_scenario(args.scenario)
     _note(scenario.notes)
@@ -49,10 +47,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
         plot_simulation({args.scenario: result}, args.plot)
     if args.json:
-        comp = result.design.compensator
         _write_json(args.json, {**{key: str(value) for key, value in paths.items()},
-                                "compensator": "none" if comp is None else comp.kind,
-                                "friction": None if comp is None else comp.friction_params,
+                                **_compensator_keys(result.design.compensator),
                                 "statistics": result.to_mapping()["statistics"]})
     if args.json != "-":
         for key, value in paths.items():
@@ -64,6 +60,21 @@ def _run_files(out) -> list:
     """The four files :func:`~forecast_design.simulation.run.save_simulation` writes for ``RUN.toml``."""
     return [out, out.with_suffix(".csv"), out.with_name(out.stem + ".truth.json"),
             out.with_name(out.stem + ".truth.csv")]
+
+
+def _refuse_overwriting_inputs(args: argparse.Namespace, outs: list) -> None:
+    """Refuse, before any work, runs (``outs``), --plot or --json that would replace the scenario or --friction."""
+    from ..fileio import refuse_overwriting
+
+    refuse_overwriting([f for out in outs for f in _run_files(out)] + ([args.plot] if args.plot else [])
+                       + ([args.json] if args.json not in (None, "-") else []),
+                       [args.scenario] + ([args.friction] if args.friction else []))
+
+
+def _compensator_keys(comp) -> dict:
+    """The JSON keys ``compensator`` (kind or "none") and ``friction`` (identified parameters or None)."""
+    return {"compensator": "none" if comp is None else comp.kind,
+            "friction": None if comp is None else comp.friction_params}
 
 
 def _repetition_count(text: str, available: int, source: str) -> int:
@@ -85,7 +96,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     """``--repetitions``: the scenario's repetitions as one batch, each written as ``RUN_<i>.toml``."""
     from pathlib import Path
 
-    from ..fileio import check_writable, refuse_overwriting
+    from ..fileio import check_writable
     from ..simulation.batch import simulate_scenario
     from ..simulation.run import save_simulation
     from ..simulation.scenario import load_scenario
@@ -95,9 +106,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     n = _repetition_count(args.repetitions, scenario.repetition_count, args.scenario)
     base = Path(args.out)
     outs = [base.with_name(f"{base.stem}_{i:03d}{base.suffix or '.toml'}") for i in range(n)]
-    refuse_overwriting([f for out in outs for f in _run_files(out)] + ([args.plot] if args.plot else [])
-                       + ([args.json] if args.json not in (None, "-") else []),
-                       [args.scenario] + ([args.friction] if args.friction else []))
+    _refuse_overwriting_inputs(args, outs)
     check_writable(base)
     if args.friction:
         scenario = scenario.with_friction(_friction_from_file(args.friction))
@@ -109,9 +118,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
 
         plot_simulation({f"repetition {i}": result for i, result in enumerate(results)}, args.plot)
     if args.json:
-        comp = scenario.design.compensator
-        _write_json(args.json, {"compensator": "none" if comp is None else comp.kind,
-                                "friction": None if comp is None else comp.friction_params,
+        _write_json(args.json, {**_compensator_keys(scenario.design.compensator),
                                 "repetitions": [{"repetition": i, **{k: str(v) for k, v in paths.items()},
                                                  "statistics": result.to_mapping()["statistics"]}
                                                 for i, (paths, result) in enumerate(zip(written, results))]})

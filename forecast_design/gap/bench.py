@@ -588,6 +588,7 @@ def make_logs(requests: Sequence[tuple]) -> list:
                              f"(last: {last[pending[0]]})", name="word", value=word)
     return done
 
+
 def _independent_case(job: tuple) -> BenchCase:
     """One log of the independent generator (:mod:`forecast_design.independent`), diagnosed blind.
 

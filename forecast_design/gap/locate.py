@@ -10,7 +10,7 @@ from scipy import signal
 
 from .residuals import GapData
 
-__all__ = ["Location", "locate_gap", "empirical_response", "tone_fraction"]
+__all__ = ["Location", "locate_gap", "empirical_response", "measured_response", "tone_fraction"]
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -221,6 +221,38 @@ def locate_gap(data: GapData, residual: np.ndarray) -> Location:
                     notes=tuple(notes), tone_fraction=tone, tone_hz=tone_hz)
 
 
+def measured_response(u: np.ndarray, y: np.ndarray, rate_hz: float, *, nperseg: int = 1024
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """H1 frequency-response estimate y/u and the magnitude-squared coherence (Welch).
+
+    Parameters
+    ----------
+    u, y : ndarray, shape (n,)
+        Input and output [any unit].
+    rate_hz : float
+        Sample rate [Hz].
+    nperseg : int
+        Welch segment length [samples] (at most ``n``).
+
+    Returns
+    -------
+    (f, H1, coherence)
+        Frequencies [Hz], S_uy / S_uu (nan where S_uu = 0), and
+        |S_uy|^2 / (S_uu S_yy) as :func:`scipy.signal.coherence` computes it [-].
+    """
+    u = np.asarray(u, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = min(int(nperseg), u.size)
+    f, suu = signal.welch(u, fs=rate_hz, nperseg=n)
+    _, syy = signal.welch(y, fs=rate_hz, nperseg=n)
+    _, suy = signal.csd(u, y, fs=rate_hz, nperseg=n)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h1 = np.where(suu > 0, suy / np.where(suu > 0, suu, 1.0), np.nan)
+        coh = np.where((suu > 0) & (syy > 0), np.abs(suy) ** 2 / np.where((suu > 0) & (syy > 0), suu * syy, 1.0),
+                       0.0)
+    return f, h1, coh
+
+
 def empirical_response(data: GapData, *, nperseg: int = 1024) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Empirical frequency response tau_m -> tau_s (H1 estimate) and the nominal P(j w).
 
@@ -244,14 +276,7 @@ def empirical_response(data: GapData, *, nperseg: int = 1024) -> tuple[np.ndarra
     from ..symbolic import force_plant_tf
 
     exp = data.experiment
-    fs = exp.rate_hz
-    u = np.asarray(exp.signals.tau_m, dtype=float)
-    ts = np.asarray(exp.signals.tau_s, dtype=float)
-    n = min(nperseg, u.size)
-    f, suu = signal.welch(u, fs=fs, nperseg=n)
-    _, sus = signal.csd(u, ts, fs=fs, nperseg=n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        measured = np.where(suu > 0, sus / np.where(suu > 0, suu, 1.0), np.nan)
+    f, measured, _ = measured_response(exp.signals.tau_m, exp.signals.tau_s, exp.rate_hz, nperseg=nperseg)
     # One home for P(s): the free-output factor s is cancelled there, so f = 0 is finite.
     nominal = force_plant_tf(exp.design).freqresp(2.0 * np.pi * f)
     return f, measured, nominal

@@ -21,9 +21,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import signal
 
-from .locate import residual_psd
+from .locate import measured_response, residual_psd
 from .replay import replay_trace
 from .residuals import significant_digits
 
@@ -163,38 +162,6 @@ class DiagnosisViews:
     def has_after(self) -> bool:
         """Whether there is a verdict effect (and "after" curves)."""
         return self.effect != "none"
-
-
-def measured_response(u: np.ndarray, y: np.ndarray, rate_hz: float, *, nperseg: int = 1024
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """H1 frequency-response estimate y/u and the magnitude-squared coherence (Welch).
-
-    Parameters
-    ----------
-    u, y : ndarray, shape (n,)
-        Input and output [any unit].
-    rate_hz : float
-        Sample rate [Hz].
-    nperseg : int
-        Welch segment length [samples] (at most ``n``).
-
-    Returns
-    -------
-    (f, H1, coherence)
-        Frequencies [Hz], S_uy / S_uu (nan where S_uu = 0), and
-        |S_uy|^2 / (S_uu S_yy) as :func:`scipy.signal.coherence` computes it [-].
-    """
-    u = np.asarray(u, dtype=float)
-    y = np.asarray(y, dtype=float)
-    n = min(int(nperseg), u.size)
-    f, suu = signal.welch(u, fs=rate_hz, nperseg=n)
-    _, syy = signal.welch(y, fs=rate_hz, nperseg=n)
-    _, suy = signal.csd(u, y, fs=rate_hz, nperseg=n)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        h1 = np.where(suu > 0, suy / np.where(suu > 0, suu, 1.0), np.nan)
-        coh = np.where((suu > 0) & (syy > 0), np.abs(suy) ** 2 / np.where((suu > 0) & (syy > 0), suu * syy, 1.0),
-                       0.0)
-    return f, h1, coh
 
 
 def _split(data: Any, stacked: np.ndarray) -> dict[str, np.ndarray]:

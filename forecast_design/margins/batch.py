@@ -26,7 +26,6 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ParameterError
-from ..lti import RationalTF
 from .disk import check_skew
 from .exact import STABILITY_TOLERANCE, as_loop, continuous_equivalent, frequency_rad_s
 

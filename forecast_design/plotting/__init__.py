@@ -41,6 +41,16 @@ def write_figure(fig, path, *, dpi: int = 110) -> Path:
     return path
 
 
+def _pyplot():
+    """``matplotlib.pyplot`` on the Agg backend, imported on first use (the package itself imports no matplotlib)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def save_figure(fig, path, *, dpi: int = 110) -> Path:
     """Lay out, write as PNG and close a matplotlib figure.
 

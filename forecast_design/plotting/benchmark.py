@@ -13,7 +13,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import ParameterError
-from . import write_figure
+from . import _pyplot, write_figure
 
 __all__ = ["plot_indicators", "plot_overlays", "plot_heatmap", "UNITS"]
 
@@ -22,15 +22,6 @@ UNITS = {"repeatability": "repeatability (mean x-corr) [-]", "mae_N_m": "MAE to 
          "rise_time_s": "rise time [s]", "overshoot_percent": "overshoot [%]", "settling_time_s": "settling time [s]",
          "steady_state_error_N_m": "steady-state error [N m]", "bandwidth_hz": "tracking bandwidth [Hz]",
          "disk_margin": "disk margin [-]"}
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _env_means(df):
@@ -69,7 +60,7 @@ def plot_indicators(df, path: str | Path | None = None, *,
     matplotlib.figure.Figure
         The figure.
     """
-    plt = _plt()
+    plt = _pyplot()
     sub = _env_means(df)
     metrics = [m for m in metrics if m in sub and np.isfinite(sub[m].to_numpy(dtype=float)).any()]
     xs, locked_x = _stiffness_axis(sub)
@@ -117,7 +108,7 @@ def plot_overlays(cells: Sequence[Any], path: str | Path | None = None, *, refer
     matplotlib.figure.Figure
         Rows: compensators; columns: environments.
     """
-    plt = _plt()
+    plt = _pyplot()
     cells = list(cells)
     if not cells:
         raise ParameterError("overlay plot needs at least one benchmark cell", name="cells", value=0)
@@ -165,7 +156,7 @@ def plot_heatmap(df, path: str | Path | None = None, *, metrics: Sequence[str] =
     matplotlib.figure.Figure
         The figure.
     """
-    plt = _plt()
+    plt = _pyplot()
     sub = _env_means(df)
     metrics = [m for m in metrics if np.isfinite(sub[m].to_numpy(dtype=float)).any()]
     envs = list(dict.fromkeys(sub["environment"]))

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..lti import RationalTF
-from . import save_figure
+from . import _pyplot, save_figure
 
 __all__ = ["bode_data", "plot_bode"]
 
@@ -77,10 +77,7 @@ def plot_bode(tfs: Mapping[str, RationalTF] | Sequence[tuple[str, RationalTF]], 
     Path
         The written file.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
 
     items = _items(tfs)
     w = _default_grid(items) if w_rad_s is None else np.asarray(w_rad_s, dtype=float)

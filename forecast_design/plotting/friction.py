@@ -9,7 +9,7 @@ import numpy as np
 
 from ..friction.identify import FrictionFit, IdentificationData, predict_data
 from ..friction.logs import axis_units
-from . import save_figure
+from . import _pyplot, save_figure
 
 __all__ = ["plot_friction_fit"]
 
@@ -40,10 +40,7 @@ def plot_friction_fit(fit: FrictionFit, data: IdentificationData, path: str | os
     term (when the model has one); "estimated" is the model minus the same
     term, so both panels show friction only.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
 
     y = np.asarray(data.force, dtype=float)
     y_hat = predict_data(fit, data)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ParameterError
-from . import save_figure
+from . import _pyplot, save_figure
 
 __all__ = ["plot_residual_time", "plot_residual_spectrum", "plot_residual_operating", "plot_before_after",
            "plot_replay", "BEFORE_COLOUR", "AFTER_COLOUR", "MEASURED_COLOUR"]
@@ -23,15 +23,6 @@ AFTER_COLOUR = "#ff7f0e"      # with the verdict effect: "after"
 MODEL_COLOUR = "#2ca02c"      # the effect's own prediction
 MEASURED_COLOUR = "black"
 LOW_COHERENCE = "0.85"        # grey of untrusted frequency bands
-
-
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _labels(views) -> tuple[str, str]:
@@ -60,7 +51,7 @@ def plot_residual_time(views, path: str | Path) -> Path:
     Path
         The file written.
     """
-    plt = _plt()
+    plt = _pyplot()
     before_label, after_label = _labels(views)
     eqs = views.equations
     fig, axes = plt.subplots(len(eqs), 1, figsize=(9, 2.6 * len(eqs) + 0.4), sharex=True, squeeze=False)
@@ -98,7 +89,7 @@ def plot_residual_spectrum(views, path: str | Path) -> Path:
     Path
         The file written.
     """
-    plt = _plt()
+    plt = _pyplot()
     before_label, after_label = _labels(views)
     fig = plt.figure(figsize=(10.5, 7.5), layout="constrained")
     grid = fig.add_gridspec(2, 2)
@@ -165,7 +156,7 @@ def plot_residual_operating(views, path: str | Path) -> Path:
     Path
         The file written.
     """
-    plt = _plt()
+    plt = _pyplot()
     op = views.operating
     before_label, after_label = _labels(views)
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10.5, 4.2), sharey=True)
@@ -200,7 +191,7 @@ def plot_before_after(views, path: str | Path) -> Path:
     Path
         The file written.
     """
-    plt = _plt()
+    plt = _pyplot()
     sel = views.held_out
     eqs = views.equations
     fig, axes = plt.subplots(len(eqs), 1, figsize=(9, 2.8 * len(eqs) + 0.4), sharex=True, squeeze=False)
@@ -246,7 +237,7 @@ def plot_replay(views, path: str | Path) -> Path:
     """
     if views.replay is None:
         raise ParameterError("the diagnosis has no output-error replay to plot", name="replay")
-    plt = _plt()
+    plt = _pyplot()
     tr = views.replay
     before_label, after_label = _labels(views)
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 5.5), sharex=True)

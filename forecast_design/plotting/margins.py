@@ -11,7 +11,7 @@ import numpy as np
 from ..margins import DiskMarginCurve, disk_center_radius, disk_gain_margin
 from ..reproduce import MarginRow
 from ..errors import ParameterError
-from . import save_figure
+from . import _pyplot, save_figure
 from .style import cutoff_style, observer_colour, observer_label
 
 __all__ = ["figure_fig6", "plot_fig6", "plot_disk_margin_curve", "disk_upper_boundary"]
@@ -90,10 +90,7 @@ def figure_fig6(rows: Sequence[MarginRow], *, sigma: float = 0.0,
     :mod:`forecast_design.plotting.style`: one hue per observer, darker and more solid for
     higher cutoffs, the same in every panel; the plant alone is black.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
     from matplotlib.lines import Line2D
 
     rows = list(rows)
@@ -260,10 +257,7 @@ def plot_disk_margin_curve(curves: DiskMarginCurve | Mapping[str, DiskMarginCurv
     ParameterError
         If no curve is given.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
 
     items = [("", curves)] if isinstance(curves, DiskMarginCurve) else list(curves.items())
     if not items:

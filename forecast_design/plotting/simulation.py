@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 from ..errors import ParameterError
-from . import write_figure
+from . import _pyplot, write_figure
 
 __all__ = ["plot_simulation", "plot_step_responses", "plot_fig7", "plot_table3"]
 
@@ -36,10 +36,7 @@ def plot_simulation(results: Mapping[str, object] | Sequence[tuple[str, object]]
     matplotlib.figure.Figure
         The figure.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
 
     items = _items(results)
     fig, axes = plt.subplots(2, len(items), sharex=True, squeeze=False, figsize=(4.5 * len(items), 5.5))
@@ -84,10 +81,7 @@ def plot_step_responses(groups: Mapping[str, Sequence[object]], path: str | Path
     matplotlib.figure.Figure
         The figure.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
 
     if not groups:
         raise ParameterError("plot_step_responses needs at least one group", name="groups", value=groups)
@@ -160,10 +154,7 @@ def plot_table3(result, path: str | Path | None = None):
     matplotlib.figure.Figure
         The figure.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
 
     responses = getattr(result, "responses", None)
     if not responses:

@@ -8,7 +8,7 @@ from typing import Sequence
 
 from ..errors import ParameterError
 from ..tuning.tradeoff import CutoffTradeoff
-from . import save_figure
+from . import _pyplot, save_figure
 from .style import observer_colour, observer_label
 
 __all__ = ["figure_tradeoff", "plot_tradeoff"]
@@ -19,10 +19,7 @@ _DASHES = ((0, (6, 2)), (0, (2, 2)), (0, (8, 2, 2, 2)), (0, (1, 1)))
 
 def figure_tradeoff(tradeoffs: CutoffTradeoff | Sequence[CutoffTradeoff], *, title: str | None = None):
     """Draw the trade-off the Q tuner resolves and return the open figure (see :func:`plot_tradeoff`)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _pyplot()
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     items = [tradeoffs] if isinstance(tradeoffs, CutoffTradeoff) else list(tradeoffs)

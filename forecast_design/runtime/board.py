@@ -408,8 +408,7 @@ class Board:
             if frame.type == pr.MsgType.SAMPLE:
                 tracker.add(pr.decode_sample(frame.payload))
             elif frame.type == pr.MsgType.FAULT:
-                code = pr.decode_fault(frame.payload)[1]
-                self._fault = pr.Fault(code).name if code in iter(pr.Fault) else f"code {code}"
+                self._fault = pr.fault_name(pr.decode_fault(frame.payload)[1])
             elif frame.type == pr.MsgType.STATS:
                 self._stats = pr.decode_stats(frame.payload).to_mapping()
             elif frame.type == pr.MsgType.DONE:

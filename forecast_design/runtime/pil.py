@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import ExportError, ParameterError
 from ..export.firmware import (FirmwareOptions, build_firmware, export_firmware, firmware_measurements,
                                sensor_counts)
-from ..export.toolchain import find_tools
+from ..export.toolchain import M4_CLOCK_HZ, find_tools
 from ..params import Design
 from ..simulation import plant_stepper
 from . import protocol as pr
@@ -37,6 +37,9 @@ __all__ = ["PilFaults", "PilResult", "QemuBoard", "qemu_available", "run_pil", "
 
 #: Raw counts start here (mod 2**32), so the firmware's 32-bit counters wrap within the first periods.
 COUNT_OFFSET = 2**32 - 3
+
+#: Signals of a run by name, as the SAMPLE frame carries them (PilResult.arrays, python_closed_loop).
+_SIGNALS = ("tau_m", "theta", "q", "tau_s", "tau_r", "u", "tau_frc_hat")
 
 
 def qemu_available() -> str | None:
@@ -114,7 +117,7 @@ class PilResult:
 
     def to_mapping(self) -> dict[str, Any]:
         """Summary for ``--json`` (without the arrays)."""
-        budget = 168e6 / 2000.0
+        budget = M4_CLOCK_HZ / 2000.0
         ips = self.instructions_per_step
         return {"samples": self.samples, "expected": self.expected, "fault": self.fault,
                 "fault_index": self.fault_index, "fault_latency_s": self.fault_latency_s, "stats": self.stats,
@@ -179,10 +182,6 @@ class QemuBoard:
         self.close()
 
 
-def _reference_values(reference: pr.Reference, n: int, rate_hz: float) -> np.ndarray:
-    return reference.signal().sample(n, rate_hz)
-
-
 def python_closed_loop(program, design: Design, reference: pr.Reference | str, n: int, *,
                        options: FirmwareOptions | None = None, effects: Sequence[Any] = (), seed: int = 1,
                        noise_std: float = 1e-3, dtype: Any = np.float32) -> dict[str, np.ndarray]:
@@ -220,9 +219,9 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
     bed = plant_stepper(design, effects, n=n, rate_hz=rate, seed=seed, process_noise_std=noise_std,
                         encoder_counts=opt.encoder_counts)
     ctrl = program.make_step(dtype)
-    refs = _reference_values(ref, n, rate)
+    refs = ref.signal().sample(n, rate)
     single = np.dtype(dtype) == np.float32
-    out = {k: np.zeros(n) for k in ("tau_m", "theta", "q", "tau_s", "tau_r", "u", "tau_frc_hat")}
+    out = {k: np.zeros(n) for k in _SIGNALS}
     for i in range(n):
         th, q, tau_s = bed.measure()
         if single:
@@ -289,7 +288,7 @@ def pil_session(board: Board, program, design: Design, reference: pr.Reference, 
                         got = True
                 elif frame.type == pr.MsgType.FAULT:
                     index, code = pr.decode_fault(frame.payload)
-                    info.update(fault=pr.Fault(code).name if code in iter(pr.Fault) else f"code {code}",
+                    info.update(fault=pr.fault_name(code),
                                 fault_index=index, fault_latency_s=time.monotonic() - last_sent)
                 elif frame.type == pr.MsgType.STATS:
                     info["stats"] = pr.decode_stats(frame.payload).to_mapping()
@@ -365,8 +364,7 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     with QemuBoard(elf, icount=icount) as qemu, Board(qemu.port, timeout=timeout) as board:
         samples, info = pil_session(board, fw.program, fw.design, ref, n, options=opt, faults=faults,
                                     effects=effects, seed=seed, noise_std=noise_std, timeout=timeout)
-    arrays = {name: np.array([getattr(s, name) for s in samples], dtype=float)
-              for name in ("tau_m", "theta", "q", "tau_s", "tau_r", "u", "tau_frc_hat")}
+    arrays = {name: np.array([getattr(s, name) for s in samples], dtype=float) for name in _SIGNALS}
     path = None
     if out is not None and samples:
         from ..experiment import save_experiment

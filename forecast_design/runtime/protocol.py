@@ -59,6 +59,7 @@ __all__ = [
     "decode_sensor",
     "encode_fault",
     "decode_fault",
+    "fault_name",
     "encode_stats",
     "decode_stats",
     "Stats",
@@ -587,6 +588,14 @@ def encode_fault(index: int, code: int) -> bytes:
 def decode_fault(payload: bytes) -> tuple[int, int]:
     """Inverse of :func:`encode_fault`: (sample index, fault code)."""
     return _FAULT.unpack(payload)
+
+
+def fault_name(code: int) -> str:
+    """The name of a :class:`Fault` code, or ``code N`` for one the protocol does not define."""
+    try:
+        return Fault(code).name
+    except ValueError:
+        return f"code {code}"
 
 
 @dataclass(frozen=True, slots=True)

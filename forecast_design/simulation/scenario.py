@@ -328,8 +328,7 @@ class Scenario:
 
     def runs(self) -> list[SimulationResult]:
         """Every repetition of the scenario (one run without ``[variability]``)."""
-        n = 1 if self.variability is None else self.variability.repetitions
-        return [self.run(i) for i in range(n)]
+        return [self.run(i) for i in range(self.repetition_count)]
 
     def with_friction(self, friction: Mapping[str, float]) -> Scenario:
         """The scenario with an ``sfm`` compensator running on identified friction.

@@ -12,16 +12,15 @@ import numpy as np
 
 from ..loops.response import LoopResponse, loop_response, observer_responses, q_argument, sensitivity
 from ..executor import Executor
-from ..margins import disk_margin
-from ..margins import disk_margins
+from ..margins import disk_margin, disk_margins
 from ..errors import ParameterError
 from ..plausibility import check_limit, check_physical
 from ..environments import resolve_environments, resolve_testbed
 from ..params import Compensator, Design, Environment, PDController
 
 
-_GRID_RAD_S = np.logspace(-2, 4.5, 700)   # constraint/verification grid [rad/s]
 _GRID_POINTS = 700
+_GRID_RAD_S = np.logspace(-2, 4.5, _GRID_POINTS)   # constraint/verification grid [rad/s]
 _ACTIVE_PER_PLANT = 4                     # frequencies per plant in the first NLP
 _MAX_CUTS = 12                            # cutting-plane rounds
 _FEAS_RTOL = 1e-6                         # relative slack of the ratio requirement
