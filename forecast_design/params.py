@@ -547,12 +547,16 @@ def parse_controller(text: str) -> PDController:
     """
     parts = str(text).split(":")
     form = "expected pd:P:D, e.g. pd:5:0.1"
-    if len(parts) != 3 or parts[0] != "pd":
+    if len(parts) != 3 or parts[0].lower() != "pd":
         raise ParameterError(f"controller {text!r}: {form}", name="controller", value=text)
-    try:
-        P, D = float(parts[1]), float(parts[2])
-    except ValueError:
-        raise ParameterError(f"controller {text!r}: {form}", name="controller", value=text) from None
+    gains = []
+    for part in parts[1:]:
+        try:
+            gains.append(float(part))
+        except ValueError:
+            raise ParameterError(f"controller {text!r}: {part!r} is not a number; {form}", name="controller",
+                                 value=text) from None
+    P, D = gains
     try:
         return PDController(P=P, D=D)
     except ParameterError as exc:

@@ -22,7 +22,7 @@ from typing import Any, Sequence
 from ..effects import effects_to_mappings
 from ..errors import ParameterError
 from ..plausibility import check_limit
-from ..params import COMPENSATOR_KINDS, Compensator, Environment, PDController
+from ..params import COMPENSATOR_KINDS, Compensator, Environment, PDController, parse_controller
 from ..reproduce import TABLE3_TRUTH
 from ..simulation.references import Chirp, Step
 
@@ -43,30 +43,6 @@ def _number(text: str, what: str, form: str) -> float:
     if not math.isfinite(value):
         raise ParameterError(f"{what}: {text!r} must be finite; expected {form}", name=what, value=text)
     return value
-
-
-def parse_controller(text: str) -> PDController:
-    """``pd:P:D`` -> :class:`~forecast_design.params.PDController`.
-
-    Parameters
-    ----------
-    text : str
-        E.g. ``"pd:5:0.1"`` (P [-], D [s]).
-
-    Returns
-    -------
-    PDController
-        The controller.
-    """
-    form = "pd:P:D (e.g. pd:5:0.1)"
-    parts = str(text).split(":")
-    if len(parts) != 3 or parts[0].lower() != "pd":
-        raise ParameterError(f"--controller {text!r}: expected {form}", name="controller", value=text)
-    P, D = (_number(x, "--controller", form) for x in parts[1:])
-    try:
-        return PDController(P=P, D=D)
-    except ParameterError as exc:
-        raise ParameterError(f"--controller {text!r}: {exc}", name="controller", value=text) from None
 
 
 def controller_label(c: PDController) -> str:
