@@ -32,7 +32,7 @@ __all__ = ["BenchmarkSpec", "Cell", "parse_controller", "parse_compensators", "p
 #: EA-FOB / DOB cutoff when the compensator names none [Hz] (the paper's 10 Hz).
 DEFAULT_W_Q_HZ = 10.0
 #: Compensators a benchmark accepts (those the virtual testbed runs in closed loop).
-BENCHMARK_COMPENSATORS = tuple(k for k in COMPENSATOR_KINDS)
+BENCHMARK_COMPENSATORS = COMPENSATOR_KINDS   # every kind the toolbox knows
 
 
 def _number(text: str, what: str, form: str) -> float:

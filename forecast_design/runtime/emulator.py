@@ -210,7 +210,7 @@ class _Emulator:
         from ..simulation.run import plant_stepper   # numba loads only when a run starts
 
         bed = plant_stepper(self.design, self.effects, n=n, rate_hz=self.rate_hz, seed=self.runs,
-                              process_noise_std=self.noise_std)
+                            process_noise_std=self.noise_std)
         ctrl = self.program.make_step()
         dt = 1.0 / self.rate_hz
         t0 = time.monotonic()
