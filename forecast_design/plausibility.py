@@ -359,7 +359,7 @@ def _torque_bound(scales: LogScales, what: str) -> Bound:
                  f"{what} cannot exceed 1.5 x the largest applied torque {scales.torque_max:.3g}", magnitude=True)
 
 
-def friction_bound(name: str, scales: LogScales) -> Bound | None:
+def friction_bound(name: str, scales: LogScales, *, static: float | None = None) -> Bound | None:
     """Plausible range of one friction-model parameter (names of :mod:`forecast_design.friction`).
 
     Parameters
@@ -370,6 +370,10 @@ def friction_bound(name: str, scales: LogScales) -> Bound | None:
         ``psinN``/``pcosN`` variants; ``inertia`` has no range.
     scales : LogScales
         The log's magnitudes.
+    static : float, optional
+        The fitted static (breakaway) level [N m] that a bristle stiffness ``sigma0`` is judged
+        with: the presliding displacement is ``static / sigma0``. Without it (a search range set
+        before the fit) the largest applied torque stands in for the level.
 
     Returns
     -------
@@ -390,6 +394,10 @@ def friction_bound(name: str, scales: LogScales) -> Bound | None:
                      f"Stribeck velocity between 2 encoder speed steps ({lo:.2g}) and the largest speed")
     if name == "sigma0":
         # presliding displacement static / sigma0 between one encoder step and 0.1 rad
+        if static is not None and math.isfinite(static) and static > 0.0:
+            return Bound(static / 0.1, static / scales.encoder_step,
+                         f"presliding displacement static/sigma0 = {static:.3g}/sigma0 between one encoder "
+                         "step and 0.1 rad")
         return Bound(T / 0.1 if T > 0 else 0.0, 1.5 * T / scales.encoder_step,
                      "presliding displacement static/sigma0 between one encoder step and 0.1 rad")
     if name == "sigma1":
@@ -400,7 +408,7 @@ def friction_bound(name: str, scales: LogScales) -> Bound | None:
     return None
 
 
-def effect_bound(name: str, scales: LogScales) -> Bound | None:
+def effect_bound(name: str, scales: LogScales, *, static: float | None = None) -> Bound | None:
     """Plausible range of one unmodelled-effect parameter (field names of :mod:`forecast_design.effects`).
 
     Parameters
@@ -410,6 +418,9 @@ def effect_bound(name: str, scales: LogScales) -> Bound | None:
         ``width_rad``, ``v_s``, ``sigma0``, ``sigma1``, ``J_scale``, ``d_scale``, ``k_e_scale``.
     scales : LogScales
         The log's magnitudes.
+    static : float, optional
+        The fitted breakaway level ``F_s`` [N m] that ``sigma0`` is judged with
+        (:func:`friction_bound`).
 
     Returns
     -------
@@ -431,7 +442,7 @@ def effect_bound(name: str, scales: LogScales) -> Bound | None:
     if name == "v_s":
         return friction_bound("stribeck_velocity", scales)
     if name in ("sigma0", "sigma1"):
-        return friction_bound(name, scales)
+        return friction_bound(name, scales, static=static)
     if name.endswith("_scale"):
         return Bound(0.1, 10.0, "the real environment within a factor 10 of the declared one")
     return None

@@ -379,3 +379,26 @@ def test_twenty_second_two_kilohertz_log_is_diagnosed_in_under_30_s():
     d = diagnose(exp)
     assert time.perf_counter() - t0 < 30.0
     assert d.effect is Effect.COULOMB
+
+
+def test_bundled_example_stiction_in_a_stiff_environment_is_named_not_an_angle_trend():
+    # The packaged Fig. 7 scenario: LuGre stiction, EA-FOB, stiff environment; the motor turns
+    # through ~0.05 rad, so every harmonic of cogging is collinear with the others over the log.
+    # The harmonics explain the residual only together (an angle trend), which must not be
+    # reported as cogging; the bristle stiffness is judged by the fitted breakaway level.
+    from importlib.resources import files
+
+    from forecast_design.simulation.scenario import load_scenario
+
+    sc = load_scenario(files("forecast_design") / "data" / "example_scenario.toml")
+    exp = sc.run().to_experiment()
+    d = diagnose(exp, joint=False)
+    assert d.location.angle_span_rad < 0.5
+    assert d.effect is Effect.STICTION
+    by_effect = {r.effect: r for r in d.ranking}
+    cog = by_effect[Effect.COGGING]
+    assert not cog.identified and any("no single harmonic" in r for r in cog.assessment.reasons)
+    st = by_effect[Effect.STICTION]
+    x_p = st.params["F_s"] / st.params["sigma0"]     # presliding displacement [rad]
+    assert 1e-4 <= x_p <= 0.1
+    assert st.identified and st.assessment.status["sigma0"].status != "implausible"

@@ -184,7 +184,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                                      reason=f"coefficient {c.name} of {nm} sits on its bound [{c.lo:g}, {c.hi:g}]",
                                      plausible=st.plausible)
         else:
-            st = assess(nm, base[nm], std=float(std[i]), bound=effect_bound(nm, scales))
+            st = assess(nm, base[nm], std=float(std[i]), bound=effect_bound(nm, scales, static=base.get("F_s")))
             if st.status == "uncertain":
                 # a parameter whose zero is not "no effect" (gain 1, environment scale 1, sigma0)
                 # is judged by the Wald tests below, not by its distance from zero
@@ -206,6 +206,14 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         if not pv < WALD_ALPHA:
             reasons.append(f"{', '.join(s.coefs[i].name for i in g)} not distinguishable from zero "
                            f"(Wald p = {pv:.2g})")
+    for alternatives in s.any_tests:
+        free = [[i for i in group if not bound_eff[i]] for group in alternatives]
+        pvs = [_wald_p(p_eff[g], cov_eff[np.ix_(g, g)]) for g in free if g]
+        if pvs and not min(pvs) < WALD_ALPHA:
+            names_ = ", ".join("/".join(s.coefs[i].name for i in g) for g in alternatives)
+            reasons.append(f"no single harmonic ({names_}) distinguishable from zero (smallest Wald p = "
+                           f"{min(pvs):.2g}): over the angles this log covers the harmonics are significant "
+                           "only together, an angle trend rather than a resolved periodic torque")
     for nm, g in grid.items():
         if nm in status and nm not in secondary and status[nm].status == "at_bound" \
                 and nm in ("delay_s", "width_rad", "v_s"):
