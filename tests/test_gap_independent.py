@@ -187,17 +187,33 @@ def test_isolability_follows_the_excitation():
     assert not iso.isolable("torque_gain", "calibration")
 
 
-def test_wald_test_survives_degenerate_covariances():
-    from forecast_design.gap.identifiability import _wald_p
+def test_group_wald_test_on_collinear_and_unexcited_columns_equals_the_test_of_their_shared_column():
+    from forecast_design.gap.identifiability import _Design, _group_wald_p
 
-    from scipy import stats
+    rng = np.random.default_rng(4)
+    n = 400
+    x = np.sin(np.linspace(0.0, 7.0, n)) + 0.3
+    noise = 0.05 * rng.standard_normal(n)
+    y = 0.02 * x + noise
+    beta = float(x @ y / (x @ x))
+    rows = np.ones(n, dtype=bool)
 
-    # a coefficient the fit rows never excite (zero variance) carries no test; a collinear pair
-    # is one rank-1 test of the contribution it shares: z = (3 + 3) / sqrt(2), chi2 = z^2 / 2 = 9
-    cov = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 1.0], [0.0, 1.0, 1.0]])
-    assert _wald_p(np.array([5.0, 3.0, 3.0]), cov) == pytest.approx(float(stats.chi2.sf(9.0, 1)), rel=1e-9)
-    assert _wald_p(np.array([1.0]), np.array([[np.inf]])) == 1.0
-    assert _wald_p(np.array([np.nan]), np.array([[1.0]])) == 1.0
+    def design(A, coef):
+        coef = np.asarray(coef, dtype=float)
+        return _Design(A=A, rows=rows, residual=y - A @ np.nan_to_num(coef), coef=coef,
+                       bound=np.zeros(coef.size, dtype=bool))
+
+    single = _group_wald_p(design(x[:, None], [beta]), [0])
+    assert 0.0 < single < 1.0
+    # two identical columns share one direction: a rank-1 test of their sum, whatever the split
+    for a in (beta, 0.3 * beta, -5.0 * beta):
+        dup = _group_wald_p(design(np.column_stack([x, x]), [a, beta - a]), [0, 1])
+        assert dup == pytest.approx(single, rel=1e-9)
+    # a column the fit rows never excite carries no test
+    assert _group_wald_p(design(np.column_stack([x, np.zeros(n)]), [beta, 0.0]), [0, 1]) == \
+        pytest.approx(single, rel=1e-9)
+    assert _group_wald_p(design(np.zeros((n, 1)), [1.0]), [0]) == 1.0
+    assert _group_wald_p(design(x[:, None], [np.nan]), [0]) == 1.0
 
 
 def test_hac_covariance_of_a_column_never_excited_is_finite():

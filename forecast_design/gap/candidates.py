@@ -170,10 +170,6 @@ class _Structure:
     # effect to count, and the grid parameters with their grid ends: (name, value, lo, hi)
     tests: tuple[tuple[int, ...], ...] = ((0,),)
     grid: tuple[tuple[str, float, float, float], ...] = ()
-    # sets of groups of which at least one group must differ from zero: the harmonic orders
-    # (a_i, b_i) of an angle-periodic effect, so that harmonics significant only jointly (collinear
-    # over a fraction of a revolution) count as an angle trend, not a resolved periodic torque
-    any_tests: tuple[tuple[tuple[int, ...], ...], ...] = ()
 
 
 def _structures(effect: Effect, data: GapData) -> list[_Structure]:
@@ -249,8 +245,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
 
         if effect is Effect.COGGING:
             out.append(_Structure(coefs, lambda p: dict(zip(("a", "b"), harm(p, 0))), n_params=2 * nh,
-                                  tests=(tuple(range(2 * nh)),),
-                                  any_tests=(tuple((2 * i, 2 * i + 1) for i in range(nh)),)))
+                                  tests=(tuple(range(2 * nh)),)))
         else:
             def level(p: np.ndarray) -> np.ndarray:
                 lv = np.full(th_sub.shape, p[0])
@@ -259,8 +254,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
                 return lv
 
             out.append(_Structure(coefs, lambda p: {"F_c": float(p[0]), **dict(zip(("a", "b"), harm(p, 1)))},
-                                  level=level, n_params=2 * nh + 1, tests=((0,), tuple(range(1, 2 * nh + 1))),
-                                  any_tests=(tuple((2 * i + 1, 2 * i + 2) for i in range(nh)),)))
+                                  level=level, n_params=2 * nh + 1, tests=((0,), tuple(range(1, 2 * nh + 1)))))
     elif effect is Effect.DELAY:
         u = c["u"]
         tau_m = data.raw["tau_m"]
@@ -473,10 +467,8 @@ def _merge(a: _Structure, b: _Structure) -> _Structure:
     elif b.level is not None:
         level = lambda p: b.level(p[na:])  # noqa: E731
     tests = a.tests + tuple(tuple(i + na for i in g) for g in b.tests)
-    any_tests = a.any_tests + tuple(tuple(tuple(i + na for i in g) for g in alt) for alt in b.any_tests)
     return _Structure(a.coefs + b.coefs, lambda p: {**a.to_params(p[:na]), **b.to_params(p[na:])},
-                      level=level, n_params=a.n_params + b.n_params, tests=tests, grid=a.grid + b.grid,
-                      any_tests=any_tests)
+                      level=level, n_params=a.n_params + b.n_params, tests=tests, grid=a.grid + b.grid)
 
 
 def fit_pair(data: GapData, first: CandidateFit, effect: Effect) -> CandidateFit | None:
