@@ -411,3 +411,48 @@ def test_cogging_over_part_of_a_revolution_is_tested_on_the_direction_the_log_re
     d = diagnose(res.to_experiment(), joint=False)
     assert not d.location.full_revolution
     assert d.effect is Effect.COGGING
+
+
+def _closed_loop_log(effect, env, compensator, reference, duration_s=10.0):
+    from forecast_design.params import Compensator
+
+    references = {"square": refs.Square(high=1.0, low=-1.0, period_s=4.0),
+                  "multisine": refs.Multisine(amplitudes=(0.8, 0.5, 0.3), frequencies_hz=(0.4, 1.3, 3.1),
+                                              phases_rad=(0.0, 1.0, 2.0))}
+    design = Design.nominal(env, controller=PDController(P=5.0, D=0.1), compensator=Compensator(kind=compensator))
+    return simulate(design, reference=references[reference], duration_s=duration_s, effects=(effect,), seed=7,
+                    initial_angle=0.3).to_experiment()
+
+
+def test_in_memory_tau_s_computed_from_the_encoders_is_classified_derived():
+    # a log built in Python keeps tau_s = k (theta - q) at 17 digits: least-squares round-off of a
+    # few ulps is not a torque sensor (it made backlash invisible: the coupling equation was void)
+    from forecast_design.gap.residuals import classify_tau_s
+
+    exp = _closed_loop_log(fx.Backlash(width_rad=2e-3), "locked", "none", "square")
+    s = exp.signals
+    theta, q = np.asarray(s.theta), np.asarray(s.q)
+    assert np.array_equal(np.asarray(s.tau_s), exp.design.testbed.k * (theta - q))
+    assert classify_tau_s(False, np.asarray(s.tau_s), theta, q).source == "derived"
+    noisy = np.asarray(s.tau_s) + 1e-6 * np.random.default_rng(0).standard_normal(theta.size)
+    assert classify_tau_s(False, noisy, theta, q).source == "measured"
+    assert diagnose(exp, joint=False).effect is Effect.BACKLASH
+
+
+def test_common_environment_scale_within_the_spring_tolerance_is_not_an_environment_mismatch():
+    # stiction pushes the spring-scale re-calibration to its 3 % bound; J, d and k_e scaled alike
+    # by the same 3 % in the environment equation are that re-calibration, not a mismatch
+    d = diagnose(_closed_loop_log(fx.Stiction(), "exp-soft", "ea-fob", "square"), joint=False)
+    assert d.effect is not Effect.ENVIRONMENT_MISMATCH
+    env = {r.effect: r for r in d.ranking}[Effect.ENVIRONMENT_MISMATCH]
+    assert not env.identified and any("scaled alike" in r for r in env.assessment.reasons)
+    # a true mismatch of one parameter is still named
+    d = diagnose(_closed_loop_log(fx.EnvironmentMismatch(k_e_scale=1.4), "exp-soft", "ea-fob", "square"), joint=False)
+    assert d.effect is Effect.ENVIRONMENT_MISMATCH
+
+
+def test_collinear_harmonics_beyond_the_range_but_unresolved_are_uncertain_not_implausible():
+    d = diagnose(_closed_loop_log(fx.Cogging(a=(0.15,), b=(0.05,)), "stiff", "none", "multisine"), joint=False)
+    assert d.effect is Effect.COGGING
+    cog = {r.effect: r for r in d.ranking}[Effect.COGGING]
+    assert all(st.status != "implausible" for st in cog.assessment.status.values())

@@ -243,7 +243,17 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                                      reason=f"coefficient {c.name} of {nm} sits on its bound [{c.lo:g}, {c.hi:g}]",
                                      plausible=st.plausible)
         else:
-            st = assess(nm, base[nm], std=float(std[i]), bound=effect_bound(nm, scales, static=base.get("F_s")))
+            bnd = effect_bound(nm, scales, static=base.get("F_s"))
+            st = assess(nm, base[nm], std=float(std[i]), bound=bnd)
+            if st.status == "implausible" and _is_harmonic(nm) and bnd is not None and math.isfinite(std[i]) \
+                    and abs(base[nm]) - 1.96 * float(std[i]) <= bnd.hi:
+                # collinear harmonics (part of a revolution) trade large coefficients that cancel;
+                # a coefficient whose interval reaches the plausible range is unresolved, not
+                # implausible: the torque they make together is judged below
+                st = ParameterStatus(name=nm, value=base[nm], std=float(std[i]), status="uncertain",
+                                     reason=f"|{nm}| = {abs(base[nm]):.4g} is beyond {bnd.hi:.3g} but its 95 % interval "
+                                            f"(+- {1.96 * float(std[i]):.2g}) reaches the plausible range: not resolved",
+                                     plausible=st.plausible)
             if st.status == "uncertain":
                 # a parameter whose zero is not "no effect" (gain 1, environment scale 1, sigma0)
                 # is judged by the Wald tests below, not by its distance from zero
@@ -265,6 +275,23 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         if not pv < WALD_ALPHA:
             reasons.append(f"{', '.join(s.coefs[i].name for i in g)} not distinguishable from zero "
                            f"(Wald p = {pv:.2g})")
+    if any(_is_harmonic(nm) for nm in names) and fit.prediction is not None:
+        # the angle-dependent torque the harmonics make together, over the angles the log covers
+        peak = float(np.max(np.abs(fit.prediction[:data.t.size])))
+        if peak > 1.5 * scales.torque_max:
+            reasons.append(f"the fitted angle-dependent torque reaches {peak:.3g}, beyond 1.5 x the largest applied "
+                           f"torque {scales.torque_max:.3g}")
+    scales_ = [base[k] for k in ("J_scale", "d_scale", "k_e_scale") if k in base]
+    if len(scales_) == 3:
+        dev = np.asarray(scales_) - 1.0
+        tol = data.options.calibration_tolerance
+        common = float(np.sum(dev)) / (math.sqrt(3.0) * max(float(np.linalg.norm(dev)), 1e-300))
+        if common > 0.99 and float(np.max(np.abs(dev))) <= 1.05 * tol:
+            # J q'' + d q' + k_e q = tau_s with all three scaled alike is tau_s scaled: the spring
+            # torque's re-calibration, which the datasheet tolerance allows
+            reasons.append(f"J, d and k_e scaled alike (by {1.0 + float(np.mean(dev)):.4g}): a common scale within the "
+                           f"spring's datasheet tolerance ({100 * tol:g} %) is a re-calibration of the spring torque, "
+                           "not an environment mismatch")
     for nm, g in grid.items():
         if nm in status and nm not in secondary and status[nm].status == "at_bound" \
                 and nm in ("delay_s", "width_rad", "v_s"):
@@ -272,6 +299,10 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
     data.cache[key] = (fit, out)
     return out
+
+
+def _is_harmonic(name: str) -> bool:
+    return len(name) > 1 and name[0] in "ab" and name[1:].isdigit()
 
 
 def _zero_means_absent(name: str) -> bool:

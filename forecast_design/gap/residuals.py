@@ -525,7 +525,9 @@ def classify_tau_s(derived: bool, tau_s: np.ndarray, theta: np.ndarray, q: np.nd
     digits = significant_digits(tau_s)
     rounding = np.sqrt(_half_ulp(tau_s, digits) ** 2 + (coef[0] * _half_ulp(theta, significant_digits(theta))) ** 2
                        + (coef[0] * _half_ulp(q, significant_digits(q))) ** 2) / np.sqrt(3.0)
-    expected = float(np.sqrt(np.mean(rounding ** 2)))
+    # floating-point floor: a column computed in double precision (an in-memory log, 17 digits)
+    # leaves least-squares round-off of a few ulps, which no torque sensor agrees to
+    expected = max(float(np.sqrt(np.mean(rounding ** 2))), 1e-12 * float(np.sqrt(np.mean(tau_s ** 2))))
     actual = float(np.sqrt(np.mean(left ** 2)))
     excess = actual / expected if expected > 0 else (0.0 if actual == 0 else math.inf)
     return TauSSource(source="derived" if excess <= 2.0 else "measured", digits=digits, k_log=float(coef[0]),
