@@ -106,8 +106,25 @@ def test_lugre_with_enough_sliding_is_recovered():
     fit = identify(exp, "lugre", holdout=0.0)
     for k in ("sigma0", "static", "coulomb", "stribeck_velocity", "viscous"):
         assert fit.params[k] == pytest.approx(true[k], rel=0.05), k
+        assert fit.status[k].identified, k
     assert fit.params["sigma1"] == pytest.approx(true["sigma1"], rel=0.10)
-    assert fit.identified
+    # the bristles relax (F_c / (sigma0 |v|) ~ 0.4 ms at the median sliding speed) within one 0.5 ms
+    # sample: sigma1's interval would not cover its few-percent bias, so it is flagged, not trusted
+    st = fit.status["sigma1"]
+    assert st.identified or (st.status == "uncertain" and "relax within one sample" in st.reason)
+
+
+@pytest.mark.parametrize("rate_hz", [500.0, 1000.0])
+def test_lugre_damping_is_not_reported_when_the_bristles_relax_within_a_sample(rate_hz):
+    # On these logs sigma1 came out 7-16 % low with intervals 7-25 std away from the truth (the
+    # transient it acts in lasts less than a sample); the other parameters stay identified.
+    exp, true = friction_log("lugre", seed=0, duration_s=30.0, rate_hz=rate_hz)
+    fit = identify(exp, "lugre", holdout=0.0)
+    st = fit.status["sigma1"]
+    assert st.status == "uncertain" and "relax within one sample" in st.reason
+    assert "sigma1" in fit.to_mapping()["not_identified"]
+    for k in ("sigma0", "static", "coulomb", "viscous"):
+        assert fit.params[k] == pytest.approx(true[k], rel=0.05), k
 
 
 def _little_sliding_log():
@@ -136,3 +153,14 @@ def test_lugre_on_a_closed_loop_log_with_little_sliding_says_not_identifiable(tm
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == len(doc["not_identified"])
     assert all(line.startswith("forecast-design: warning: ") and "not identified" in line for line in err)
+
+
+def test_stribeck_static_level_is_not_reported_when_the_decay_velocity_runs_to_the_top_of_its_range():
+    # ten times the default friction, 6 s at 500 Hz: the log slides fast and the profile over v_s is
+    # flat up to the top of its range; static then fell onto coulomb (3.0 for a true 4.5, +-0.0014)
+    params = {"static": 4.5, "coulomb": 3.0, "stribeck_velocity": 0.05, "viscous": 3.0}
+    exp, true = friction_log("stribeck", params, seed=1, duration_s=6.0, rate_hz=500.0)
+    fit = identify(exp, "stribeck", holdout=0.0)
+    assert not fit.status["stribeck_velocity"].identified
+    assert fit.status["static"].status == "uncertain" and "not resolved" in fit.status["static"].reason
+    assert fit.params["coulomb"] == pytest.approx(true["coulomb"], rel=0.05) and fit.status["coulomb"].identified

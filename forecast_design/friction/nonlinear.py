@@ -309,6 +309,13 @@ def _fit_stribeck(model: FrictionModel, data, *, constrain: bool, max_iter: int,
             "uncertain", f"the residual profile over stribeck_velocity is flat to the {end} end of its plausible "
                          f"range [{lo:.3g}, {hi:.3g}] (95 % profile interval {profile_interval[0]:.3g} .. "
                          f"{profile_interval[1]:.3g})")
+        if hi_i == grid.size - 1 and "static" not in overrides and "static" not in held:
+            # the static level is the curve's value at rest: a Stribeck decay spread over every
+            # speed of the log trades static - coulomb against v_s, so neither is resolved
+            overrides["static"] = (
+                "uncertain", "static is read off a Stribeck curve whose velocity is not resolved (profile flat up to "
+                             f"the upper end of [{lo:.3g}, {hi:.3g}]): the log has too little sliding below the decay "
+                             "to separate the breakaway level from coulomb")
     if active:
         summary["method"] += " under bounds (scipy lsq_linear, bvls)"
     summary["profile"] = {"v_s_grid": [float(grid[0]), float(grid[-1])], "sse_min": float(sse.min()),
