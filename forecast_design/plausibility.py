@@ -69,6 +69,7 @@ __all__ = [
     "assess_all",
     "friction_bound",
     "effect_bound",
+    "encoder_step_of",
     "not_identified",
     "PHYSICAL_RANGES",
     "COMPUTATION_LIMITS",
@@ -114,6 +115,8 @@ class LogScales:
         Position resolution [rad] (2 pi / 2,000,000 for the testbed).
     J_m : float or None
         Motor inertia when known [kg m^2].
+    position_cutoff_hz : float or None
+        Cut-off of the position low-pass the speeds come from [Hz]; None for a tenth of the rate.
     """
 
     torque_max: float
@@ -125,15 +128,18 @@ class LogScales:
     duration_s: float
     encoder_step: float = 2.0 * math.pi / ENCODER_COUNTS
     J_m: float | None = None
+    position_cutoff_hz: float | None = None
 
     @property
     def speed_resolution(self) -> float:
-        """Smallest speed the encoder resolves over the derivative filter's window of ~10 samples [rad/s].
+        """Smallest speed the encoder resolves over the derivative filter's window [rad/s].
 
-        One encoder step per ten samples: the position low-pass of the identification and the
-        diagnosis (cut-off at a tenth of the rate) averages over about that many samples.
+        One encoder step per window of the position low-pass: ``rate / cutoff`` samples (ten at
+        the identification's and the diagnosis's default cut-off of a tenth of the rate).
         """
-        return self.encoder_step * self.rate_hz / 10.0
+        cutoff = self.rate_hz / 10.0 if self.position_cutoff_hz is None else min(self.position_cutoff_hz,
+                                                                                  self.rate_hz / 2.0)
+        return self.encoder_step * cutoff
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready mapping (units in the docstring)."""
@@ -142,9 +148,28 @@ class LogScales:
                 "duration_s": self.duration_s, "encoder_step": self.encoder_step}
 
 
+def encoder_step_of(position: np.ndarray) -> float:
+    """Position resolution seen in a log [rad]: its smallest non-zero step, not below 2 pi / 2,000,000.
+
+    Parameters
+    ----------
+    position : ndarray, shape (n,)
+        Encoder positions [rad].
+
+    Returns
+    -------
+    float
+        The step [rad].
+    """
+    steps = np.abs(np.diff(np.asarray(position, dtype=float)))
+    steps = steps[steps > 0]
+    floor = 2.0 * math.pi / ENCODER_COUNTS
+    return max(float(np.min(steps)), floor) if steps.size else floor
+
+
 def log_scales(*, torque: np.ndarray, position: np.ndarray, rate_hz: float, deflection: np.ndarray | None = None,
                velocity: np.ndarray | None = None, encoder_step: float | None = None,
-               J_m: float | None = None) -> LogScales:
+               J_m: float | None = None, position_cutoff_hz: float | None = None) -> LogScales:
     """Measure a log's scales.
 
     Parameters
@@ -164,6 +189,8 @@ def log_scales(*, torque: np.ndarray, position: np.ndarray, rate_hz: float, defl
         ``position``, but not below the testbed's 2 pi / 2,000,000.
     J_m : float, optional
         Motor inertia [kg m^2].
+    position_cutoff_hz : float, optional
+        Cut-off of the position low-pass behind ``velocity`` [Hz] (default a tenth of the rate).
 
     Returns
     -------
@@ -176,17 +203,14 @@ def log_scales(*, torque: np.ndarray, position: np.ndarray, rate_hz: float, defl
         velocity = np.gradient(position, 1.0 / rate_hz) if position.size > 1 else np.zeros_like(position)
     speed = np.abs(np.asarray(velocity, dtype=float))
     if encoder_step is None:
-        steps = np.abs(np.diff(position))
-        steps = steps[steps > 0]
-        seen = float(np.min(steps)) if steps.size else 2.0 * math.pi / ENCODER_COUNTS
-        encoder_step = max(seen, 2.0 * math.pi / ENCODER_COUNTS)
+        encoder_step = encoder_step_of(position)
     dmax = float(np.percentile(np.abs(deflection), 99.9)) if deflection is not None and np.size(deflection) else 0.0
     return LogScales(torque_max=float(np.percentile(np.abs(torque), 99.9)) if torque.size else 0.0,
                      speed_max=float(np.percentile(speed, 99.9)) if speed.size else 0.0,
                      speed_p99=float(np.percentile(speed, 99.0)) if speed.size else 0.0,
                      deflection_max=dmax, angle_span=float(np.ptp(position)) if position.size else 0.0,
                      rate_hz=float(rate_hz), duration_s=position.size / float(rate_hz),
-                     encoder_step=float(encoder_step), J_m=J_m)
+                     encoder_step=float(encoder_step), J_m=J_m, position_cutoff_hz=position_cutoff_hz)
 
 
 @dataclass(frozen=True, slots=True)

@@ -281,12 +281,21 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         if peak > 1.5 * scales.torque_max:
             reasons.append(f"the fitted angle-dependent torque reaches {peak:.3g}, beyond 1.5 x the largest applied "
                            f"torque {scales.torque_max:.3g}")
-    scales_ = [base[k] for k in ("J_scale", "d_scale", "k_e_scale") if k in base]
-    if len(scales_) == 3:
-        dev = np.asarray(scales_) - 1.0
+    scale_names = [k for k in ("J_scale", "d_scale", "k_e_scale") if k in base]
+    if len(scale_names) == 3:
+        dev = np.asarray([base[k] for k in scale_names]) - 1.0
         tol = data.options.calibration_tolerance
-        common = float(np.sum(dev)) / (math.sqrt(3.0) * max(float(np.linalg.norm(dev)), 1e-300))
-        if common > 0.99 and float(np.max(np.abs(dev))) <= 1.05 * tol:
+        sd = np.asarray([status[k].std if status[k].std is not None else np.nan for k in scale_names], dtype=float)
+        if np.all(np.isfinite(sd) & (sd > 0)):
+            # one common scale c explains the three within their uncertainty (weighted mean, chi2 test)
+            w = 1.0 / sd ** 2
+            c = float(np.sum(w * dev) / np.sum(w))
+            common_p = float(stats.chi2.sf(float(np.sum(w * (dev - c) ** 2)), 2))
+            common = common_p > WALD_ALPHA and abs(c) <= 1.05 * tol
+        else:
+            cos = float(np.sum(dev)) / (math.sqrt(3.0) * max(float(np.linalg.norm(dev)), 1e-300))
+            common = abs(cos) > 0.99 and float(np.max(np.abs(dev))) <= 1.05 * tol
+        if common:
             # J q'' + d q' + k_e q = tau_s with all three scaled alike is tau_s scaled: the spring
             # torque's re-calibration, which the datasheet tolerance allows
             reasons.append(f"J, d and k_e scaled alike (by {1.0 + float(np.mean(dev)):.4g}): a common scale within the "
