@@ -70,6 +70,8 @@ __all__ = [
     "friction_bound",
     "effect_bound",
     "encoder_step_of",
+    "first_beyond",
+    "SIGNAL_LIMITS",
     "not_identified",
     "PHYSICAL_RANGES",
     "COMPUTATION_LIMITS",
@@ -500,6 +502,31 @@ PHYSICAL_RANGES: Mapping[str, tuple[float, float, str]] = {
 }
 
 #: Sizes of a computation a user may ask for: name -> (lowest, highest, what it bounds).
+#: Largest magnitude a logged signal may take: an angle [rad] (about 160,000 revolutions) and a
+#: torque [N m] beyond these is a diverged simulation or a corrupt file, not a measurement.
+SIGNAL_LIMITS: Mapping[str, float] = {"angle_rad": 1e6, "torque_N_m": 1e6}
+
+
+def first_beyond(values: np.ndarray, limit: float) -> int | None:
+    """Index of the first sample whose magnitude exceeds `limit` or is not finite, or None.
+
+    Parameters
+    ----------
+    values : ndarray
+        Samples (any unit).
+    limit : float
+        Largest magnitude allowed (same unit).
+
+    Returns
+    -------
+    int or None
+    """
+    v = np.asarray(values, dtype=float)
+    with np.errstate(invalid="ignore"):
+        bad = np.flatnonzero(~(np.abs(v) <= limit))
+    return int(bad[0]) if bad.size else None
+
+
 COMPUTATION_LIMITS: Mapping[str, tuple[int, int, str]] = {
     "delay_samples": (0, 100, "computation delay of the sampled loop [samples] (50 ms at 2 kHz)"),
     "q_order": (1, 8, "order of the Q filter"),

@@ -483,3 +483,49 @@ def test_coarse_encoder_narrows_the_equation_band_and_names_the_larger_of_two_ef
     # a log coarser than the validation says so; the testbed's encoder does not
     assert any("resolve the spring torque" in c for c in d.caveats)
     assert not any("resolve the spring torque" in c for c in diagnose(fine, joint=False).caveats)
+
+
+def _gain_log(effect, env, P, D, reference, duration_s=20.0):
+    design = Design.nominal(env, controller=PDController(P=P, D=D))
+    references = {"square": refs.Square(high=1.0, low=-1.0, period_s=4.0),
+                  "multisine": refs.Multisine(amplitudes=(0.8, 0.5, 0.3), frequencies_hz=(0.4, 1.3, 3.1),
+                                              phases_rad=(0.0, 1.0, 2.0))}
+    return simulate(design, reference=references[reference], duration_s=duration_s,
+                    effects=() if effect is None else (effect,), seed=5, initial_angle=0.3, rate_hz=1000.0)
+
+
+def test_a_diverged_closed_loop_is_no_log_and_a_diverged_file_is_refused_in_one_line(tmp_path, capsys):
+    from forecast_design.cli import main
+    from forecast_design.errors import SolverError
+    from forecast_design.experiment import save_experiment
+
+    # PD 20/0.02 with a 2 ms transmission delay against the stiff environment is unstable
+    res = _gain_log(fx.Delay(delay_s=2e-3), "stiff", 20.0, 0.02, "multisine")
+    assert res.diverged_at_s is not None and np.max(np.abs(res.theta)) > 1e6
+    with pytest.raises(SolverError, match="diverged"):
+        res.to_experiment()
+    # the same samples written by another tool: the diagnosis names the column and the row
+    ok = _gain_log(None, "stiff", 5.0, 0.1, "multisine").to_experiment()
+    theta = np.asarray(ok.signals.theta).copy()
+    theta[4502] = -1.01e6
+    save_experiment(ok.replace_signals(theta=theta), tmp_path / "diverged.toml")
+    assert main(["diagnose", str(tmp_path / "diverged.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "column theta" in err[0] and "row 4502" in err[0]
+
+
+def test_derivative_kicks_do_not_make_a_two_effect_false_alarm():
+    # PD 20/0.3 on a square wave kicks the motor with 500 N m at each edge; the effect-free gap is
+    # 0.1 % of tau_s, and a stiction + delay pair that 'removes' half of it explains less than the
+    # motor's torque accuracy (0.1 % of the RMS command): no effect
+    res = _gain_log(None, "stiff", 20.0, 0.3, "square")
+    assert np.max(np.abs(res.tau_m)) > 100.0
+    d = diagnose(res.to_experiment(), joint=False)
+    assert d.effect is Effect.NONE
+
+
+def test_bristle_stiffness_at_the_grid_end_is_judged_by_the_fitted_breakaway_level():
+    # a low-gain PD (P = 2) with large derivative kicks: the largest torque (57 N m) is no measure of
+    # the friction level, F_s / sigma0 is
+    d = diagnose(_gain_log(fx.Stiction(), "exp-soft", 2.0, 0.3, "square").to_experiment(), joint=False)
+    assert d.effect is Effect.STICTION

@@ -15,7 +15,7 @@ from scipy import special
 from threadpoolctl import threadpool_limits
 
 from ..errors import ForecastError, IdentifiabilityError, ParameterError
-from ..plausibility import LogScales, log_scales
+from ..plausibility import SIGNAL_LIMITS, LogScales, first_beyond, log_scales
 from . import _lsq
 from .derivatives import FilterSettings, decimate_columns, default_filter_settings, differentiate, lowpass
 from .source import FrictionLog, experiment_scales, friction_log, zoh_align
@@ -67,6 +67,11 @@ def _check_array(name: str, x: Any, n: int | None = None) -> np.ndarray:
     if bad.size:
         raise ParameterError(f"{name} contains NaN or inf at sample {bad[0]} ({bad.size} bad samples)",
                              name=name, value=int(bad[0]))
+    limit = {"position": SIGNAL_LIMITS["angle_rad"], "force": SIGNAL_LIMITS["torque_N_m"]}.get(name)
+    at = first_beyond(a, limit) if limit is not None else None
+    if at is not None:
+        raise ParameterError(f"{name} reaches {a[at]:.3g} at sample {at}, beyond {limit:g} (rad or m; N m or N): "
+                             "a diverged run or a corrupt log, not a measurement", name=name, value=int(at))
     return a
 
 

@@ -615,6 +615,8 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
     opts = data.options
     best: RankedCandidate | None = None
     passing: dict[str, tuple[RankedCandidate, CandidateFit]] = {}
+    held_rows = data.stacked(data.held_out)
+    tau_rms = float(np.sqrt(np.mean(np.square(np.asarray(data.experiment.signals.tau_m, dtype=float)))))
     for fit in fits:
         pair = fit_pair(data, first, fit.effect)
         if pair is None:
@@ -627,7 +629,9 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
         need = opts.min_reduction if min_extra is None else min_extra
         # with no single winner, the pair must also beat the nominal model by the test
         p_base = held_out_test(base, pair, held_blocks, units=units) if base is not None else 0.0
-        if extra >= need and p < alpha and p_base < alpha and (best is None or bic < best.bic):
+        # with no single winner, the pair must also explain the motor's torque accuracy on its own
+        explains = base is None or _explained_rms(base, pair, held_rows) >= opts.min_effect_fraction * tau_rms
+        if extra >= need and p < alpha and p_base < alpha and explains and (best is None or bic < best.bic):
             assessment = assess_fit(data, pair)
             if not assessment.identified:
                 continue

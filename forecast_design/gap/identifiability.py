@@ -234,10 +234,10 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         depends = np.abs(J[i]) > 0
         if nm in grid:
             _, value, lo, hi = grid[nm]
-            st = assess(nm, base[nm], bound=effect_bound(nm, scales), solver_bounds=(lo, hi))
+            st = assess(nm, base[nm], bound=effect_bound(nm, scales, static=base.get("F_s")), solver_bounds=(lo, hi))
         elif np.any(depends & bound_eff):
             c = s.coefs[int(np.flatnonzero(depends & bound_eff)[0])]
-            st = assess(nm, base[nm], bound=effect_bound(nm, scales))
+            st = assess(nm, base[nm], bound=effect_bound(nm, scales, static=base.get("F_s")))
             if st.status != "implausible":
                 st = ParameterStatus(name=nm, value=base[nm], std=None, status="at_bound",
                                      reason=f"coefficient {c.name} of {nm} sits on its bound [{c.lo:g}, {c.hi:g}]",
@@ -291,7 +291,10 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
             w = 1.0 / sd ** 2
             c = float(np.sum(w * dev) / np.sum(w))
             common_p = float(stats.chi2.sf(float(np.sum(w * (dev - c) ** 2)), 2))
-            common = common_p > WALD_ALPHA and abs(c) <= 1.05 * tol
+            # alike within their uncertainty, or within a tenth of the common change when they are so
+            # precise that a physically negligible spread is significant
+            alike = common_p > WALD_ALPHA or float(np.max(np.abs(dev - c))) <= 0.1 * abs(c)
+            common = alike and abs(c) <= 1.05 * tol
         else:
             cos = float(np.sum(dev)) / (math.sqrt(3.0) * max(float(np.linalg.norm(dev)), 1e-300))
             common = abs(cos) > 0.99 and float(np.max(np.abs(dev))) <= 1.05 * tol

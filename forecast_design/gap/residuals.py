@@ -40,7 +40,7 @@ import numpy as np
 
 from ..errors import ExperimentFormatError, IdentifiabilityError, ParameterError
 from ..experiment import Experiment
-from ..plausibility import DATASHEET_TOLERANCE, LogScales, encoder_step_of, log_scales
+from ..plausibility import DATASHEET_TOLERANCE, SIGNAL_LIMITS, LogScales, encoder_step_of, first_beyond, log_scales
 from scipy import signal
 
 from ..friction.derivatives import (FilterSettings, butterworth, decimate_columns, default_filter_settings,
@@ -242,6 +242,14 @@ def _check_log(experiment: Experiment, theta: np.ndarray, q: np.ndarray, tau_m: 
             raise ExperimentFormatError(f"{src}: column {name} is not finite at row {int(bad[0])} "
                                         f"({bad.size} rows); the gap diagnosis needs complete signals",
                                         path=str(experiment.source) if experiment.source else None, key=name)
+    for name, col, kind, unit in (("theta", theta, "angle_rad", "rad"), ("q", q, "angle_rad", "rad"),
+                                  ("tau_m", tau_m, "torque_N_m", "N m"), ("tau_s", tau_s, "torque_N_m", "N m")):
+        at = first_beyond(col, SIGNAL_LIMITS[kind])
+        if at is not None:
+            raise ExperimentFormatError(f"{src}: column {name} reaches {col[at]:.3g} {unit} at row {at}, beyond "
+                                        f"{SIGNAL_LIMITS[kind]:g} {unit}: a diverged run or a corrupt log, not a "
+                                        "measurement", path=str(experiment.source) if experiment.source else None,
+                                        key=name)
     n = theta.size
     need = max(2 * settings.edge_samples + 4 * options.n_blocks * settings.decimation_factor,
                30 * settings.decimation_factor, 16)

@@ -35,11 +35,11 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..effects import effects_to_mappings
-from ..errors import ParameterError
+from ..errors import ParameterError, SolverError
 from ..experiment_io import csv_chunks
 from ..discrete import njit as _njit, sos_step
 from ..params import Compensator, Design, Environment, PDController
-from ..plausibility import check_limit, check_physical
+from ..plausibility import SIGNAL_LIMITS, check_limit, check_physical, first_beyond
 from .controllers import (
     DEFAULT_DERIVATIVE_CUTOFF_HZ,
     DEFAULT_VELOCITY_CUTOFF_HZ,
@@ -275,9 +275,30 @@ class SimulationResult:
     stability: Mapping[str, float] = field(default_factory=dict)
     description: str = ""
 
+    @property
+    def diverged_at_s(self) -> float | None:
+        """Time [s] at which the run left every physical range (|theta| or |q| > 1e6 rad, |tau_m| or
+        |tau_s| > 1e6 N m, or not finite: an unstable closed loop), or None."""
+        hits = [first_beyond(getattr(self, name), SIGNAL_LIMITS[kind])
+                for name, kind in (("theta", "angle_rad"), ("q", "angle_rad"), ("tau_m", "torque_N_m"),
+                                   ("tau_s", "torque_N_m"))]
+        hits = [h for h in hits if h is not None]
+        return float(self.t[min(hits)]) if hits else None
+
     def to_experiment(self):
-        """The measured run as an :class:`~forecast_design.experiment.Experiment` (extra columns u, tau_frc_hat)."""
+        """The measured run as an :class:`~forecast_design.experiment.Experiment` (extra columns u, tau_frc_hat).
+
+        Raises
+        ------
+        SolverError
+            If the run diverged (:attr:`diverged_at_s`): no log of it is a measurement.
+        """
         from ..experiment import experiment_from_arrays
+
+        at = self.diverged_at_s
+        if at is not None:
+            raise SolverError(f"the simulation diverged at t = {at:.4g} s (|theta| > 1e6 rad or |tau| > 1e6 N m): "
+                              "the closed loop is unstable on this plant; check it with `forecast-design margins`")
 
         return experiment_from_arrays(self.design, self.rate_hz, self.t, self.tau_m, self.theta, self.q,
                                       tau_s=self.tau_s, tau_r=self.tau_r,
