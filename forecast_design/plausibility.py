@@ -71,6 +71,7 @@ __all__ = [
     "effect_bound",
     "encoder_step_of",
     "first_beyond",
+    "check_signal",
     "SIGNAL_LIMITS",
     "not_identified",
     "PHYSICAL_RANGES",
@@ -525,6 +526,30 @@ def first_beyond(values: np.ndarray, limit: float) -> int | None:
     with np.errstate(invalid="ignore"):
         bad = np.flatnonzero(~(np.abs(v) <= limit))
     return int(bad[0]) if bad.size else None
+
+
+def check_signal(name: str, values: np.ndarray, kind: str) -> None:
+    """Refuse a signal beyond :data:`SIGNAL_LIMITS` in one line naming it and the sample.
+
+    Parameters
+    ----------
+    name : str
+        The signal's name (for the message).
+    values : ndarray
+        Its samples.
+    kind : str
+        ``angle_rad`` or ``torque_N_m`` (the key of :data:`SIGNAL_LIMITS`).
+
+    Raises
+    ------
+    ParameterError
+        At the first sample beyond the limit.
+    """
+    limit = SIGNAL_LIMITS[kind]
+    at = first_beyond(values, limit)
+    if at is not None:
+        raise ParameterError(f"{name} reaches {float(np.asarray(values)[at]):.3g} at sample {at}, beyond {limit:g}: "
+                             "a diverged run or a corrupt log, not a measurement", name=name, value=int(at))
 
 
 COMPUTATION_LIMITS: Mapping[str, tuple[int, int, str]] = {

@@ -15,10 +15,10 @@ from scipy import special
 from threadpoolctl import threadpool_limits
 
 from ..errors import ForecastError, IdentifiabilityError, ParameterError
-from ..plausibility import SIGNAL_LIMITS, LogScales, first_beyond, log_scales
+from ..plausibility import LogScales, log_scales
 from . import _lsq
 from .derivatives import FilterSettings, decimate_columns, default_filter_settings, differentiate, lowpass
-from .source import FrictionLog, experiment_scales, friction_log, zoh_align
+from .source import FrictionLog, _check_array, _rate_from_time, experiment_scales, friction_log, zoh_align
 from .selection import SampleSelection, resolve_selection, select_samples
 from .selection import encoder_step as _observed_step
 from .terms import FrictionModel, Inertia, Offset, friction_model
@@ -52,43 +52,6 @@ CONDITION_SINGULAR = 1e12
 
 
 # --- data preparation ----------------------------------------------------------------
-
-
-def _check_array(name: str, x: Any, n: int | None = None) -> np.ndarray:
-    try:
-        a = np.asarray(x, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ParameterError(f"{name} must be a numeric array: {exc}", name=name) from None
-    if a.ndim != 1:
-        raise ParameterError(f"{name} must be 1-D, got shape {a.shape}", name=name, value=a.shape)
-    if n is not None and a.size != n:
-        raise ParameterError(f"{name} has {a.size} samples but t has {n}", name=name, value=a.size)
-    bad = np.flatnonzero(~np.isfinite(a))
-    if bad.size:
-        raise ParameterError(f"{name} contains NaN or inf at sample {bad[0]} ({bad.size} bad samples)",
-                             name=name, value=int(bad[0]))
-    limit = {"position": SIGNAL_LIMITS["angle_rad"], "force": SIGNAL_LIMITS["torque_N_m"]}.get(name)
-    at = first_beyond(a, limit) if limit is not None else None
-    if at is not None:
-        raise ParameterError(f"{name} reaches {a[at]:.3g} at sample {at}, beyond {limit:g} (rad or m; N m or N): "
-                             "a diverged run or a corrupt log, not a measurement", name=name, value=int(at))
-    return a
-
-
-def _rate_from_time(t: np.ndarray) -> float:
-    dts = np.diff(t)
-    if dts.size == 0:
-        raise ParameterError("t needs at least two samples", name="t", value=t.size)
-    bad = np.flatnonzero(dts <= 0)
-    if bad.size:
-        raise ParameterError(f"t must be strictly increasing; t[{bad[0] + 1}] = {t[bad[0] + 1]!r} "
-                             f"after t[{bad[0]}] = {t[bad[0]]!r}", name="t", value=int(bad[0] + 1))
-    dt = (t[-1] - t[0]) / (t.size - 1)
-    worst = int(np.argmax(np.abs(dts - dt)))
-    if abs(dts[worst] - dt) > 0.01 * dt:
-        raise ParameterError(f"t must be uniformly sampled (within 1 %); step {worst} is {dts[worst]!r} s, "
-                             f"mean step {dt!r} s", name="t", value=worst)
-    return 1.0 / dt
 
 
 def _resolve_model(model: FrictionModel | str) -> FrictionModel:

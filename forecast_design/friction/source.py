@@ -18,7 +18,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..experiment import Experiment
-from ..plausibility import LogScales, log_scales
+from ..plausibility import LogScales, check_signal, log_scales
 from .logs import AxisLog
 
 __all__ = ["FrictionLog", "experiment_scales", "friction_log", "zoh_align"]
@@ -135,3 +135,37 @@ def friction_log(log: Any) -> FrictionLog:
     raise ParameterError(
         f"a friction log must be an Experiment (load_experiment), an AxisLog (load_axis_csv) or a "
         f"FrictionLog, got {type(log).__name__}", name="log", value=type(log).__name__)
+
+
+def _check_array(name: str, x: Any, n: int | None = None) -> np.ndarray:
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ParameterError(f"{name} must be a numeric array: {exc}", name=name) from None
+    if a.ndim != 1:
+        raise ParameterError(f"{name} must be 1-D, got shape {a.shape}", name=name, value=a.shape)
+    if n is not None and a.size != n:
+        raise ParameterError(f"{name} has {a.size} samples but t has {n}", name=name, value=a.size)
+    bad = np.flatnonzero(~np.isfinite(a))
+    if bad.size:
+        raise ParameterError(f"{name} contains NaN or inf at sample {bad[0]} ({bad.size} bad samples)",
+                             name=name, value=int(bad[0]))
+    if name in ("position", "force"):   # rad or m; N m or N
+        check_signal(name, a, "angle_rad" if name == "position" else "torque_N_m")
+    return a
+
+
+def _rate_from_time(t: np.ndarray) -> float:
+    dts = np.diff(t)
+    if dts.size == 0:
+        raise ParameterError("t needs at least two samples", name="t", value=t.size)
+    bad = np.flatnonzero(dts <= 0)
+    if bad.size:
+        raise ParameterError(f"t must be strictly increasing; t[{bad[0] + 1}] = {t[bad[0] + 1]!r} "
+                             f"after t[{bad[0]}] = {t[bad[0]]!r}", name="t", value=int(bad[0] + 1))
+    dt = (t[-1] - t[0]) / (t.size - 1)
+    worst = int(np.argmax(np.abs(dts - dt)))
+    if abs(dts[worst] - dt) > 0.01 * dt:
+        raise ParameterError(f"t must be uniformly sampled (within 1 %); step {worst} is {dts[worst]!r} s, "
+                             f"mean step {dt!r} s", name="t", value=worst)
+    return 1.0 / dt
