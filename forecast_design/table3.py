@@ -40,7 +40,7 @@ import numpy as np
 from .effects import Backlash, Cogging, PositionFriction, Stiction
 from .environments import resolve_environments
 from .errors import ParameterError
-from .params import Compensator, Design, PDController
+from .params import Compensator, Design, PDController, Testbed
 
 __all__ = [
     "PAPER_TABLE3",
@@ -267,8 +267,8 @@ def _identification_profile(levels: Sequence[float], hold_s: float, ramp_s: floa
     return PiecewiseLinear(times_s=tuple(times), values=tuple(values))
 
 
-def identify_extended_sfm(effects: Sequence[Any] = TABLE3_TRUTH, *, seed: int = 0, hold_s: float = 5.0
-                          ) -> tuple[dict[str, float], Any, Any]:
+def identify_extended_sfm(effects: Sequence[Any] = TABLE3_TRUTH, *, seed: int = 0, hold_s: float = 5.0,
+                          testbed: Testbed | None = None) -> tuple[dict[str, float], Any, Any]:
     """Identify the paper's extended SFM on a simulated open-loop run of the hardware.
 
     The free link (``link-only``) is driven by a staircase of motor torques
@@ -286,6 +286,8 @@ def identify_extended_sfm(effects: Sequence[Any] = TABLE3_TRUTH, *, seed: int = 
         Process-noise seed.
     hold_s : float
         Duration of each torque level [s].
+    testbed : Testbed, optional
+        The SEA (default the paper's Table 1).
 
     Returns
     -------
@@ -298,10 +300,13 @@ def identify_extended_sfm(effects: Sequence[Any] = TABLE3_TRUTH, *, seed: int = 
     """
     from .friction import identify
     from .simulation import simulate
+    from .simulation.plant import stable_substeps
 
     levels = (0.8, 1.2, 1.6, -0.8, -1.2, -1.6)
     profile = _identification_profile(levels, hold_s)
-    run = simulate(Design.nominal("link-only"), reference=profile, duration_s=len(levels) * hold_s,
+    design = Design.nominal("link-only") if testbed is None else Design.nominal("link-only", testbed=testbed)
+    run = simulate(design, reference=profile, duration_s=len(levels) * hold_s,
+                   substeps=stable_substeps(design, effects, rate_hz=_RATE),
                    closed_loop=False, effects=effects, seed=seed, rate_hz=_RATE,
                    description="reproduce table3: extended-SFM identification run")
     fit = identify(run.to_experiment(), "extended-sfm")

@@ -316,3 +316,44 @@ def test_a_folder_without_closed_loop_runs_is_a_one_line_error(tmp_path, capsys)
     (tmp_path / "x.toml").write_text("a = 1\n")
     assert main(["benchmark", "--runs", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
     assert "no closed-loop experiment" in capsys.readouterr().err
+
+
+SMALL_SEA = "J_m=0.0008,d_m=0.002,k=300"   # a user's small SEA: 166x less inertia, 5x stiffer spring
+
+
+def test_a_users_testbed_is_benchmarked_on_itself_with_the_substeps_its_plant_needs(tmp_path, capsys):
+    from forecast_design.environments import resolve_environments, resolve_testbed
+    from forecast_design.reproduce import TABLE3_TRUTH
+    from forecast_design.simulation.plant import stability_check, stable_substeps
+
+    small = resolve_testbed(SMALL_SEA)
+    env = resolve_environments("stiff", testbed=small).single("stiff")[1]
+    design = Design(testbed=small, environment=env)
+    # the Table 3 hardware's bristles are too stiff for 10 RK4 substeps on this inertia
+    with pytest.raises(ParameterError, match="unstable"):
+        stability_check(build_plant(design, TABLE3_TRUTH, substeps=10))
+    n = stable_substeps(design, TABLE3_TRUTH)
+    assert n > 10 and stability_check(build_plant(design, TABLE3_TRUTH, substeps=n))["max_growth"] <= 1.0
+    assert stable_substeps(Design.nominal("stiff"), TABLE3_TRUTH) == 10       # the paper's testbed: unchanged
+
+    out = tmp_path / "bm"
+    code = main(["benchmark", "--controller", "pd:2:0.001", "--compensator", "none,sfm", "--testbed", SMALL_SEA,
+                 "--envs", "stiff", "--repetitions", "2", "--reference", "step:0.05", "--duration", "1.5",
+                 "--out", str(out), "--no-plots", "--json", str(tmp_path / "s.json")])
+    assert code == 0
+    doc = json.loads((tmp_path / "s.json").read_text())
+    assert doc["benchmark"]["testbed"] == small.to_mapping()
+    # the frictionless reference of this PD on this SEA diverges when sampled (margins --sampled says
+    # UNSTABLE): its MAE is not scored, in words, never a number of 1e7 N m
+    err = capsys.readouterr().err
+    assert "expected response" in err and "diverges" in err
+    table = pd.read_csv(out / "results.csv")
+    assert table["mae_N_m"].isna().all()
+    # the testbed is part of every cell's key: the paper's testbed is not served from this cache
+    spec = BenchmarkSpec(controllers=(PDController(P=2.0, D=0.001),), compensators=parse_compensators(["none"]),
+                         environments=(("stiff", env),), references=(parse_reference("step:0.05", duration_s=0.5),),
+                         repetitions=2, testbed=small)
+    cell = spec.cells()[0]
+    other = BenchmarkSpec(controllers=spec.controllers, compensators=spec.compensators,
+                          environments=spec.environments, references=spec.references, repetitions=2)
+    assert spec.cell_key(cell, None) != other.cell_key(cell, None)

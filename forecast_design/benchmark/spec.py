@@ -22,7 +22,7 @@ from typing import Any, Sequence
 from ..effects import effects_to_mappings
 from ..errors import ParameterError
 from ..plausibility import check_limit
-from ..params import COMPENSATOR_KINDS, Compensator, Environment, PDController, parse_controller
+from ..params import COMPENSATOR_KINDS, Compensator, Environment, PDController, Testbed, parse_controller
 from ..reproduce import TABLE3_TRUTH
 from ..simulation.references import Chirp, Step
 
@@ -186,6 +186,9 @@ class BenchmarkSpec:
         Dead band of the SFM's sign() [rad/s].
     rate_hz : float
         Control rate [Hz].
+    testbed : Testbed
+        The SEA under test (default the paper's Table 1); the extended SFM of the ``sfm`` cells
+        is identified on it.
     """
 
     controllers: tuple
@@ -198,6 +201,7 @@ class BenchmarkSpec:
     viscous_drift: float = 0.0
     sfm_deadband: float = 0.05
     rate_hz: float = 2000.0
+    testbed: Testbed = field(default_factory=Testbed.nominal)
 
     def __post_init__(self) -> None:
         if isinstance(self.repetitions, bool) or not isinstance(self.repetitions, int) or self.repetitions < 2:
@@ -225,7 +229,8 @@ class BenchmarkSpec:
     def hardware(self) -> dict[str, Any]:
         """What every cell shares (part of each cell's key)."""
         return {"effects": effects_to_mappings(self.effects), "repetitions": self.repetitions, "seed": self.seed,
-                "viscous_drift": self.viscous_drift, "sfm_deadband": self.sfm_deadband, "rate_hz": self.rate_hz}
+                "viscous_drift": self.viscous_drift, "sfm_deadband": self.sfm_deadband, "rate_hz": self.rate_hz,
+                "testbed": self.testbed.to_mapping()}
 
     def cell_key(self, cell: Cell, sfm_params: dict | None) -> str:
         """Hash of every input of a cell: a stored result with this key is that cell's result."""

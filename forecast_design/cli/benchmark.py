@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 
@@ -17,6 +18,9 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--envs", default=None, metavar="SET",
                    help="environment set: presets (soft,stiff), random:N, inline k_e=..,J_e=.. or a TOML file "
                         "of [[environment]] tables with grids/uncertainty (default exp-soft,locked)")
+    p.add_argument("--testbed", default=None, metavar="SPEC",
+                   help="the SEA under test: inline (k=40[,J_m=..][,d_m=..]) or a TOML file with [testbed] "
+                        "(default: the paper's Table 1)")
     p.add_argument("--repetitions", type=int, default=None, metavar="N", help="runs per cell (default 10, >= 2)")
     p.add_argument("--reference", action="append", default=None, metavar="REF",
                    help="step:AMP[:DURATION_S] or chirp:AMP:F0_HZ:F1_HZ[:DURATION_S], repeatable (default step:0.2)")
@@ -40,7 +44,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     from ..benchmark import (BenchmarkSpec, markdown_report, parse_compensators, parse_controller, parse_reference,
                              result_rows, result_table, run_benchmark, run_recorded, summary, write_report,
                              write_summary, write_tables)
-    from ..environments import resolve_environments
+    from ..environments import resolve_environments, resolve_testbed
     from ..errors import ParameterError
     from ..executor import make_executor
 
@@ -49,10 +53,10 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     if args.runs is not None:
         given = [f"--{name.replace('_', '-')}" for name in ("controller", "compensator", "envs", "reference",
-                                                            "repetitions") if getattr(args, name) is not None]
+                                                            "repetitions", "testbed") if getattr(args, name) is not None]
         if given:
-            raise ParameterError(f"--runs takes controllers, compensators, environments, references and repetitions "
-                                 f"from the experiments; drop {', '.join(given)}", name="runs", value=given)
+            raise ParameterError(f"--runs takes controllers, compensators, environments, references, repetitions and "
+                                 f"the testbed from the experiments; drop {', '.join(given)}", name="runs", value=given)
         with make_executor(args.scheduler, args.workers) as executor, \
                 _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
             cells, info = run_recorded(args.runs, out=args.out, executor=executor, progress=progress)
@@ -64,7 +68,8 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
                     "references": sorted({c.labels["reference"] for c in cells}),
                     "repetitions": max(len(c.runs) for c in cells)}
     else:
-        envs = resolve_environments(args.envs or "exp-soft,locked", seed=args.seed)
+        testbed = resolve_testbed(args.testbed)
+        envs = resolve_environments(args.envs or "exp-soft,locked", testbed=testbed, seed=args.seed)
         for note in envs.notes:
             print(f"note: {note}", file=sys.stderr)
         spec = BenchmarkSpec(
@@ -73,7 +78,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             environments=tuple(envs.items()),
             references=tuple(parse_reference(r, duration_s=args.duration) for r in (args.reference or ["step:0.2"])),
             repetitions=10 if args.repetitions is None else args.repetitions, seed=args.seed,
-            viscous_drift=args.viscous_drift)
+            viscous_drift=args.viscous_drift, testbed=testbed)
         with make_executor(args.scheduler, args.workers) as executor, \
                 _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
             cells, info = run_benchmark(spec, out=args.out, executor=executor, progress=progress)
@@ -109,4 +114,16 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
                 print(f"{r['controller']} + {r['compensator']} ({r['reference']}): set mean {vals}")
         print(f"{info['computed']} cells computed, {info['reused']} reused, {info['elapsed_s']:.1f} s; "
               f"report: {args.out}/report.md")
-    return 0
+    unstable = 0
+    for c in cells:
+        where = f"{c.labels['controller']} + {c.labels['compensator']} in {c.labels['environment']}"
+        runs = [r for r in c.runs if isinstance(r, dict)]
+        if any(r.get("expected_diverged_at_s") is not None for r in runs):
+            print(f"warning: {where}: the frictionless expected response (nominal plant, d_m = 0) diverges: "
+                  "mae_N_m is not scored", file=sys.stderr)
+        bad = [r["repetition"] for r in runs if not math.isnan(float(r.get("diverged_at_s", math.nan)))]
+        if bad:
+            unstable += 1
+            print(f"warning: {where}: repetitions {', '.join(map(str, bad))} diverged (unstable closed loop): "
+                  "not scored", file=sys.stderr)
+    return 1 if unstable else 0

@@ -596,10 +596,10 @@ def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandida
     resolution = data.experiment.design.testbed.k * gap_log_scales(data).encoder_step
     tau_rms = float(np.sqrt(np.mean(np.square(np.asarray(data.experiment.signals.tau_m, dtype=float)))))
     if tau_rms > 0 and resolution > COARSE_ENCODER_FRACTION * tau_rms:
-        out.append(f"Caution: the encoders resolve the spring torque k (theta - q) in steps of {resolution:.2g} "
-                   f"({100 * resolution / tau_rms:.2g} % of the RMS command): the diagnosis is validated on "
-                   "2,000,000-count logs; on simulated 16-bit (65,536-count) and coarser logs it misses most delays "
-                   "and in a few percent of set-ups names a wrong effect (environment_mismatch, cogging).")
+        out.append(f"Caution: the encoders resolve the spring torque k (theta - q) in steps of {resolution:.2g} N m "
+                   f"({100 * resolution / tau_rms:.2g} % of the RMS command, above the "
+                   f"{100 * COARSE_ENCODER_FRACTION:g} % the diagnosis is validated at): on such logs it misses most "
+                   "delays and in a few percent of set-ups names a wrong effect (environment_mismatch, cogging).")
     at_bound = [k for k, st in calibration_status(data, base).items() if st.status == "at_bound"]
     if at_bound:
         out.append(f"Caution: the nominal re-calibration of {', '.join(at_bound)} sits on its datasheet bound "

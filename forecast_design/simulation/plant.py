@@ -278,6 +278,45 @@ def _linear_matrix(p: np.ndarray, extra_stiffness: float, extra_damping: float) 
                      [K / D, 0.0, -(K + KE) / D]])
 
 
+def stable_substeps(design: Design, effects: Sequence[Any] = (), *, rate_hz: float = 2000.0, start: int = 10,
+                    limit: int = 1000) -> int:
+    """Fewest RK4 substeps, from `start` doubling up to `limit`, at which the plant's step is stable.
+
+    A user's SEA (a small J_m against the Table 3 hardware's bristle stiffness) may need more than
+    the default 10 substeps per control period; :func:`stability_check` judges each candidate.
+
+    Parameters
+    ----------
+    design : Design
+        Testbed and environment.
+    effects : sequence
+        The hardware's unmodelled effects.
+    rate_hz : float
+        Control rate [Hz].
+    start, limit : int
+        First and largest substep count tried [-].
+
+    Returns
+    -------
+    int
+        The substeps.
+
+    Raises
+    ------
+    ParameterError
+        If even `limit` substeps leave the step unstable (from :func:`stability_check`).
+    """
+    n = int(start)
+    while True:
+        try:
+            stability_check(build_plant(design, effects, rate_hz=rate_hz, substeps=n))
+            return n
+        except ParameterError:
+            if n >= limit:
+                raise
+            n = min(2 * n, int(limit))
+
+
 def stability_check(plant: PlantModel) -> dict[str, float]:
     """Fastest modes of the plant and RK4's amplification at the step h.
 
