@@ -349,6 +349,13 @@ def test_a_users_testbed_is_benchmarked_on_itself_with_the_substeps_its_plant_ne
     assert "expected response" in err and "diverges" in err
     table = pd.read_csv(out / "results.csv")
     assert table["mae_N_m"].isna().all()
+    # the disk margin is the sampled loop's that the runs were made with: 0 (unstable), where the
+    # continuous loop would claim about 0.5
+    from forecast_design.analysis import loop_margins
+
+    assert (table["disk_margin"] == 0.0).all()
+    assert float(loop_margins(Design(testbed=small, environment=env, controller=PDController(P=2.0, D=0.001)),
+                              parse_compensators(["none"])[0]).alpha) > 0.4
     # the testbed is part of every cell's key: the paper's testbed is not served from this cache
     spec = BenchmarkSpec(controllers=(PDController(P=2.0, D=0.001),), compensators=parse_compensators(["none"]),
                          environments=(("stiff", env),), references=(parse_reference("step:0.05", duration_s=0.5),),

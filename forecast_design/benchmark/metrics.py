@@ -199,8 +199,12 @@ def repeatability_per_run(responses: np.ndarray) -> np.ndarray:
     return (np.sum(c, axis=1) - np.diag(c)) / (m - 1)
 
 
-def disk_margin_of(design: Design, compensator: Compensator) -> float:
-    """Balanced disk margin of the force loop with an observer (or the plant's for ``none``/``sfm``) [-].
+def disk_margin_of(design: Design, compensator: Compensator, rate_hz: float = 2000.0) -> float:
+    """Balanced disk margin of the sampled force loop the runs were made with [-] (0 when unstable).
+
+    The loop as the virtual testbed runs it: sampled at `rate_hz`, the command applied in the period
+    it is computed (``delay_samples = 0``; on a small SEA where the continuous loop keeps a margin of
+    0.5 this sampled loop, like the simulation, is unstable).
 
     Parameters
     ----------
@@ -208,6 +212,8 @@ def disk_margin_of(design: Design, compensator: Compensator) -> float:
         Testbed, environment and controller.
     compensator : Compensator
         Friction compensator; the SFM (a feed-forward) is analysed as ``none``.
+    rate_hz : float
+        Control rate [Hz].
     """
     comp = compensator if compensator.is_observer else Compensator(kind="none")
-    return float(loop_margins(design, comp).alpha)
+    return float(loop_margins(design, comp, sampled=True, rate_hz=rate_hz, delay_samples=0).alpha)

@@ -185,7 +185,7 @@ def recorded_cell(task: tuple) -> CellResult:
     tau_r = np.asarray(exps[0].signals.tau_r[:n], dtype=float)
     t = np.arange(n) / rate
     expected = _expected_response(design, tau_r, n / rate, rate).tau_s
-    margin = disk_margin_of(design, comp)
+    margin = disk_margin_of(design, comp, rate)
     step = step_of(tau_r, rate)
     per_run = repeatability_per_run(tau) if len(exps) >= 2 else np.full(1, math.nan)
     rows = []

@@ -181,7 +181,7 @@ def run_cell(task: tuple) -> CellResult:
     tau = np.array([r.tau_s for r in runs])
     t = runs[0].t
     per_run_rep = repeatability_per_run(tau)
-    margin = disk_margin_of(design, cell.compensator)
+    margin = disk_margin_of(design, cell.compensator, spec.rate_hz)
     chirp = isinstance(cell.reference, Chirp)
     rows = []
     expected_diverged = expected.diverged_at_s is not None
