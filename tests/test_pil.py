@@ -54,3 +54,14 @@ def test_pil_matches_the_python_closed_loop(tmp_path, compensator, sfm):
     cols = load_experiment(res.path).signals.columns()
     np.testing.assert_allclose(cols["tau_frc_hat"], res.arrays["tau_frc_hat"], rtol=0, atol=0)
     np.testing.assert_allclose(cols["u"], res.arrays["u"], rtol=0, atol=0)
+
+
+def test_an_unwritable_out_is_refused_before_the_firmware_is_built(tmp_path):
+    # a PIL session is not free to repeat: its output is probed before the build, like `run`'s
+    from forecast_design.errors import ParameterError
+
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where a folder is expected\n")
+    with pytest.raises(ParameterError, match="--out"):
+        run_pil(compensator="none", duration=0.05, out=blocker / "run.toml", work_dir=tmp_path / "fw")
+    assert not (tmp_path / "fw").exists()

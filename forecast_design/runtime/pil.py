@@ -29,8 +29,8 @@ from ..export.toolchain import M4_CLOCK_HZ, find_tools
 from ..params import Design
 from ..simulation import plant_stepper
 from . import protocol as pr
-from .board import Board, record_to_experiment
-from .link import LinkError
+from .board import Board, _save_with_recovery, check_writable, record_to_experiment
+from .link import BoardError, LinkError
 
 __all__ = ["PilFaults", "PilResult", "QemuBoard", "qemu_available", "run_pil", "pil_session",
            "python_closed_loop", "COUNT_OFFSET"]
@@ -354,6 +354,8 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     why = qemu_available()
     if why:
         raise ExportError(f"pil: {why}")
+    if out is not None:
+        check_writable(out)   # before the build and the session, not after them
     opt = options or FirmwareOptions()
     work = Path(work_dir) if work_dir else (Path(out).with_suffix("").with_name(Path(out).stem + "-firmware")
                                             if out else Path("pil-firmware"))
@@ -367,13 +369,14 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     arrays = {name: np.array([getattr(s, name) for s in samples], dtype=float) for name in _SIGNALS}
     path = None
     if out is not None and samples:
-        from ..experiment import save_experiment
-
         text = (f"processor-in-the-loop on qemu netduinoplus2: reference {ref.to_string()}, {duration} s"
                 + (f"; firmware fault {info['fault']} at sample {info['fault_index']} (torque zero)"
                    if info["fault"] else ""))
         exp = record_to_experiment(fw.design, fw.program.rate_hz, samples, samples[-1].index + 1, description=text)
-        path = str(save_experiment(exp, out))
+        # the session is not repeatable for free: a late write failure goes to a recovery file
+        path, failure = _save_with_recovery(exp, Path(out))
+        if failure:
+            raise BoardError(f"{failure}: the PIL run was saved to the recovery file {path} instead", saved=path)
     stats = info["stats"]
     ips = stats["mean_instructions_per_step"] if (stats and icount) else None
     return PilResult(len(samples), n, info["fault"], info["fault_index"], info["fault_latency_s"], stats, ips,
