@@ -312,6 +312,9 @@ def _from_text(spec: str | os.PathLike, link: dict[str, float], seed: int) -> li
     text = os.fspath(spec).strip()
     if isinstance(spec, os.PathLike) or _looks_like_file(text):
         return [_from_file(Path(text), link)]
+    member = _file_member(text) if "," not in text else None
+    if member is not None:
+        return [_member(_from_file(Path(member[0]), link), member[1], member[0])]
     if "=" in text:
         return [_from_inline(text, link)]
     out = []
@@ -322,10 +325,26 @@ def _from_text(spec: str | os.PathLike, link: dict[str, float], seed: int) -> li
             out.append(_random(item, seed))
         elif _looks_like_file(item):
             out.append(_from_file(Path(item), link))
+        elif _file_member(item) is not None:
+            path, name = _file_member(item)
+            out.append(_member(_from_file(Path(path), link), name, path))
         else:
             env = environment_preset(item)
             out.append(EnvironmentSet((item,), (env,), source=None))
     return out
+
+
+def _file_member(text: str) -> tuple[str, str] | None:
+    """``FILE.toml#NAME`` -> (FILE.toml, NAME): one member of an environment-set file, or None."""
+    path, sep, name = text.rpartition("#")
+    return (path, name.strip()) if sep and path.lower().endswith(".toml") and name.strip() else None
+
+
+def _member(envset: EnvironmentSet, name: str, path: str) -> EnvironmentSet:
+    if name not in envset.names:
+        raise ParameterError(f"{path}: no environment named '{name}' (it has {', '.join(envset.names)})",
+                             name="envs", value=name)
+    return EnvironmentSet((name,), (envset[name],), source=envset.source, notes=envset.notes)
 
 
 def _looks_like_file(text: str) -> bool:

@@ -205,3 +205,28 @@ def test_environment_set_checks_its_own_fields():
         EnvironmentSet(("a", "b"), (ENVIRONMENT_PRESETS["soft"],))
     with pytest.raises(ParameterError, match="not an Environment"):
         EnvironmentSet(("a",), ("soft",))
+
+
+def test_one_member_of_a_set_file_is_named_with_a_hash(tmp_path, capsys):
+    from forecast_design.cli import main
+    from forecast_design.simulation.scenario import load_scenario
+
+    f = tmp_path / "set.toml"
+    f.write_text('[[environment]]\nname = "gripper"\nk_e = 20.0\nJ_e = 0.02\n\n'
+                 '[[environment]]\nname = "wall"\nk_e = 500.0\nJ_e = 1.0\n')
+    whole = resolve_environments(f)
+    one = resolve_environments(f"{f}#wall")
+    assert one.names == ("wall",) and one["wall"] == whole["wall"]
+    mixed = resolve_environments(f"soft,{f}#gripper")
+    assert mixed.names == ("soft", "gripper") and mixed["gripper"] == whole["gripper"]
+    with pytest.raises(ParameterError, match="no environment named 'door'.*gripper, wall"):
+        resolve_environments(f"{f}#door")
+    # every verb takes it (one resolver); a scenario's relative path is the scenario's folder's
+    assert main(["margins", "--env", f"{f}#wall", "--json", str(tmp_path / "m.json")]) == 0
+    from importlib.resources import files
+
+    text = (files("forecast_design") / "data" / "example_scenario.toml").read_text()
+    start, end = text.index("[environment]"), text.index("[controller]")
+    scen = tmp_path / "s.toml"
+    scen.write_text('environment = "set.toml#gripper"\n' + text[:start] + text[end:])
+    assert load_scenario(scen).design.environment == whole["gripper"]

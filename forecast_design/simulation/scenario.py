@@ -419,8 +419,9 @@ def _environment(doc: Mapping[str, Any], testbed: Testbed, prefix: str,
                  source: str | None) -> tuple[Environment, tuple[str, ...]]:
     """The scenario's ``[environment]``: a table, or a string naming one environment as everywhere else.
 
-    The string is a preset name (``"soft"``), inline values (``"k_e=20,J_e=0.02"``) or an
-    environment(-set) file holding exactly one environment, relative to the scenario's folder
+    The string is a preset name (``"soft"``), inline values (``"k_e=20,J_e=0.02"``), an
+    environment(-set) file holding exactly one environment or ``FILE.toml#NAME`` for one member,
+    relative to the scenario's folder
     (docs/environments.md); J_l, d_l default to the Table 1 link. Returns the environment and
     the notes on defaults filled in (e.g. d_e critically damped), for the user to read.
     """
@@ -429,8 +430,9 @@ def _environment(doc: Mapping[str, Any], testbed: Testbed, prefix: str,
         table = _table(doc, "environment", prefix, source, required=True)
         return Environment.from_mapping(table, source=source), ()
     spec = value.strip()
-    if spec.lower().endswith(".toml") and source is not None and not os.path.isabs(spec):
-        spec = os.path.join(os.path.dirname(source), spec)
+    path, sep, member = spec.rpartition("#") if ".toml#" in spec.lower() else (spec, "", "")
+    if path.lower().endswith(".toml") and source is not None and not os.path.isabs(path):
+        spec = os.path.join(os.path.dirname(source), path) + sep + member
     try:
         envset = resolve_environments(spec, testbed=testbed)
         return envset.single("a scenario")[1], envset.notes
