@@ -449,7 +449,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
     gap0 = base.gap_held_out
     ranked = []
     held_rows = data.stacked(data.held_out)
-    tau_rms = float(np.sqrt(np.mean(np.asarray(experiment.signals.tau_m, dtype=float) ** 2)))
+    tau_rms = data.command_rms
     for fit in fits:
         red = 1.0 - fit.gap_held_out / gap0 if gap0 > 0 else 0.0
         # judged on the equations where the effect acts: a quiet equation's gap is not diluted by
@@ -594,7 +594,7 @@ def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandida
             out.append(f"Not identified: '{r.effect}' would remove {100 * r.reduction:.0f} % of the gap but "
                        f"{'; '.join(r.assessment.reasons[:2])}.")
     resolution = data.experiment.design.testbed.k * gap_log_scales(data).encoder_step
-    tau_rms = float(np.sqrt(np.mean(np.square(np.asarray(data.experiment.signals.tau_m, dtype=float)))))
+    tau_rms = data.command_rms
     if tau_rms > 0 and resolution > COARSE_ENCODER_FRACTION * tau_rms:
         out.append(f"Caution: the encoders resolve the spring torque k (theta - q) in steps of {resolution:.2g} N m "
                    f"({100 * resolution / tau_rms:.2g} % of the RMS command, above the "
@@ -616,7 +616,7 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
     best: RankedCandidate | None = None
     passing: dict[str, tuple[RankedCandidate, CandidateFit]] = {}
     held_rows = data.stacked(data.held_out)
-    tau_rms = float(np.sqrt(np.mean(np.square(np.asarray(data.experiment.signals.tau_m, dtype=float)))))
+    tau_rms = data.command_rms
     for fit in fits:
         pair = fit_pair(data, first, fit.effect)
         if pair is None:

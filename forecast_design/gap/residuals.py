@@ -312,6 +312,11 @@ class GapData:
 
 
     @property
+    def command_rms(self) -> float:
+        """RMS of the logged motor command ``tau_m`` [N m] (:func:`command_rms`)."""
+        return command_rms(self.experiment)
+
+    @property
     def locked(self) -> bool:
         """True when the output is locked (no environment equation)."""
         return "environment" not in self.equations
@@ -554,6 +559,11 @@ def classify_tau_s(derived: bool, tau_s: np.ndarray, theta: np.ndarray, q: np.nd
                       excess=float(excess))
 
 
+def command_rms(experiment: Experiment) -> float:
+    """RMS of a log's motor command ``tau_m`` [N m]: the scale of torque-accuracy and resolution tests."""
+    return float(np.sqrt(np.mean(np.square(np.asarray(experiment.signals.tau_m, dtype=float)))))
+
+
 #: Default and lowest automatic decimated rate of the equation errors [Hz].
 DEFAULT_DECIMATED_RATE_HZ, MIN_DECIMATED_RATE_HZ = 100.0, 10.0
 
@@ -587,7 +597,7 @@ def equation_band(experiment: Experiment, options: GapOptions) -> tuple[float, f
     rate = float(experiment.rate_hz)
     sig = experiment.signals
     step = encoder_step_of(sig.theta)
-    tau_rms = float(np.sqrt(np.mean(np.square(np.asarray(sig.tau_m, dtype=float)))))
+    tau_rms = command_rms(experiment)
     J_m = float(experiment.design.testbed.J_m)
     per_band = J_m * step / math.sqrt(12.0) * math.sqrt((2.0 * math.pi) ** 4 / (5.0 * rate / 2.0))
     if tau_rms <= 0.0 or per_band <= 0.0:
