@@ -11,8 +11,12 @@ written for one generator:
   range from the log's own torque, speed and deflection; a coefficient on a box
   bound or a grid parameter at a grid end is ``at_bound``). An effect counts only
   when its defining coefficients differ from zero by a Wald test at 5 % (e.g. the
-  torque gain's ``1 - gain``, the harmonics of cogging jointly) and none of its
-  parameters is implausible.
+  torque gain's ``1 - gain``, the harmonics of cogging jointly, tested on the feature
+  directions the log's excitation resolves: :func:`_group_wald_p`) and none of its
+  parameters is implausible (a bristle stiffness by its presliding displacement
+  ``F_s / sigma0``; collinear harmonics by the torque they make together); an
+  environment scaled alike in J, d and k_e within the datasheet tolerance is the
+  spring torque's re-calibration, not a mismatch.
 * **Does the re-calibration sit at its bound?** ``J_m`` and the spring scale may
   move within the datasheet tolerance; a value on that bound means the nominal
   model is off by more than the datasheet allows *or* an effect in the same
