@@ -364,3 +364,17 @@ def test_a_users_testbed_is_benchmarked_on_itself_with_the_substeps_its_plant_ne
     other = BenchmarkSpec(controllers=spec.controllers, compensators=spec.compensators,
                           environments=spec.environments, references=spec.references, repetitions=2)
     assert spec.cell_key(cell, None) != other.cell_key(cell, None)
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--testbed", "k=-5"], "k"),                                  # absurd stiffness
+    (["--testbed", "k=58,J_m=abc"], "J_m"),                       # not a number
+    (["--testbed", "missing_testbed.toml"], "missing_testbed.toml"),
+    (["--runs", "some_dir", "--testbed", "k=40"], "--testbed"),   # the runs carry their own testbed
+])
+def test_benchmark_testbed_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, words):
+    out = tmp_path / "bm"
+    assert main(["benchmark", *argv, "--repetitions", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("forecast-design: error:") and words in err[0]
+    assert not (out / "results.csv").exists()

@@ -230,3 +230,13 @@ def test_one_member_of_a_set_file_is_named_with_a_hash(tmp_path, capsys):
     scen = tmp_path / "s.toml"
     scen.write_text('environment = "set.toml#gripper"\n' + text[:start] + text[end:])
     assert load_scenario(scen).design.environment == whole["gripper"]
+
+
+def test_an_unknown_member_of_a_set_file_is_one_line_exit_2(tmp_path, capsys):
+    from forecast_design.cli import main
+
+    f = tmp_path / "set.toml"
+    f.write_text('[[environment]]\nname = "gripper"\nk_e = 20.0\nJ_e = 0.02\n')
+    assert main(["margins", "--env", f"{f}#door"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no environment named 'door'" in err[0] and "gripper" in err[0]
