@@ -62,7 +62,7 @@ from .environments import resolve_environments, resolve_testbed
 from .margins import resolve_skew, disk_margin, json_float
 from .params import COMPENSATOR_KINDS, Compensator, Design, PDController
 from .table3 import (PAPER_TABLE3, TABLE3_PLAY_PROBE, TABLE3_SFM_DEADBAND, TABLE3_TRUTH, XCORR_MODES, Table3Result,
-                     Table3Row, identify_extended_sfm, pairwise_xcorr, reproduce_table3)
+                     Table3Row, identify_extended_sfm, pairwise_xcorr, pairwise_xcorr_se, reproduce_table3)
 
 __all__ = [
     "PAPER_FIG7",
@@ -78,6 +78,7 @@ __all__ = [
     "Table3Result",
     "reproduce_table3",
     "pairwise_xcorr",
+    "pairwise_xcorr_se",
     "identify_extended_sfm",
     "MarginRow",
     "fig6_table",

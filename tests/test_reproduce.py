@@ -20,6 +20,7 @@ from forecast_design.reproduce import (
     XCORR_MODES,
     Fig7Choices,
     pairwise_xcorr,
+    pairwise_xcorr_se,
     reproduce_fig7,
     reproduce_table3,
 )
@@ -139,7 +140,24 @@ def test_table3_pd_is_least_repeatable_or_the_deviation_is_explained_with_measur
         # ... and costs the soft environment's compensated loops repeatability instead
         assert probe[("exp-soft", "sfm")]["xcorr"] < table3.row("exp-soft", "sfm").xcorr - 0.02
     for r in table3:
-        assert f"{r.environment}/{r.compensator}: xcorr {r.xcorr:.3f} (paper {r.paper_xcorr:.2f})" in table3.explanation
+        assert (f"{r.environment}/{r.compensator}: xcorr {r.xcorr:.3f} +- {r.xcorr_se:.3f} (paper "
+                f"{r.paper_xcorr:.2f})") in table3.explanation
+
+
+def test_table3_cells_carry_their_sampling_error(table3):
+    # every cell's x-corr and MAE carry a standard error over the draw of ten angles; the MAE's is
+    # the runs' std / sqrt(10), recomputed here from the responses
+    for r in table3:
+        tau = np.array([x.tau_s for x in table3.responses[(r.environment, r.compensator)]])
+        mae_runs = np.mean(np.abs(tau - table3.expected[r.environment].tau_s), axis=1)
+        assert r.mae_se == pytest.approx(np.std(mae_runs, ddof=1) / np.sqrt(10), rel=1e-12)
+        assert r.xcorr_se == pytest.approx(pairwise_xcorr_se(tau), rel=1e-12) and r.xcorr_se > 0.0
+        assert r.to_mapping()["mae_se_N_m"] == r.mae_se
+    # the locked PD's gap to the paper is not the ten angles' sampling: many standard errors
+    n = table3.row("locked", "none")
+    assert abs(n.xcorr - n.paper_xcorr) > 5 * n.xcorr_se
+    assert f"PD alone lies {abs(n.xcorr - n.paper_xcorr) / n.xcorr_se:.1f} standard errors" in table3.explanation
+    assert "paired over the same angles" in table3.explanation
 
 
 def test_table3_xcorr_readings_are_reported_and_only_pearson_can_reach_the_paper(table3):
@@ -201,6 +219,47 @@ def test_pairwise_xcorr_is_the_mean_pearson_r(rng):
     assert pairwise_xcorr(x) == pytest.approx(expected, rel=1e-12)
     with pytest.raises(ParameterError):
         pairwise_xcorr(x[:1])
+
+
+def _brute_jackknife(x, y=None):
+    # leave each repetition out, recompute the statistic from scratch: the textbook jackknife
+    m = x.shape[0]
+    loo = np.array([pairwise_xcorr(np.delete(x, i, axis=0)) - (0.0 if y is None else
+                                                                 pairwise_xcorr(np.delete(y, i, axis=0)))
+                    for i in range(m)])
+    return np.sqrt((m - 1) / m * np.sum((loo - loo.mean()) ** 2))
+
+
+def test_pairwise_xcorr_se_is_the_leave_one_out_jackknife(rng):
+    x = rng.normal(size=(7, 80)).cumsum(axis=1)
+    y = x + rng.normal(scale=2.0, size=x.shape)
+    assert pairwise_xcorr_se(x) == pytest.approx(_brute_jackknife(x), rel=1e-10)
+    assert pairwise_xcorr_se(x, paired_with=y) == pytest.approx(_brute_jackknife(x, y), rel=1e-10)
+    assert pairwise_xcorr_se(x, paired_with=x) == 0.0
+    with pytest.raises(ParameterError, match="at least three repetitions"):
+        pairwise_xcorr_se(x[:2])
+    with pytest.raises(ParameterError, match="same 7 repetitions"):
+        pairwise_xcorr_se(x, paired_with=y[:5])
+
+
+def test_pairwise_xcorr_se_covers_the_spread_over_draws():
+    # step-like responses whose shape varies per run (a random mix of a fast and a slow rise plus
+    # noise): over 400 draws of ten runs the jackknife error matches the statistic's actual spread;
+    # +-1.96 of it covers the mean of all draws 86 % of the time, not 95 % (ten runs, and a
+    # correlation bounded by 1 is skewed), as pairwise_xcorr_se documents
+    rng = np.random.default_rng(7)
+    t = np.arange(400) / 400.0
+    fast, slow = 1 - np.exp(-t / 0.01), 1 - np.exp(-t / 0.08)
+
+    def draw():
+        w = rng.uniform(0.0, 1.0, size=(10, 1))
+        return w * fast + (1 - w) * slow + rng.normal(scale=0.02, size=(10, t.size))
+
+    sets = [draw() for _ in range(400)]
+    values = np.array([pairwise_xcorr(s) for s in sets])
+    ses = np.array([pairwise_xcorr_se(s) for s in sets])
+    assert 0.8 < np.mean(ses) / np.std(values, ddof=1) < 1.25
+    assert 0.80 <= np.mean(np.abs(values - values.mean()) <= 1.96 * ses) <= 0.93
 
 
 def test_pairwise_xcorr_readings_match_independent_formulas(rng):

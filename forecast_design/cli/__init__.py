@@ -254,10 +254,14 @@ def _reproduce_table3(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, rows)
     if args.json != "-":
-        print(f"{'environment':<10} {'compensator':<11} {'xcorr':>7} {'paper':>6} {'mae_N_m':>8} {'paper':>6}")
+        def se(v, digits):   # a standard error, blank without one (fewer than 3 repetitions)
+            return f"{v:.{digits}f}" if v is not None else "-"
+
+        print(f"{'environment':<10} {'compensator':<11} {'xcorr':>7} {'+-':>6} {'paper':>6} {'mae_N_m':>8} "
+              f"{'+-':>7} {'paper':>6}")
         for r in rows:
-            print(f"{r['environment']:<10} {r['compensator']:<11} {r['xcorr']:>7.3f} {r['paper_xcorr']:>6.2f} "
-                  f"{r['mae']:>8.4f} {r['paper_mae']:>6.3f}")
+            print(f"{r['environment']:<10} {r['compensator']:<11} {r['xcorr']:>7.3f} {se(r['xcorr_se'], 3):>6} "
+                  f"{r['paper_xcorr']:>6.2f} {r['mae']:>8.4f} {se(r['mae_se'], 4):>7} {r['paper_mae']:>6.3f}")
         print(result.explanation)
     return 0
 
