@@ -62,7 +62,8 @@ from .environments import resolve_environments, resolve_testbed
 from .margins import resolve_skew, disk_margin, json_float
 from .params import COMPENSATOR_KINDS, Compensator, Design, PDController
 from .table3 import (PAPER_TABLE3, TABLE3_PLAY_PROBE, TABLE3_SFM_DEADBAND, TABLE3_TRUTH, XCORR_MODES, Table3Result,
-                     Table3Row, identify_extended_sfm, pairwise_xcorr, pairwise_xcorr_se, reproduce_table3)
+                     Table3Row, identify_extended_sfm, pairwise_xcorr, pairwise_xcorr_per_run,
+                     pairwise_xcorr_se, reproduce_table3, xcorr_se_from_per_run)
 
 __all__ = [
     "PAPER_FIG7",
@@ -79,6 +80,8 @@ __all__ = [
     "reproduce_table3",
     "pairwise_xcorr",
     "pairwise_xcorr_se",
+    "pairwise_xcorr_per_run",
+    "xcorr_se_from_per_run",
     "identify_extended_sfm",
     "MarginRow",
     "fig6_table",

@@ -53,6 +53,8 @@ __all__ = [
     "reproduce_table3",
     "pairwise_xcorr",
     "pairwise_xcorr_se",
+    "pairwise_xcorr_per_run",
+    "xcorr_se_from_per_run",
     "XCORR_MODES",
     "identify_extended_sfm",
 ]
@@ -273,17 +275,50 @@ def pairwise_xcorr(responses: np.ndarray, mode: str = "pearson") -> float:
     return float(np.mean(c[np.triu_indices(c.shape[0], 1)]))
 
 
-def _leave_one_out_pair_means(c: np.ndarray) -> np.ndarray:
-    """Mean of the off-diagonal pairs of ``c`` with repetition i left out, for each i."""
-    m = c.shape[0]
-    off = c - np.diag(np.diag(c))
-    total = np.sum(off) / 2.0
-    return (total - np.sum(off, axis=1)) / ((m - 1) * (m - 2) / 2.0)
+def pairwise_xcorr_per_run(responses: np.ndarray, mode: str = "pearson") -> np.ndarray:
+    """Each run's mean normalised cross-correlation with the other repetitions [-].
+
+    Parameters
+    ----------
+    responses : ndarray, shape (m, n)
+        One response per row, m >= 2.
+    mode : str
+        Reading, one of :data:`XCORR_MODES`.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Its mean equals :func:`pairwise_xcorr` of the set.
+    """
+    c = _pair_matrix(responses, mode)
+    return (np.sum(c, axis=1) - np.diag(c)) / (c.shape[0] - 1)
 
 
-def _jackknife_se(loo: np.ndarray) -> float:
-    m = loo.size
-    return float(math.sqrt((m - 1) / m * np.sum((loo - loo.mean()) ** 2)))
+def xcorr_se_from_per_run(per_run: np.ndarray) -> float:
+    """Jackknife standard error of the mean pairwise x-corr from each run's mean correlation [-].
+
+    Leaving run i out removes its m - 1 pairs, so the leave-one-out means are
+    ``(m R - 2 r_i) / (m - 2)`` (``R`` the set's value, ``r_i`` run i's mean correlation with
+    the others) and the jackknife ``sqrt((m - 1)/m sum (R_(i) - mean)^2)`` reduces to
+    ``2 / (m - 2) sqrt((m - 1)/m sum (r_i - mean r)^2)``. Linear in ``r``, so the difference of
+    two sets run from the same initial conditions takes ``r_i - r'_i``.
+
+    Parameters
+    ----------
+    per_run : ndarray, shape (m,)
+        :func:`pairwise_xcorr_per_run` (or a paired difference of two), m >= 3.
+
+    Returns
+    -------
+    float
+        Standard error [-]; NaN when fewer than three runs are finite.
+    """
+    r = np.asarray(per_run, dtype=float)
+    r = r[np.isfinite(r)]
+    m = r.size
+    if m < 3:
+        return math.nan
+    return float(2.0 / (m - 2) * math.sqrt((m - 1) / m * np.sum((r - r.mean()) ** 2)))
 
 
 def pairwise_xcorr_se(responses: np.ndarray, mode: str = "pearson", *, paired_with: np.ndarray | None = None
@@ -292,11 +327,11 @@ def pairwise_xcorr_se(responses: np.ndarray, mode: str = "pearson", *, paired_wi
 
     The mean pairwise correlation is a U-statistic of the m repetitions; leaving each repetition
     out in turn (its m - 1 pairs) gives the jackknife estimate of its sampling standard error
-    (Arvesen 1969): how much the value would move with another draw of initial angles. Measured on
-    synthetic step responses with ten repetitions (tests): its mean is 0.97 of the statistic's actual
-    spread, but +-1.96 standard errors cover the true mean only ~86 % of the time (the estimate from
-    ten runs is itself uncertain and a correlation bounded by 1 is skewed): read it as a scale, and
-    use about +-2.3 for a 90 % statement.
+    (Arvesen 1969; :func:`xcorr_se_from_per_run`): how much the value would move with another
+    draw of initial angles. Measured on synthetic step responses with ten repetitions (tests): its
+    mean is 0.97 of the statistic's actual spread, but +-1.96 standard errors cover the true mean
+    only ~86 % of the time (the estimate from ten runs is itself uncertain and a correlation
+    bounded by 1 is skewed): read it as a scale, and use about +-2.3 for a 90 % statement.
 
     Parameters
     ----------
@@ -314,18 +349,17 @@ def pairwise_xcorr_se(responses: np.ndarray, mode: str = "pearson", *, paired_wi
     float
         Standard error [-].
     """
-    c = _pair_matrix(responses, mode)
-    if c.shape[0] < 3:
-        raise ParameterError(f"a jackknife standard error needs at least three repetitions, got {c.shape[0]}",
-                             name="responses", value=c.shape)
-    loo = _leave_one_out_pair_means(c)
+    r = pairwise_xcorr_per_run(responses, mode)
+    if r.size < 3:
+        raise ParameterError(f"a jackknife standard error needs at least three repetitions, got {r.size}",
+                             name="responses", value=r.size)
     if paired_with is not None:
-        c2 = _pair_matrix(paired_with, mode)
-        if c2.shape[0] != c.shape[0]:
-            raise ParameterError(f"paired_with needs the same {c.shape[0]} repetitions, got {c2.shape[0]}",
-                                 name="paired_with", value=c2.shape)
-        loo = loo - _leave_one_out_pair_means(c2)
-    return _jackknife_se(loo)
+        r2 = pairwise_xcorr_per_run(paired_with, mode)
+        if r2.size != r.size:
+            raise ParameterError(f"paired_with needs the same {r.size} repetitions, got {r2.size}",
+                                 name="paired_with", value=r2.size)
+        r = r - r2
+    return xcorr_se_from_per_run(r)
 
 
 def _identification_profile(levels: Sequence[float], hold_s: float, ramp_s: float = 0.2):

@@ -10,7 +10,7 @@ import pytest
 from forecast_design.benchmark import (BenchmarkSpec, parse_compensators, parse_controller, parse_reference,
                                        repeatability_per_run, result_rows, result_table, run_benchmark,
                                        step_metrics, tracking_bandwidth_hz)
-from forecast_design.benchmark.metrics import pairwise_xcorr
+from forecast_design.benchmark.metrics import pairwise_xcorr, xcorr_se_from_per_run
 from forecast_design.cli import main
 from forecast_design.effects import Stiction
 from forecast_design.errors import ExperimentFormatError, ParameterError
@@ -134,10 +134,21 @@ def test_aggregates_are_the_mean_best_and_worst_of_their_rows(bench):
         assert env["best"]["mae_N_m"] == min(r["mae_N_m"] for r in mine)
         assert env["worst"]["mae_N_m"] == max(r["mae_N_m"] for r in mine)
         assert env["mean"]["repeatability"] == pytest.approx(cell.repeatability, rel=1e-12)
+        # the mean's standard error over the repetitions: std/sqrt(n) of the runs; the jackknife (its
+        # closed form from the runs' mean correlations, checked against the brute-force jackknife in
+        # test_reproduce) for the repeatability; 0 for the one loop's disk margin
+        maes = np.array([r["mae_N_m"] for r in mine])
+        assert env["se"]["mae_N_m"] == pytest.approx(np.std(maes, ddof=1) / np.sqrt(maes.size), rel=1e-12)
+        assert env["se"]["repeatability"] == pytest.approx(
+            xcorr_se_from_per_run(np.array([r["repeatability"] for r in mine])), rel=1e-12)
+        assert env["se"]["disk_margin"] == 0.0
     sets = {(r["compensator"], r["statistic"]): r for r in rows if r["kind"] == "set"}
     env_means = [r for r in rows if r["kind"] == "environment" and r["statistic"] == "mean" and r["compensator"] == "none"]
     assert sets[("none", "worst")]["mae_N_m"] == max(r["mae_N_m"] for r in env_means)
     assert sets[("none", "best")]["repeatability"] == max(r["repeatability"] for r in env_means)
+    env_ses = [r for r in rows if r["kind"] == "environment" and r["statistic"] == "se" and r["compensator"] == "none"]
+    assert sets[("none", "se")]["mae_N_m"] == pytest.approx(
+        np.sqrt(sum(r["mae_N_m"] ** 2 for r in env_ses)) / len(env_ses), rel=1e-12)
 
 
 def test_the_eafob_beats_pd_alone_over_the_set(bench):
@@ -176,7 +187,7 @@ def test_benchmark_verb_writes_table_plots_report_and_json(tmp_path, capsys):
     for name in ("indicators.png", "overlays.png", "heatmap.png", "report.md", "summary.json"):
         assert (out / name).stat().st_size > 500
     summary = json.loads((tmp_path / "s.json").read_text())
-    assert summary["run"]["computed"] == 8 and {r["statistic"] for r in summary["set"]} == {"mean", "best", "worst"}
+    assert summary["run"]["computed"] == 8 and {r["statistic"] for r in summary["set"]} == {"mean", "se", "best", "worst"}
     capsys.readouterr()
     assert main(args[:-2] + ["--no-plots"]) == 0
     assert "0 cells computed, 8 reused" in capsys.readouterr().out

@@ -114,8 +114,10 @@ def test_bad_scheduler_address_is_a_one_line_error():
 @pytest.fixture(scope="module")
 def cluster():
     distributed = pytest.importorskip("distributed")
+    # ":0": the scheduler's HTTP server takes a free port (None still binds 8787, and two test
+    # processes starting clusters at once then collide on it)
     c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                 dashboard_address=None)
+                                 dashboard_address="127.0.0.1:0")
     yield c
     c.close()
 

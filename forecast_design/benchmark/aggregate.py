@@ -2,9 +2,12 @@
 
 The table has one row per run (``kind = "run"``), one per environment and statistic
 (``kind = "environment"``: mean, best and worst over the repetitions; the ``mean``
-row's repeatability is the cell's mean pairwise cross-correlation) and one per set and
+row's repeatability is the cell's mean pairwise cross-correlation; ``se`` is the mean's
+standard error over the repetitions' draw of initial angles: std / sqrt(n) of the runs, the
+jackknife for the repeatability, 0 for the disk margin of the one loop) and one per set and
 statistic (``kind = "set"``: mean, best and worst over the environments of their
-per-environment means; ``which`` names the best or worst environment) for every
+per-environment means, and ``se`` = sqrt(sum se_e^2) / n_e, the standard error of that mean;
+``which`` names the best or worst environment) for every
 controller, compensator and reference: the Forecast methodology's average, best-case
 and worst-case performance over a whole set of environments (Section 2). "Best" is the
 largest repeatability, bandwidth and disk margin and the smallest MAE, rise time,
@@ -21,11 +24,12 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from .metrics import HIGHER_IS_BETTER, METRICS
+from .metrics import HIGHER_IS_BETTER, METRICS, xcorr_se_from_per_run
 from ..fileio import atomic_open, atomic_write
 from .runner import CellResult, _jsonable
 
-__all__ = ["result_rows", "result_table", "write_tables", "summary", "COLUMNS", "LABELS", "ENV_COLUMNS"]
+__all__ = ["result_rows", "result_table", "write_tables", "summary", "COLUMNS", "LABELS", "ENV_COLUMNS",
+           "STATISTICS"]
 
 #: Label columns of a cell.
 LABELS = ("controller", "compensator", "environment", "reference")
@@ -54,6 +58,21 @@ def _pick(metric: str, values: Sequence[float], best: bool) -> tuple[float, int 
     return float(v[i]), i
 
 
+#: Statistics of the ``environment`` and ``set`` rows.
+STATISTICS = ("mean", "se", "best", "worst")
+
+
+def _standard_error(metric: str, values: Sequence[float]) -> float:
+    """Standard error of a cell's mean of ``metric`` over its repetitions (NaN below 2 finite runs)."""
+    v = np.asarray(values, dtype=float)
+    if metric == "repeatability":
+        return xcorr_se_from_per_run(v)       # the runs' mean correlations: a U-statistic's jackknife
+    v = v[np.isfinite(v)]
+    if v.size < 2:
+        return math.nan
+    return float(np.std(v, ddof=1) / math.sqrt(v.size))
+
+
 def result_rows(cells: Iterable[CellResult]) -> list[dict[str, Any]]:
     """The tidy rows (see the module docstring) of a benchmark's cells.
 
@@ -77,7 +96,8 @@ def result_rows(cells: Iterable[CellResult]) -> list[dict[str, Any]]:
             rows.append({"kind": "run", "statistic": "value", **base, "repetition": int(r["repetition"]),
                          "initial_angle_rad": float(r["initial_angle_rad"]), "which": None,
                          **{m: float(r[m]) for m in METRICS}})
-        for stat in ("mean", "best", "worst"):
+        per_env = {}
+        for stat in STATISTICS:
             row = {"kind": "environment", "statistic": stat, **base, "repetition": None,
                    "initial_angle_rad": math.nan, "which": None}
             for m in METRICS:
@@ -85,24 +105,32 @@ def result_rows(cells: Iterable[CellResult]) -> list[dict[str, Any]]:
                 if stat == "mean":
                     finite = [v for v in vals if math.isfinite(v)]
                     row[m] = float(np.mean(finite)) if finite else math.nan
+                elif stat == "se":
+                    row[m] = _standard_error(m, vals)
                 else:
                     row[m] = _pick(m, vals, stat == "best")[0]
             if stat == "mean":
                 row["repeatability"] = float(c.repeatability)
-                env_means.setdefault((c.labels["controller"], c.labels["compensator"], c.labels["reference"]),
-                                     []).append((c.labels["environment"], row))
+            per_env[stat] = row
             rows.append(row)
+        env_means.setdefault((c.labels["controller"], c.labels["compensator"], c.labels["reference"]),
+                             []).append((c.labels["environment"], per_env["mean"], per_env["se"]))
     for (ctrl, comp, ref), items in env_means.items():
-        for stat in ("mean", "best", "worst"):
+        for stat in STATISTICS:
             row = {"kind": "set", "statistic": stat, "controller": ctrl, "compensator": comp,
                    "environment": "(set)", "reference": ref, "repetition": None, "initial_angle_rad": math.nan,
                    "which": None, **dict.fromkeys(ENV_COLUMNS)}
             which = []
             for m in METRICS:
-                vals = [r[m] for _, r in items]
+                vals = [r[m] for _, r, _ in items]
                 if stat == "mean":
                     finite = [v for v in vals if math.isfinite(v)]
                     row[m] = float(np.mean(finite)) if finite else math.nan
+                elif stat == "se":
+                    # the environments' means are independent draws: the variance of their mean
+                    ses = [se[m] for _, r, se in items if math.isfinite(r[m])]
+                    row[m] = float(math.sqrt(sum(x * x for x in ses)) / len(ses)) \
+                        if ses and all(math.isfinite(x) for x in ses) else math.nan
                 else:
                     row[m], i = _pick(m, vals, stat == "best")
                     if i is not None:

@@ -33,10 +33,10 @@ import numpy as np
 from ..analysis import loop_margins
 from ..errors import ParameterError
 from ..params import Compensator, Design
-from ..reproduce import pairwise_xcorr
+from ..reproduce import pairwise_xcorr, pairwise_xcorr_per_run, xcorr_se_from_per_run
 
 __all__ = ["step_metrics", "tracking_bandwidth_hz", "frequency_response", "repeatability_per_run",
-           "pairwise_xcorr", "disk_margin_of", "METRICS", "HIGHER_IS_BETTER"]
+           "pairwise_xcorr", "xcorr_se_from_per_run", "disk_margin_of", "METRICS", "HIGHER_IS_BETTER"]
 
 #: Metric columns of the result table, in order.
 METRICS = ("repeatability", "mae_N_m", "rise_time_s", "overshoot_percent", "settling_time_s",
@@ -188,15 +188,14 @@ def repeatability_per_run(responses: np.ndarray) -> np.ndarray:
     Returns
     -------
     ndarray, shape (m,)
-        Its mean equals :func:`pairwise_xcorr` of the set.
+        Its mean equals :func:`pairwise_xcorr` of the set; :func:`xcorr_se_from_per_run` turns it
+        into the set value's jackknife standard error.
     """
     x = np.asarray(responses, dtype=float)
     if x.ndim != 2 or x.shape[0] < 2:
         raise ParameterError(f"repeatability needs at least two responses as rows, got shape {x.shape}",
                              name="responses", value=x.shape)
-    c = np.corrcoef(x)
-    m = x.shape[0]
-    return (np.sum(c, axis=1) - np.diag(c)) / (m - 1)
+    return pairwise_xcorr_per_run(x)
 
 
 def disk_margin_of(design: Design, compensator: Compensator, rate_hz: float = 2000.0) -> float:

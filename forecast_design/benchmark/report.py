@@ -69,7 +69,10 @@ def markdown_report(rows: Sequence[Mapping[str, Any]], spec: Mapping[str, Any], 
              "compensator); rise time 10-90 % of the run's final value; overshoot; 2 % settling time; "
              "steady-state error = reference - final value; tracking bandwidth = -3 dB of tau_s/tau_r from a "
              "chirp; disk margin of the loop (balanced, broken at the controller output).", "",
-             "## Over the set (mean, best, worst over the environments)", ""]
+             "Statistics: mean over the repetitions (per environment) or over the environments' means (set); "
+             "se = that mean's standard error over the draw of initial angles (std/sqrt(n) of the runs, the "
+             "jackknife for the repeatability; over the set sqrt(sum se^2)/n); best and worst.", "",
+             "## Over the set (mean, se, best, worst over the environments)", ""]
     sets = [r for r in rows if r["kind"] == "set"]
     lines += _table(sets, ("controller", "compensator", "reference", "statistic"), used)
     lines += ["", "## Per environment (means over the repetitions)", ""]

@@ -62,6 +62,9 @@ def plot_indicators(df, path: str | Path | None = None, *,
     """
     plt = _pyplot()
     sub = _env_means(df)
+    keys = ["controller", "compensator", "reference", "environment"]
+    se_rows = df[(df["kind"] == "environment") & (df["statistic"] == "se")]
+    se_of = {tuple(r[k] for k in keys): r for _, r in se_rows.iterrows()}
     metrics = [m for m in metrics if m in sub and np.isfinite(sub[m].to_numpy(dtype=float)).any()]
     xs, locked_x = _stiffness_axis(sub)
     n = max(1, len(metrics))
@@ -75,7 +78,12 @@ def plot_indicators(df, path: str | Path | None = None, *,
             order = np.argsort(x)
             if not np.isfinite(y).any():
                 continue
-            ax.plot(x[order], y[order], marker="o", lw=1.2, label=f"{ctrl} + {comp} ({ref.split(':')[0]})")
+            line, = ax.plot(x[order], y[order], marker="o", lw=1.2, label=f"{ctrl} + {comp} ({ref.split(':')[0]})")
+            se = np.array([float(se_of[(ctrl, comp, ref, e)][m]) if (ctrl, comp, ref, e) in se_of else np.nan
+                           for e in g["environment"]])
+            if np.isfinite(se).any():      # +- one standard error over the repetitions
+                ax.errorbar(x[order], y[order], yerr=np.nan_to_num(se[order]), fmt="none", ecolor=line.get_color(),
+                            elinewidth=0.8, capsize=2)
         ax.set_xscale("log")
         ax.set_xlabel("environment stiffness k_e [N m/rad]" + (" (locked at right)" if locked_x else ""))
         ax.set_ylabel(UNITS.get(m, m))
@@ -84,7 +92,7 @@ def plot_indicators(df, path: str | Path | None = None, *,
         ax.axis("off")
     if metrics:
         axes.flat[0].legend(fontsize=7)
-    fig.suptitle("Benchmark indicators over the environment set (per-environment means)")
+    fig.suptitle("Benchmark indicators over the environment set (per-environment means +- one standard error)")
     fig.tight_layout()
     if path is not None:
         write_figure(fig, path)
