@@ -18,7 +18,7 @@ from forecast_design import independent as ind
 from forecast_design.effects import Effect
 from forecast_design.gap import diagnose
 from forecast_design.gap.residuals import classify_tau_s, significant_digits
-from forecast_design.params import environment_preset
+from forecast_design.params import PDController, environment_preset
 
 
 def _log(word, index=0, seed=5, scale=1.0, **changes):
@@ -80,6 +80,36 @@ def test_backlash_is_named_whatever_the_tau_s_column(env, logging):
     d = diagnose(exp, joint=False)
     assert d.data.tau_s_source.source == ("absent" if logging == "omitted" else "derived")
     assert d.effect is Effect.BACKLASH and d.reduction >= 0.5
+
+
+# --- 1b. a torque sensor whose zero is off -----------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("word,env,offset", [("none", "locked", 0.02), ("none", "stiff", -0.02),
+                                             ("delay", "locked", 0.02), ("cogging", "exp-soft", -0.02)])
+def test_a_torque_sensor_zero_offset_is_calibrated_out_not_blamed(word, env, offset):
+    # a closed-loop log turning a few hundredths of a radian from a sensor reading spring torque +
+    # offset: the offset is a constant torque, which the old diagnosis called cogging (four false
+    # alarms in bench-gap --generator independent once the generator drew sensor zeros); now the
+    # sensor's zero is calibrated (it shows in the coupling equation too) and the effect is named
+    params = {"none": {}, "delay": {"delay_s": 0.003}, "cogging": {"cog_a": (0.12,), "cog_b": (0.05,)}}[word]
+    case = ind.IndependentCase(
+        words=(word,), environment=environment_preset(env), environment_name=env, closed_loop=True,
+        controller=PDController(P=5.0, D=0.1),
+        excitation=ind.Excitation(kind="multisine", amplitude=0.6, f_lo_hz=0.2, f_hi_hz=3.0), rate_hz=2000.0,
+        duration_s=10.0, tau_s_logging="sensor", sensor_noise=0.002, sensor_offset=offset,
+        effect_params=params, seed=11)
+    exp, _ = ind.simulate_independent(case)
+    d = diagnose(exp, joint=False)
+    assert d.data.tau_s_source.measured
+    assert str(d.effect) == word
+    # the verdict's calibrated zero is the sensor's: true spring torque = tau_s + o, o = -offset
+    o = d.fits.get(word, d.baseline).calibration["tau_s_offset_N_m"]
+    assert o == pytest.approx(-offset, abs=0.2 * abs(offset))
+    # named in a note once beyond the calibration tolerance of the peak spring torque
+    peak = np.max(np.abs(d.data.columns["tau_s"]))
+    assert any("zero offset" in c for c in d.caveats) == (abs(o) > d.data.options.calibration_tolerance * peak)
 
 
 # --- 2. a torque gain the re-calibration must not absorb ------------------------------------

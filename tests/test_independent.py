@@ -215,6 +215,19 @@ def test_tau_s_omitted_or_from_an_independent_sensor():
     exp, tr = simulate_independent(_case(env="soft", tau_s_logging="sensor", sensor_noise=0.003))
     residual = np.asarray(exp.signals.tau_s) - tr.tau_spring
     assert 0.002 < residual.std() < 0.004 and abs(residual.mean()) < 5e-4
+    # a sensor whose zero is off reads spring torque + offset
+    exp, tr = simulate_independent(_case(env="soft", tau_s_logging="sensor", sensor_noise=0.003, sensor_offset=0.015))
+    residual = np.asarray(exp.signals.tau_s) - tr.tau_spring
+    assert residual.mean() == pytest.approx(0.015, abs=5e-4)
+
+
+def test_drawn_torque_sensors_have_a_bounded_zero_offset_and_other_loggers_none():
+    from forecast_design.independent.draw import SENSOR_OFFSET_N_M, draw_independent_case
+
+    cases = [draw_independent_case("none", i, 3) for i in range(60)]
+    sensors = [c.sensor_offset for c in cases if c.tau_s_logging == "sensor"]
+    assert sensors and all(0 < abs(o) <= SENSOR_OFFSET_N_M for o in sensors)
+    assert all(c.sensor_offset == 0.0 for c in cases if c.tau_s_logging != "sensor")
 
 
 def test_printed_command_and_nominal_testbed():

@@ -6,10 +6,14 @@ bounded least squares (:func:`scipy.optimize.lsq_linear`) on the fit blocks,
 with a grid over the nonlinear parameter chosen on the fit blocks too. The held
 out blocks only ever *evaluate*.
 
-All candidates, and the effect-free baseline, share three calibration
+All candidates, and the effect-free baseline, share the calibration
 coefficients: ``J_m`` and the spring torque scale (the nominal ``k``) may move
 within ``GapOptions.calibration_tolerance`` and ``d_m`` anywhere >= 0, because a
-few percent of parameter error is not an unmodelled effect. A torque gain is
+few percent of parameter error is not an unmodelled effect; a measured ``tau_s``'s
+zero offset (a torque sensor's zero, seen in the motor, environment and coupling
+equations alike) is calibrated out at any size: no effect word is a constant torque,
+and over the fraction of a revolution a force-control log turns through the constant
+would otherwise pass for cogging. A torque gain is
 indistinguishable from a common scaling of ``J_m``, ``d_m`` and ``k``; only a
 gain error beyond that tolerance can be blamed on the motor.
 
@@ -73,7 +77,9 @@ class CandidateFit:
         :mod:`forecast_design.effects` where they match.
     calibration : Mapping[str, float]
         Re-calibrated nominal values ``J_m`` [kg m^2], ``d_m`` [N m s/rad] and
-        ``spring_scale`` [-] (true spring torque / ``tau_s``).
+        ``spring_scale`` [-]; with a measured ``tau_s`` also ``k`` [N m/rad] and
+        ``tau_s_offset_N_m`` [N m] (true spring torque = spring_scale x ``tau_s`` + offset:
+        the sensor's zero).
     n_params : int
         Number of effect parameters (nonlinear ones included) [-].
     residual : ndarray, shape (m * n_equations,)
@@ -118,7 +124,27 @@ def _calibration(data: GapData) -> list[_Coef]:
     ]
     if data.tau_s_measured:
         coefs.append(_Coef("dk", data.stack({"coupling": c["spring"] / tb.k}), -tol * tb.k, tol * tb.k))
+    if data.tau_s_measured:
+        # a torque sensor's zero: true spring torque = (1 + s) tau_s + o, so -o shows in the coupling
+        # equation too, which tells it from a constant motor torque (cogging over a fraction of a
+        # revolution). Unbounded: no effect word is a constant torque, and a bound (tried: 3 % of the
+        # peak |tau_s|) left a realistic 0.02 N m sensor zero on a light log to cogging. A derived
+        # tau_s gets none: there a zero offset (encoders homed with the spring loaded) and a constant
+        # motor torque are the same column, and the verdict carries a caveat instead.
+        ones = np.ones(data.t.size)
+        coefs.append(_Coef("o", data.stack({"motor": ones, "environment": -ones, "coupling": -ones})))
     return coefs
+
+
+def _calibration_values(data: GapData, coefs: Sequence[_Coef], p: np.ndarray) -> dict[str, float]:
+    """The re-calibrated nominal values of a solution ``p`` whose first entries are :func:`_calibration`'s."""
+    tb = data.experiment.design.testbed
+    got = {c.name: float(v) for c, v in zip(coefs, p)}
+    out = {"J_m": tb.J_m + got["dJ_m"], "d_m": tb.d_m + got["dd_m"], "spring_scale": 1.0 + got["s"]}
+    if "dk" in got:
+        out["k"] = tb.k + got["dk"]
+        out["tau_s_offset_N_m"] = got["o"]
+    return {k: float(v) for k, v in out.items()}
 
 
 def _dahl(v: np.ndarray, dt: float, x_p: float) -> np.ndarray:
@@ -375,12 +401,9 @@ def _fit(data: GapData, effect: Effect, structure: _Structure | None) -> Candida
     coefs = cal + (structure.coefs if structure else [])
     level = structure.level if structure else None
     p = _solve(data, coefs, _fit_rows(data, structure))
-    tb = data.experiment.design.testbed
     r, prediction = _evaluate(data, effect, coefs, p, len(cal), level)
     gap_fit, gap_held, sse = _summaries(data, r)
-    calibration = {"J_m": float(tb.J_m + p[0]), "d_m": float(tb.d_m + p[1]), "spring_scale": float(1.0 + p[2])}
-    if data.tau_s_measured:
-        calibration["k"] = float(tb.k + p[3])
+    calibration = _calibration_values(data, cal, p)
     params = structure.to_params(p[len(cal):]) if structure else {}
     return CandidateFit(effect=effect, params=params, calibration=calibration,
                         n_params=structure.n_params if structure else 0, residual=r, gap_fit=gap_fit,

@@ -524,7 +524,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
         eff, gap_after, params = Effect.NONE, gap0, {}
     else:
         eff, gap_after, params = winner.effect, winner.gap_after, winner.params
-    caveats += _computed_caveats(data, eff, ranked, iso, base, opts)
+    caveats += _computed_caveats(data, eff, ranked, iso, base, opts, by_effect.get(str(eff), base))
     if location.single_tone:
         caveats.append(f"Caution: the command is essentially one sine at {location.tone_hz:.2g} Hz; there a delay "
                        "looks like extra motor damping and a torque_gain like a J_m/k rescaling, so delay, "
@@ -575,7 +575,7 @@ COARSE_ENCODER_FRACTION = 2e-3
 
 
 def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandidate], iso: Isolability,
-                      base: CandidateFit, opts: GapOptions) -> list[str]:
+                      base: CandidateFit, opts: GapOptions, chosen: CandidateFit | None = None) -> list[str]:
     """Caveats computed from this log: isolability, unidentified candidates, a bounded re-calibration."""
     out = []
     if verdict is not Effect.NONE:
@@ -600,6 +600,20 @@ def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandida
                    f"({100 * resolution / tau_rms:.2g} % of the RMS command, above the "
                    f"{100 * COARSE_ENCODER_FRACTION:g} % the diagnosis is validated at): on such logs it misses most "
                    "delays and in a few percent of set-ups names a wrong effect (environment_mismatch, cogging).")
+    if verdict is Effect.COGGING and chosen is not None and chosen is not base and not data.tau_s_measured:
+        m = data.t.size
+        torque = chosen.prediction[:m]          # the cogging torque on the motor over the log [N m]
+        if abs(float(np.mean(torque))) > 2.0 * float(np.std(torque)):
+            span = float(np.ptp(data.columns["theta_sub"]))
+            out.append(f"Caution: over this log's {span:.2g} rad of motor travel the cogging torque "
+                       f"is nearly constant ({float(np.mean(torque)):+.3g} N m, varying by "
+                       f"{float(np.std(torque)):.2g} N m); zero offsets of the encoders (homed with the spring loaded, "
+                       "so that k (theta - q) is off by a constant) would look the same.")
+    offset = (chosen or base).calibration.get("tau_s_offset_N_m")     # the verdict's own calibration
+    peak = float(np.max(np.abs(data.columns["tau_s"])))
+    if offset is not None and abs(offset) > opts.calibration_tolerance * peak:
+        out.append(f"Note: the torque sensor's zero offset, {-offset:+.3g} N m ({100 * abs(offset) / peak:.2g} % "
+                   "of the peak |tau_s|), is calibrated out, not blamed on an effect.")
     at_bound = [k for k, st in calibration_status(data, base).items() if st.status == "at_bound"]
     if at_bound:
         out.append(f"Caution: the nominal re-calibration of {', '.join(at_bound)} sits on its datasheet bound "

@@ -329,6 +329,9 @@ def _zero_means_absent(name: str) -> bool:
 def calibration_status(data: GapData, fit: CandidateFit) -> dict[str, ParameterStatus]:
     """Whether the re-calibrated ``J_m``, spring scale (and ``k``) of a fit sit on their tolerance.
 
+    A measured ``tau_s``'s zero offset is reported too; it is not bounded (no effect word is a
+    constant torque), so it is never ``at_bound``.
+
     Parameters
     ----------
     data : GapData
@@ -348,6 +351,8 @@ def calibration_status(data: GapData, fit: CandidateFit) -> dict[str, ParameterS
            "spring_scale": assess("spring_scale", c["spring_scale"], solver_bounds=(1 - tol, 1 + tol), rel_tol=1e-5)}
     if "k" in c:
         out["k"] = assess("k", c["k"], solver_bounds=(tb.k * (1 - tol), tb.k * (1 + tol)), rel_tol=1e-5)
+    if "tau_s_offset_N_m" in c:      # unbounded: a constant is no effect
+        out["tau_s_offset_N_m"] = assess("tau_s_offset_N_m", c["tau_s_offset_N_m"])
     return out
 
 

@@ -181,11 +181,13 @@ def _replay(data: GapData, fit: Any | None, starts: np.ndarray, L: int) -> dict[
     if fit is not None:
         m = data.t.size
         parts = {eq: fit.prediction[i * m:(i + 1) * m] for i, eq in enumerate(data.equations)}
-        wm = _upsample(data, parts.get("motor", np.zeros(m)), n)
-        we = _upsample(data, parts.get("environment", np.zeros(m)), n)
+        cal = fit.calibration
+        # a re-calibrated zero offset o of tau_s adds +o to the motor's and -o to the environment's error
+        offset = float(cal.get("tau_s_offset_N_m", 0.0))
+        wm = _upsample(data, parts.get("motor", np.zeros(m)), n) + offset
+        we = _upsample(data, parts.get("environment", np.zeros(m)), n) - (0.0 if env.locked else offset)
         # the prediction is what the effect adds to the equation error: remove it from the drive
         inputs = np.column_stack([tau_m - wm, -we])
-        cal = fit.calibration
         tb1 = dataclasses.replace(tb, J_m=float(cal.get("J_m", tb.J_m)), d_m=float(max(cal.get("d_m", tb.d_m), 0.0)))
         out["tau_s_after"], out["theta_after"] = run(tb1, inputs, float(cal.get("spring_scale", 1.0)))
     return out

@@ -22,6 +22,10 @@ from .plant import simulate_independent
 # drawing cases
 
 
+#: Largest zero offset of a drawn torque sensor [N m] (0.2-0.4 % of a 5-10 N m sensor's range).
+SENSOR_OFFSET_N_M = 0.02
+
+
 def _motor_gain(tb: Testbed, env: Environment, f_hz: float) -> float:
     """|theta / tau_m| of the nominal linear plant at f_hz [rad/(N m)]."""
     s = 2j * math.pi * f_hz
@@ -229,7 +233,7 @@ def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitud
     controller = PDController(P=float(rng.uniform(3.0, 6.0)), D=float(rng.uniform(0.05, 0.12)))
     r = rng.random()
     tau_s = "omitted" if r < 0.3 else ("sensor" if r > 0.8 else f"derived:{int(rng.integers(6, 11))}")
-    return IndependentCase(
+    case = IndependentCase(
         words=(effect,), magnitude_scale=scale, environment=env, environment_name=env_name,
         excitation=excitation, closed_loop=closed, controller=controller if closed else None,
         derivative_filter_hz=float(rng.uniform(50.0, 200.0)), rate_hz=rate, duration_s=duration,
@@ -241,6 +245,10 @@ def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitud
         effect_params=params, initial_angle=float(rng.uniform(0.0, 2.0 * math.pi)),
         seed=int(rng.integers(0, 2**62)), index=int(index), attempt=int(attempt),
     )
+    if tau_s == "sensor":
+        # a torque sensor's zero is never exact; drawn last, so the rest of the draw is unchanged
+        case = replace(case, sensor_offset=float(rng.uniform(-SENSOR_OFFSET_N_M, SENSOR_OFFSET_N_M)))
+    return case
 
 
 # --------------------------------------------------------------------------------------

@@ -154,6 +154,8 @@ class IndependentCase:
         Standard deviation of encoder noise before quantisation [counts].
     sensor_noise : float
         Standard deviation of the torque-sensor noise [N m].
+    sensor_offset : float
+        Zero offset of the torque sensor (reads spring torque + offset) [N m].
     testbed : Testbed
         The nominal testbed written to the TOML.
     nominal_errors : Mapping[str, float]
@@ -192,6 +194,7 @@ class IndependentCase:
     tau_m_digits: int = 8
     encoder_noise_counts: float = 0.0
     sensor_noise: float = 0.0
+    sensor_offset: float = 0.0
     testbed: Testbed = field(default_factory=Testbed.nominal)
     nominal_errors: Mapping[str, float] = field(default_factory=dict)
     effect_params: Mapping[str, Any] = field(default_factory=dict)
