@@ -164,3 +164,35 @@ def test_stribeck_static_level_is_not_reported_when_the_decay_velocity_runs_to_t
     assert not fit.status["stribeck_velocity"].identified
     assert fit.status["static"].status == "uncertain" and "not resolved" in fit.status["static"].reason
     assert fit.params["coulomb"] == pytest.approx(true["coulomb"], rel=0.05) and fit.status["coulomb"].identified
+
+
+@pytest.mark.parametrize("zero,noise", [(0.03, 0.002), (-0.03, 0.002), (0.03, 0.0)])
+def test_a_torque_sensors_zero_is_fitted_by_default_and_not_leaked_into_the_harmonics(zero, noise):
+    # an independent extended-SFM log whose tau_s reads the spring torque + a zero offset (+ noise:
+    # a torque sensor; without noise: a logger that added a constant): unfitted, the 0.03 N m zero
+    # moved cos1 (0.02 N m) by 50 % with an interval that missed the truth; by default the offset is
+    # fitted whenever the column carries a constant beyond k (theta - q), and every parameter's 95 %
+    # interval covers its truth (to 1e-4 N m, the generator's own discretisation); a log whose tau_s
+    # is k (theta - q) gets no offset term
+    from forecast_design import experiment_from_arrays
+    from forecast_design.friction import identify
+    from forecast_design.tau_s_source import tau_s_source_of
+
+    exp, truth = friction_log("extended-sfm", seed=1)
+    s = exp.signals
+    k = exp.design.testbed.k
+    rng = np.random.default_rng(0)
+    column = np.round(k * (np.asarray(s.theta) - np.asarray(s.q)) + zero + rng.normal(0, noise, s.t.size), 6)
+    logged = experiment_from_arrays(exp.design, exp.rate_hz, s.t, s.tau_m, s.theta, s.q, tau_s=column)
+    src = tau_s_source_of(logged)
+    assert src.zero_offset and src.offset_N_m == pytest.approx(zero, abs=0.002)
+    assert src.measured == (noise > 0) and not tau_s_source_of(exp).zero_offset
+    fit = identify(logged, "extended-sfm")
+    assert fit.params["offset"] == pytest.approx(-zero, abs=0.003)
+    for name in ("viscous", "coulomb", "sin1", "cos1"):
+        lo, hi = fit.interval95[name]
+        assert lo - 1e-4 <= truth[name] <= hi + 1e-4, name
+    assert "offset" not in identify(exp, "extended-sfm").params
+    unfitted = identify(logged, "extended-sfm", offset=False)
+    assert "offset" not in unfitted.params
+    assert abs(unfitted.params["cos1"] - truth["cos1"]) > 0.2 * truth["cos1"]     # what the default prevents

@@ -407,7 +407,8 @@ def _configure_identify(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model", default="extended-sfm", choices=MODEL_NAMES)
     p.add_argument("--harmonics", type=int, help="angle harmonics N (default 4 where they apply)")
     p.add_argument("--estimate-inertia", action="store_true", help="fit the inertia instead of the nominal J_m")
-    p.add_argument("--offset", action="store_true", help="add a constant offset term")
+    p.add_argument("--offset", action=argparse.BooleanOptionalAction, default=None,
+                   help="fit a constant offset term (default: when tau_s is a torque sensor's measurement)")
     p.add_argument("--holdout", type=_float_range, default=0.3, help="fraction held out for fit %% (default 0.3)")
     p.add_argument("--select-samples", choices=("auto", "on", "off"), default="auto",
                    help="leave stops and reversals out of static fits: auto (when the log stops, default), "

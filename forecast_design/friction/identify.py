@@ -635,7 +635,7 @@ def validate(fit: FrictionFit, log: Any, position: np.ndarray | None = None, for
 
 
 def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics: int | None = None,
-             offset: bool = False, estimate_inertia: bool = False, holdout: float = 0.3,
+             offset: bool | None = None, estimate_inertia: bool = False, holdout: float = 0.3,
              validation_log: Any = None, selection: SampleSelection | str = "auto",
              **fit_options: Any) -> FrictionFit:
     """Identify friction from one log and optionally cross-test it on another (the ``identify`` verb).
@@ -651,8 +651,13 @@ def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics
         :data:`~forecast_design.friction.MODEL_NAMES`.
     harmonics : int, optional
         Angle harmonics N when `model` is a name that has them.
-    offset : bool
-        Add a constant offset term [N m] when `model` is a name.
+    offset : bool, optional
+        Add a constant offset term [N m] when `model` is a name. Default (None): on when the
+        log is an SEA experiment whose ``tau_s`` column carries a constant beyond
+        ``k_log (theta - q)`` (:attr:`forecast_design.tau_s_source.TauSSource.zero_offset`: a
+        torque sensor's zero, or one the logger applied): unfitted, it leaks into the angle
+        harmonics (a 0.03 N m zero moved a 0.02 N m cos1 by 50 %, its interval missing the truth,
+        on an independent log); off otherwise.
     estimate_inertia : bool
         Estimate the inertia (always on for a log without a nominal one).
     holdout : float
@@ -673,6 +678,8 @@ def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics
     """
     data = friction_log(log)
     wants_inertia = estimate_inertia or data.inertia is None
+    if offset is None:
+        offset = _tau_s_zero_offset(log)
     if isinstance(model, str):
         fm = friction_model(model, harmonics=harmonics, offset=offset, estimate_inertia=wants_inertia)
     else:
@@ -689,6 +696,14 @@ def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics
         with _naming(vdata.source):
             fit = fit.with_validation(validate(fit, vdata))
     return fit
+
+
+def _tau_s_zero_offset(log: Any) -> bool:
+    """True for an SEA experiment whose ``tau_s`` column carries a constant beyond ``k_log (theta - q)``."""
+    from ..experiment import Experiment
+    from ..tau_s_source import tau_s_source_of
+
+    return isinstance(log, Experiment) and tau_s_source_of(log).zero_offset
 
 
 @contextlib.contextmanager

@@ -40,6 +40,7 @@ import numpy as np
 
 from ..errors import ExperimentFormatError, IdentifiabilityError, ParameterError
 from ..experiment import Experiment
+from ..tau_s_source import TauSSource, classify_tau_s, significant_digits
 from ..plausibility import DATASHEET_TOLERANCE, SIGNAL_LIMITS, LogScales, encoder_step_of, first_beyond, log_scales
 from scipy import signal
 
@@ -443,120 +444,6 @@ def near_rest(data: GapData) -> np.ndarray:
         near = near[e:v.size - e][::R][:data.t.size]
         data.cache["near_rest"] = near | data.stuck
     return data.cache["near_rest"]
-
-
-def significant_digits(values: np.ndarray, *, sample: int = 4000) -> int:
-    """Decimal significant digits a column was written with (the shortest round-trip repr).
-
-    Parameters
-    ----------
-    values : ndarray
-        Column as parsed (any unit).
-    sample : int
-        At most this many evenly spaced non-zero values are inspected [-].
-
-    Returns
-    -------
-    int
-        The largest number of significant digits any inspected value needs to
-        round-trip (17 for binary doubles that were never printed) [-].
-    """
-    v = np.asarray(values, dtype=float)
-    v = v[np.isfinite(v) & (v != 0.0)]
-    if v.size == 0:
-        return 17
-    v = v[:: max(1, v.size // sample)]
-    best = 1
-    for x in v.tolist():
-        mant = repr(x).lower().split("e")[0].replace("-", "").replace(".", "").lstrip("0")
-        best = max(best, len(mant.rstrip("0")) or 1)
-        if best >= 17:
-            break
-    return best
-
-
-def _half_ulp(values: np.ndarray, digits: int) -> np.ndarray:
-    """Half a unit in the last written decimal place of each value [same unit]."""
-    a = np.abs(np.asarray(values, dtype=float))
-    exp10 = np.floor(np.log10(np.where(a > 0, a, 1.0)))
-    return np.where(a > 0, 0.5 * 10.0 ** (exp10 - digits + 1), 0.0) + 4.0 * np.finfo(float).eps * a
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
-class TauSSource:
-    """Whether a log's ``tau_s`` column carries information beyond ``k (theta - q)``.
-
-    Parameters
-    ----------
-    source : str
-        ``absent`` (no column: derived by the reader), ``derived`` (the logger wrote
-        ``k (theta - q)`` itself: the column equals a fitted ``k_log (theta - q) + c`` to
-        within the rounding of the written digits), or ``measured`` (an independent torque
-        measurement).
-    digits : int or None
-        Significant digits the column was written with [-].
-    k_log : float or None
-        Stiffness the column is consistent with [N m/rad] (a logger may use another
-        ``k`` than the TOML's).
-    excess : float or None
-        RMS of ``tau_s - k_log (theta - q) - c`` divided by the RMS rounding error expected
-        from the digits of ``tau_s``, ``theta`` and ``q`` [-]; <= 2 means derived.
-    """
-
-    source: str
-    digits: int | None = None
-    k_log: float | None = None
-    excess: float | None = None
-
-    @property
-    def measured(self) -> bool:
-        """True for an independent torque measurement."""
-        return self.source == "measured"
-
-    def to_mapping(self) -> dict:
-        """JSON-ready mapping."""
-        return {"source": self.source, "digits": self.digits, "k_log": self.k_log, "excess": self.excess}
-
-
-def classify_tau_s(derived: bool, tau_s: np.ndarray, theta: np.ndarray, q: np.ndarray) -> TauSSource:
-    """Decide from the data, at the precision the file has, whether ``tau_s`` is a measurement.
-
-    The experiment format allows both readings: on the Forecast testbed the logger
-    computes ``tau_s = k (theta - q)`` itself and prints it with 6-10 significant
-    digits; a testbed with a torque sensor writes an independent measurement. Rule:
-    fit ``tau_s = k_log (theta - q) + c`` by least squares; the column is *derived*
-    when the RMS of what is left is at most twice the RMS rounding error implied by
-    the digits each of ``tau_s``, ``theta`` and ``q`` was written with (uniform
-    rounding: ``half_ulp / sqrt(3)``), *measured* otherwise.
-
-    Parameters
-    ----------
-    derived : bool
-        True when the reader derived the column (it was absent from the file).
-    tau_s, theta, q : ndarray, shape (n,)
-        Logged columns [N m, rad, rad].
-
-    Returns
-    -------
-    TauSSource
-        The decision with its evidence.
-    """
-    if derived:
-        return TauSSource(source="absent")
-    x = theta - q
-    A = np.column_stack([x, np.ones_like(x)])
-    coef, *_ = np.linalg.lstsq(A, tau_s, rcond=None)
-    left = tau_s - A @ coef
-    digits = significant_digits(tau_s)
-    rounding = np.sqrt(_half_ulp(tau_s, digits) ** 2 + (coef[0] * _half_ulp(theta, significant_digits(theta))) ** 2
-                       + (coef[0] * _half_ulp(q, significant_digits(q))) ** 2) / np.sqrt(3.0)
-    # floating-point floor: a column computed in double precision (an in-memory log, 17 digits)
-    # leaves least-squares round-off of a few ulps, which no torque sensor agrees to
-    expected = max(float(np.sqrt(np.mean(rounding ** 2))), 1e-12 * float(np.sqrt(np.mean(tau_s ** 2))))
-    actual = float(np.sqrt(np.mean(left ** 2)))
-    excess = actual / expected if expected > 0 else (0.0 if actual == 0 else math.inf)
-    return TauSSource(source="derived" if excess <= 2.0 else "measured", digits=digits, k_log=float(coef[0]),
-                      excess=float(excess))
 
 
 def command_rms(experiment: Experiment) -> float:
