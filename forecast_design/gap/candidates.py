@@ -44,7 +44,8 @@ from scipy.optimize import lsq_linear
 from ..effects import Effect
 from .residuals import GapData, delayed_input, gap_log_scales, near_rest
 
-__all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_all", "fit_pair", "CANDIDATE_EFFECTS",
+__all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_constant_torque", "fit_all", "fit_pair",
+           "CANDIDATE_EFFECTS",
            "JointAttribution", "fit_joint"]
 
 #: Effects with a candidate, in the order they are tried.
@@ -454,6 +455,29 @@ def fit_baseline(data: GapData) -> CandidateFit:
         ``effect = Effect.NONE``; ``gap_held_out`` is the gap before any effect [N m].
     """
     return _fit(data, Effect.NONE, None)
+
+
+def fit_constant_torque(data: GapData) -> CandidateFit:
+    """The calibrated nominal model plus a constant motor torque (no effect word: a yardstick).
+
+    A constant torque on the motor (a current driver's offset, gravity on an unbalanced link,
+    encoders homed with the spring loaded) is no effect of the vocabulary, but over the fraction
+    of a revolution a force-control log turns through the ``cogging`` harmonics make one; the
+    diagnosis compares the two to say when its ``cogging`` could be that constant.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    CandidateFit
+        ``effect = Effect.NONE``; ``params = {"torque_N_m": c}``.
+    """
+    structure = _Structure([_Coef("c", data.stack({"motor": np.ones(data.t.size)}))],
+                           lambda p: {"torque_N_m": float(p[0])}, n_params=1)
+    return _fit(data, Effect.NONE, structure)
 
 
 def fit_candidate(data: GapData, effect: Effect) -> CandidateFit | None:

@@ -70,6 +70,7 @@ from .candidates import (
     JointAttribution,
     fit_all,
     fit_baseline,
+    fit_constant_torque,
     fit_joint,
     fit_pair,
 )
@@ -569,6 +570,10 @@ def _richer_law_justified(data: GapData, richer: CandidateFit, coulomb: Candidat
     return bool(p < opts.alpha and extra >= 0.5 * opts.min_reduction)
 
 
+#: Share of the cogging verdict's held-out gap reduction that a constant motor torque must reach for
+#: the verdict to say a constant would look the same [-].
+CONSTANT_TORQUE_SHARE = 0.9
+
 #: Spring-torque resolution ``k x encoder step``, as a fraction of the RMS command, above which a
 #: diagnosis warns that the log is coarser than its validation [-] (2,000,000 counts: ~2e-4).
 COARSE_ENCODER_FRACTION = 2e-3
@@ -600,15 +605,19 @@ def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandida
                    f"({100 * resolution / tau_rms:.2g} % of the RMS command, above the "
                    f"{100 * COARSE_ENCODER_FRACTION:g} % the diagnosis is validated at): on such logs it misses most "
                    "delays and in a few percent of set-ups names a wrong effect (environment_mismatch, cogging).")
-    if verdict is Effect.COGGING and chosen is not None and chosen is not base and not data.tau_s_measured:
-        m = data.t.size
-        torque = chosen.prediction[:m]          # the cogging torque on the motor over the log [N m]
-        if abs(float(np.mean(torque))) > 2.0 * float(np.std(torque)):
+    if verdict is Effect.COGGING and chosen is not None and chosen is not base and base.gap_held_out > 0:
+        # over a fraction of a revolution the harmonics make a constant: how much of what cogging
+        # removes does a constant motor torque remove?
+        const = fit_constant_torque(data)
+        r_cog = 1.0 - chosen.gap_held_out / base.gap_held_out
+        r_const = 1.0 - const.gap_held_out / base.gap_held_out
+        if r_cog > 0 and r_const >= CONSTANT_TORQUE_SHARE * r_cog:
             span = float(np.ptp(data.columns["theta_sub"]))
-            out.append(f"Caution: over this log's {span:.2g} rad of motor travel the cogging torque "
-                       f"is nearly constant ({float(np.mean(torque)):+.3g} N m, varying by "
-                       f"{float(np.std(torque)):.2g} N m); zero offsets of the encoders (homed with the spring loaded, "
-                       "so that k (theta - q) is off by a constant) would look the same.")
+            encoders = "" if data.tau_s_measured else (", or zero offsets of the encoders (homed with the spring "
+                                                       "loaded, so that k (theta - q) is off by a constant)")
+            out.append(f"Caution: over this log's {span:.2g} rad of motor travel a constant motor torque of "
+                       f"{const.params['torque_N_m']:+.3g} N m removes {100 * r_const:.0f} % of the gap, against "
+                       f"{100 * r_cog:.0f} % for cogging: a current driver's offset{encoders} would look the same.")
     offset = (chosen or base).calibration.get("tau_s_offset_N_m")     # the verdict's own calibration
     peak = float(np.max(np.abs(data.columns["tau_s"])))
     if offset is not None and abs(offset) > opts.calibration_tolerance * peak:
