@@ -70,6 +70,8 @@ def _standard_error(metric: str, values: Sequence[float]) -> float:
     v = v[np.isfinite(v)]
     if v.size < 2:
         return math.nan
+    if np.ptp(v) == 0.0:        # one value (the loop's disk margin): exactly no spread, not round-off
+        return 0.0
     return float(np.std(v, ddof=1) / math.sqrt(v.size))
 
 
