@@ -249,9 +249,13 @@ def parse_header(line: str, label: str, required: Iterable[str] = REQUIRED_COLUM
     required = tuple(required)
     for name in required:
         if name not in seen:
+            # a spreadsheet in a comma-decimal locale writes ';' (or a tab) between the columns
+            other = next((sep for sep in (";", "\t") if len(names) == 1 and sep in line), None)
+            hint = (f"; the header is separated by {'semicolons' if other == ';' else 'tabs'}, the format's CSV "
+                    "by commas (with '.' decimals)") if other else ""
             raise ExperimentFormatError(
                 f"{label}: column '{name}' missing; {role}: {', '.join(required)}"
-                f" (found: {clip(', '.join(names))})", path=label, key=name,
+                f" (found: {clip(', '.join(names))}){hint}", path=label, key=name,
             )
     return names
 

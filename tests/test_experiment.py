@@ -449,6 +449,14 @@ def test_missing_required_column_lists_required(tmp_path):
     assert err.key == "theta"
 
 
+@pytest.mark.parametrize("sep,word", [(";", "semicolons"), ("\t", "tabs")])
+def test_a_semicolon_or_tab_separated_file_is_named_as_such(tmp_path, sep, word):
+    # what a spreadsheet in a comma-decimal locale writes: one line that says why, not only "missing"
+    text = _csv_text().replace(",", sep)
+    _raises(tmp_path, rf"column 't' missing; .* the header is separated by {word}, the format's CSV by commas",
+            csv_text=text, file="run.csv")
+
+
 def test_duplicate_column(tmp_path):
     text = "\n".join(line + (",1.0" if i else ",tau_m") for i, line in enumerate(_csv_text().splitlines()))
     _raises(tmp_path, r"line 1: duplicate column 'tau_m'", csv_text=text, file="run.csv")
