@@ -47,6 +47,8 @@ __all__ = [
     "PAPER_TABLE3",
     "TABLE3_TRUTH",
     "TABLE3_SFM_DEADBAND",
+    "TABLE3_DERIVATIVE_ON",
+    "DERIVATIVE_ON",
     "TABLE3_PLAY_PROBE",
     "Table3Row",
     "Table3Result",
@@ -70,12 +72,18 @@ PAPER_TABLE3: Mapping[tuple[str, str], tuple[float, float]] = {
 
 #: Hardware of the Table 3 reproduction (Section 2, Fig. 2c: the stiction level and the Stribeck
 #: curve depend on the motor angle; angle-periodic friction ripple). LuGre with Table 2's F_c,
-#: sigma0, sigma1, sigma2, a static level F_s(theta) = 0.7 N m with harmonics of 0.15 and 0.06 N m
-#: (0.47 to 0.93 N m) and a Stribeck velocity v_s(theta) = 0.05 rad/s exp(+-1.2 ...) (about
-#: 0.01 to 0.3 rad/s: sharp breakaway at some angles, a wide negative-slope region, i.e.
-#: stick-slip, at others); position-dependent Coulomb 0.1 +- 0.09 and a small cogging [N m].
+#: sigma1, sigma2, a static level F_s(theta) = 0.7 N m with harmonics of 0.18 and 0.072 N m (0.45 to
+#: 0.90 N m: above ~0.75 N m the PD's 1 N m command for the 0.2 N m step hardly breaks it) and a
+#: Stribeck velocity v_s(theta) = 0.05 rad/s exp(+-1.2 ...) (about 0.01 to 0.3 rad/s: sharp
+#: breakaway at some angles, a wide negative-slope region, i.e. stick-slip, at others);
+#: position-dependent Coulomb 0.1 +- 0.09 and a small cogging [N m]. The bristle stiffness is
+#: 30000 N m/rad, a presliding range F_s / sigma0 of 23 urad as in rolling bearings: Table 2's
+#: 260 N m/rad (the paper's *simulation*, Section 6) makes it 2.7 mrad, as large as the whole
+#: deflection of a 0.2 N m step into the locked output (tau/k = 3.4 mrad), which then only strains
+#: the bristles like a second spring and leaves every run's response the same shape.
 TABLE3_TRUTH: tuple = (
-    Stiction(F_s=0.7, F_s_a=(0.15, 0.06), F_s_b=(0.0, 0.04), v_s=0.05, v_s_a=(1.2, 0.4), v_s_b=(0.5, 0.0)),
+    Stiction(F_s=0.7, F_s_a=(0.18, 0.072), F_s_b=(0.0, 0.048), v_s=0.05, v_s_a=(1.2, 0.4), v_s_b=(0.5, 0.0),
+             sigma0=30000.0),
     PositionFriction(F_c=0.1, a=(0.04, 0.02), b=(0.02, 0.01)),
     Cogging(a=(0.01, 0.0, 0.0, 0.005), b=(0.0, 0.01, 0.0, 0.0)),
 )
@@ -83,10 +91,19 @@ TABLE3_TRUTH: tuple = (
 
 #: Dead band of the Table 3 SFM's sign(theta') [rad/s]. The paper prints a plain sign(); on an
 #: encoder-differentiated velocity that drives a stick-slip limit cycle whenever the motor stops
-#: (run-to-run phase differences: x-corr 0.6 soft / 0.9 locked in the sensitivity table), which the
-#: testbed's SFM (0.98 / 0.99) evidently did not have; 0.1 rad/s removes it (0.05 rad/s leaves a
-#: trace of it: sensitivity table).
-TABLE3_SFM_DEADBAND = 0.1
+#: (run-to-run phase differences; the sensitivity rows), which the testbed's SFM (x-corr 0.98 /
+#: 0.99) evidently did not have; 0.01 rad/s removes it and still compensates the few mrad/s of
+#: a step into the locked output (0.1 rad/s would not: sensitivity rows).
+TABLE3_SFM_DEADBAND = 0.01
+
+#: Where the board's PD takes its derivative in the Table 3 reproduction: ``measurement``,
+#: u = P (tau_r - tau_s) - D d tau_s/dt (no derivative kick at the step), or ``error``, the
+#: format's u = P e + D de/dt, whose kick at a 0.2 N m step (an impulse D x 0.2 = 0.02 N m s, one
+#: period of ~25 N m through the 200 Hz derivative filter) throws the motor past any stiction
+#: level and makes every run rise alike. Section 7 does not say; ``measurement`` is the common
+#: implementation of a PD on a stepped reference, and the other reading is reported too.
+TABLE3_DERIVATIVE_ON = "measurement"
+DERIVATIVE_ON = ("measurement", "error")
 
 #: Play [rad] of the Oldham couplings in the mechanism probe of ``Table3Result.mechanisms``: the
 #: candidate the paper names for the locked-output spread (Section 2: shaft misalignment at the
@@ -420,18 +437,54 @@ def identify_extended_sfm(effects: Sequence[Any] = TABLE3_TRUTH, *, seed: int = 
     return {k: float(v) for k, v in fit.params.items()}, fit, run
 
 
+def measurement_derivative_reference(reference: np.ndarray, controller: PDController, rate_hz: float,
+                                     derivative_cutoff_hz: float | None = None) -> np.ndarray:
+    """The reference r' for which the PD on the error r' - tau_s is the PD with its derivative on the measurement.
+
+    With C(z) the board's discretised PD (Tustin, filtered derivative), ``C (r' - y) = P r - C y``
+    when ``C r' = P r``: r' is r through ``P / C(z)`` (stable: C's zero lies at
+    s = -P / (P / w_d + D), -48 rad/s for the paper's gains).
+
+    Parameters
+    ----------
+    reference : ndarray, shape (n,)
+        The reference r at the control periods [N m].
+    controller : PDController
+        The PD gains.
+    rate_hz : float
+        Control rate [Hz].
+    derivative_cutoff_hz : float, optional
+        The PD's derivative filter [Hz] (default the simulator's).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        r' [N m].
+    """
+    from scipy.signal import lfilter
+
+    from .discrete import discretize
+    from .simulation.controllers import DEFAULT_DERIVATIVE_CUTOFF_HZ, pd_transfer_function
+
+    cutoff = DEFAULT_DERIVATIVE_CUTOFF_HZ if derivative_cutoff_hz is None else derivative_cutoff_hz
+    c = discretize(pd_transfer_function(controller, cutoff), rate_hz, "tustin")
+    return lfilter(controller.P * np.asarray(c.den, dtype=float), np.asarray(c.num, dtype=float),
+                   np.asarray(reference, dtype=float))
+
+
 def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_s: float = 1.0, seed: int = 0,
                      w_q_hz: float = 10.0, environments: Any = ("exp-soft", "locked"),
                      effects: Sequence[Any] = TABLE3_TRUTH, sfm_deadband: float = TABLE3_SFM_DEADBAND,
-                     sensitivity: Sequence[float] = (0.0, 0.01, 0.05), xcorr: str = "pearson",
-                     play_probe_rad: float | None = TABLE3_PLAY_PROBE) -> Table3Result:
+                     sensitivity: Sequence[float] = (0.0, 0.002, 0.1), xcorr: str = "pearson",
+                     play_probe_rad: float | None = TABLE3_PLAY_PROBE,
+                     derivative_on: str = TABLE3_DERIVATIVE_ON) -> Table3Result:
     """Reproduce the paper's Table 3 (repeatability and fidelity of step responses) in simulation.
 
     Parameters
     ----------
     repetitions : int
         Step responses per cell, each from its own random absolute motor
-        angle, uniform in [0, 2 pi) [-] (>= 2).
+        angle, uniform in [0, 2 pi) [-] (>= 2; standard errors from 3).
     amplitude : float
         Step reference [N m].
     duration_s : float
@@ -460,12 +513,16 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
     play_probe_rad : float or None
         Width [rad] of the Oldham-coupling play added in the mechanism probe
         (``Table3Result.mechanisms``, default :data:`TABLE3_PLAY_PROBE`); None: no probe.
+    derivative_on : str
+        Where the PD takes its derivative, one of :data:`DERIVATIVE_ON` (default
+        :data:`TABLE3_DERIVATIVE_ON`); the frictionless reference uses the same PD. Every cell is
+        also recomputed with the other choice (``Table3Result.mechanisms``).
 
     Returns
     -------
     Table3Result
         Rows ``{"environment", "compensator", "xcorr", "mae"}`` (plus the
-        paper's values), responses, the identified SFM and the explanation.
+        paper's values and standard errors), responses, the identified SFM and the explanation.
     """
     from .simulation import Step, simulate
     from .simulation.scenario import Variability
@@ -476,33 +533,50 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
     if xcorr not in XCORR_MODES:
         raise ParameterError(f"table3 xcorr must be one of {', '.join(XCORR_MODES)}, got {xcorr!r}", name="xcorr",
                              value=xcorr)
+    if derivative_on not in DERIVATIVE_ON:
+        raise ParameterError(f"table3 derivative_on must be one of {', '.join(DERIVATIVE_ON)}, got "
+                             f"{derivative_on!r}", name="derivative_on", value=derivative_on)
     if play_probe_rad is not None and not (isinstance(play_probe_rad, (int, float)) and
                                            not isinstance(play_probe_rad, bool) and 0.0 < play_probe_rad < 0.1):
         raise ParameterError(f"table3 play_probe_rad must be a width in (0, 0.1) rad or None, got "
                              f"{play_probe_rad!r}", name="play_probe_rad", value=play_probe_rad)
     angles = Variability(repetitions=repetitions, seed=seed).initial_angles()
     sfm_params, fit, _ = identify_extended_sfm(effects, seed=seed)
-    ref = Step(amplitude=amplitude)
+    pd = PDController(P=5.0, D=0.1)
+    n = int(round(duration_s * _RATE))
+    step = Step(amplitude=amplitude)(np.arange(n) / _RATE)
+    refs = {"error": step, "measurement": measurement_derivative_reference(step, pd, _RATE)}
     envset = resolve_environments(environments)      # presets, inline values, files, Environment objects
     environments, env_of = envset.names, dict(envset.items())
-    rows, responses, expected, readings = [], {}, {}, []
+    expected = {}
+
+    def frictionless(env: str, on: str):
+        return simulate(Design(environment=env_of[env], controller=pd), reference=refs[on], duration_s=duration_s,
+                        rate_hz=_RATE, include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None,
+                        description=f"reproduce table3: {env}, frictionless PD")
+
+    def cell(env: str, kind: str, *, on: str = derivative_on, deadband: float = sfm_deadband,
+             play: Any = None, keep: bool = False):
+        comp = Compensator(kind=kind, w_q_hz=w_q_hz) if kind == "ea-fob" else Compensator(kind=kind)
+        design = Design(environment=env_of[env], controller=pd, compensator=comp)
+        runs = [simulate(design, reference=refs[on], duration_s=duration_s, rate_hz=_RATE,
+                         effects=tuple(effects) if play is None else play.effects_of(
+                             tuple(effects) + (Backlash(width_rad=float(play_probe_rad)),), i),
+                         initial_angle=float(a), seed=seed + 1 + i,
+                         sfm_params=sfm_params if kind == "sfm" else None, sfm_deadband=float(deadband),
+                         description=f"reproduce table3: {env}, {kind}, run {i}" if keep else "")
+                for i, a in enumerate(angles)]
+        ref_tau = expected[env].tau_s if on == derivative_on else frictionless(env, on).tau_s
+        tau = np.array([r.tau_s for r in runs])
+        return runs, tau, np.mean(np.abs(tau - ref_tau), axis=1)
+
+    rows, responses, readings = [], {}, []
     for env in environments:
-        expected[env] = simulate(Design(environment=env_of[env], controller=PDController(P=5.0, D=0.1)),
-                                 reference=ref, duration_s=duration_s, rate_hz=_RATE, include_nominal_viscous=False,
-                                 process_noise_std=0.0, encoder_counts=None,
-                                 description=f"reproduce table3: {env}, frictionless PD")
+        expected[env] = frictionless(env, derivative_on)
         for kind in ("none", "sfm", "ea-fob"):
-            comp = Compensator(kind=kind, w_q_hz=w_q_hz) if kind == "ea-fob" else Compensator(kind=kind)
-            design = Design(environment=env_of[env], controller=PDController(P=5.0, D=0.1), compensator=comp)
-            runs = [simulate(design, reference=ref, duration_s=duration_s, rate_hz=_RATE, effects=effects,
-                             initial_angle=float(a), seed=seed + 1 + i,
-                             sfm_params=sfm_params if kind == "sfm" else None, sfm_deadband=sfm_deadband,
-                             description=f"reproduce table3: {env}, {kind}, run {i}")
-                    for i, a in enumerate(angles)]
+            runs, tau, mae_runs = cell(env, kind, keep=True)
             responses[(env, kind)] = runs
-            tau = np.array([r.tau_s for r in runs])
             paper = PAPER_TABLE3.get((env, kind), (None, None))
-            mae_runs = np.mean(np.abs(tau - expected[env].tau_s), axis=1)
             se = (pairwise_xcorr_se(tau, xcorr), float(np.std(mae_runs, ddof=1) / math.sqrt(repetitions))) \
                 if repetitions >= 3 else (None, None)
             rows.append(Table3Row(env, kind, pairwise_xcorr(tau, xcorr), float(np.mean(mae_runs)), paper[0], paper[1],
@@ -512,34 +586,25 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
     sens = []
     for db in sensitivity:
         for env in environments:
-            design = Design(environment=env_of[env], controller=PDController(P=5.0, D=0.1),
-                            compensator=Compensator(kind="sfm"))
-            tau = np.array([simulate(design, reference=ref, duration_s=duration_s, rate_hz=_RATE, effects=effects,
-                                     initial_angle=float(a), seed=seed + 1 + i, sfm_params=sfm_params,
-                                     sfm_deadband=float(db)).tau_s for i, a in enumerate(angles)])
+            _, tau, mae_runs = cell(env, "sfm", deadband=db)
             sens.append({"environment": env, "compensator": "sfm", "sfm_deadband": float(db),
-                         "xcorr": pairwise_xcorr(tau, xcorr),
-                         "mae": float(np.mean(np.abs(tau - expected[env].tau_s)))})
+                         "xcorr": pairwise_xcorr(tau, xcorr), "mae": float(np.mean(mae_runs))})
     mechanisms = []
+    other = next(o for o in DERIVATIVE_ON if o != derivative_on)
+    probes = [(f"PD derivative on the {other}", {"on": other})]
     if play_probe_rad is not None:
         # the couplings' play, each repetition starting elsewhere inside it (Variability)
-        play = Variability(repetitions=repetitions, seed=seed, backlash_position="random")
-        probe = tuple(effects) + (Backlash(width_rad=float(play_probe_rad)),)
-        name = f"oldham play {1e3 * play_probe_rad:g} mrad, random start"
+        probes.append((f"oldham play {1e3 * play_probe_rad:g} mrad, random start",
+                       {"play": Variability(repetitions=repetitions, seed=seed, backlash_position="random")}))
+    for name, kw in probes:
         for env in environments:
             for kind in ("none", "sfm", "ea-fob"):
-                comp = Compensator(kind=kind, w_q_hz=w_q_hz) if kind == "ea-fob" else Compensator(kind=kind)
-                design = Design(environment=env_of[env], controller=PDController(P=5.0, D=0.1), compensator=comp)
-                tau = np.array([simulate(design, reference=ref, duration_s=duration_s, rate_hz=_RATE,
-                                         effects=play.effects_of(probe, i), initial_angle=float(a), seed=seed + 1 + i,
-                                         sfm_params=sfm_params if kind == "sfm" else None,
-                                         sfm_deadband=sfm_deadband).tau_s for i, a in enumerate(angles)])
+                _, tau, mae_runs = cell(env, kind, **kw)
                 mechanisms.append({"mechanism": name, "environment": env, "compensator": kind,
-                                   "xcorr": pairwise_xcorr(tau, xcorr),
-                                   "mae": float(np.mean(np.abs(tau - expected[env].tau_s)))})
+                                   "xcorr": pairwise_xcorr(tau, xcorr), "mae": float(np.mean(mae_runs))})
     choices = {"repetitions": repetitions, "amplitude": amplitude, "duration_s": duration_s, "seed": seed,
                "w_q_hz": w_q_hz, "environments": list(environments), "sfm_deadband": float(sfm_deadband),
-               "effects": [e.to_mapping() for e in effects],
+               "derivative_on": derivative_on, "effects": [e.to_mapping() for e in effects],
                "xcorr": xcorr, "play_probe_rad": play_probe_rad,
                "xcorr_definition": _XCORR_DEFINITION[xcorr],
                "mae": "mean over runs of mean |tau_s - tau_s(frictionless PD, d_m = 0, no noise)|"}
@@ -548,11 +613,66 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
     return dataclasses.replace(result, explanation=_table3_explanation(result))
 
 
+def _static_levels(effects: Sequence[Any], angles: np.ndarray) -> np.ndarray | None:
+    """F_s(theta) [N m] of the hardware's LuGre stiction at the given absolute angles (None without one)."""
+    st = next((e for e in effects if isinstance(e, Stiction)), None)
+    if st is None:
+        return None
+    th = np.asarray(angles, dtype=float)
+    level = np.full(th.shape, st.F_s)
+    for i, (a, b) in enumerate(zip(st.F_s_a, st.F_s_b), start=1):
+        level = level + a * np.sin(i * th) + b * np.cos(i * th)
+    return level
+
+
+def _hardware_text(result: Table3Result) -> str:
+    """The hardware and board choices the numbers rest on, computed from them."""
+    from .effects import effect_from_mapping
+
+    effects = [effect_from_mapping(e) for e in result.choices.get("effects", [])]
+    grid = _static_levels(effects, np.linspace(0.0, 2.0 * np.pi, 721))
+    on = result.choices.get("derivative_on", TABLE3_DERIVATIVE_ON)
+    text = f"Board: PD 5 / 0.1 with its derivative on the {on}"
+    text += (" (no kick at the step)." if on == "measurement" else
+             " (a kick of D x step at the step, as the format's u = P e + D de/dt).")
+    if grid is not None:
+        st = next(e for e in effects if isinstance(e, Stiction))
+        text += (f" Hardware: angle-dependent static friction F_s(theta) {grid.min():.2f}-{grid.max():.2f} N m "
+                 f"(the PD's command for a {result.choices.get('amplitude', 0.2):g} N m step is "
+                 f"{5.0 * result.choices.get('amplitude', 0.2):.2g} N m), presliding range F_s/sigma0 = "
+                 f"{1e6 * st.F_s / st.sigma0:.0f} urad.")
+    return text
+
+
+def _stuck_runs(result: Table3Result, env: str) -> str:
+    """How many PD-alone runs never broke away, and the static levels at their start angles."""
+    runs = result.responses.get((env, "none"))
+    exp = result.expected.get(env)
+    if not runs or exp is None:
+        return ""
+    from .effects import effect_from_mapping
+
+    effects = [effect_from_mapping(e) for e in result.choices.get("effects", [])]
+    levels = _static_levels(effects, result.initial_angles)
+    final = np.array([np.mean(r.tau_s[-max(1, r.tau_s.size // 10):]) for r in runs])
+    stuck = final < 0.25 * float(exp.tau_s[-1])
+    if not stuck.any() or levels is None:
+        return ""
+    moved = ~stuck
+    text = (f" {int(stuck.sum())} of {stuck.size} PD-alone runs end below a quarter of the frictionless level "
+            f"(F_s {levels[stuck].min():.2f}-{levels[stuck].max():.2f} N m at their start angles: the motor hardly "
+            "breaks away, its response is presliding and creep)")
+    if moved.any():
+        text += (f", the others (F_s {levels[moved].min():.2f}-{levels[moved].max():.2f} N m) break away and stick at "
+                 f"{final[moved].min():.3f}-{final[moved].max():.3f} N m")
+    return text + ": two shapes, which the mean-removed correlation does not forgive."
+
+
 def _table3_explanation(result: Table3Result) -> str:
     parts = [f"Extended SFM identified from a simulated open-loop run (fit {result.identification_fit_percent:.1f} "
              f"%; paper: 89.95 %): viscous {result.sfm_params.get('viscous', 0.0):.3f} N m s/rad, coulomb "
              f"{result.sfm_params.get('coulomb', 0.0):.3f} N m; SFM sign() dead band "
-             f"{result.choices.get('sfm_deadband', 0.0):g} rad/s."]
+             f"{result.choices.get('sfm_deadband', 0.0):g} rad/s.", _hardware_text(result)]
     for r in result.rows:
         if r.paper_xcorr is not None:
             parts.append(f"{r.environment}/{r.compensator}: xcorr {r.xcorr:.3f}{_pm(r.xcorr_se, 3)} (paper "
@@ -570,27 +690,32 @@ def _table3_explanation(result: Table3Result) -> str:
         best_m = e.mae < min(s.mae, n.mae)
         parts.append(f"{env}: PD alone is {'the least' if pd_least else 'not the least'} repeatable; the EA-FOB is "
                      f"{'the closest' if best_m else 'not the closest'} to the frictionless response."
-                     + _paired_differences(result, env, n))
+                     + _paired_differences(result, env, n) + (_stuck_runs(result, env) if pd_least else ""))
         if n.paper_xcorr is not None and not pd_least:
-            parts.append(_locked_deviation(result, env, n))
+            parts.append(_pd_deviation(result, env, n))
         elif n.paper_xcorr is not None and abs(n.xcorr - n.paper_xcorr) > 0.1 and \
                 result.choices.get("xcorr", "pearson") == "raw":
             parts.append(f"{env}: PD alone {n.xcorr:.2f} vs the paper's {n.paper_xcorr:.2f}: the 'raw' reading keeps "
                          "the means, and with them no settling step response falls far below 1 (x-corr "
                          "readings below).")
         elif n.paper_xcorr is not None and abs(n.xcorr - n.paper_xcorr) > 0.1:
-            parts.append(f"{env}: PD alone {n.xcorr:.2f} vs the paper's {n.paper_xcorr:.2f}: the spread of the "
-                         "simulated stiction (F_s 0.47-0.93 N m, v_s 0.01-0.3 rad/s over the angles) is a guess "
-                         "read from Fig. 2c; the x-corr of PD scales with it.")
+            parts.append(f"{env}: PD alone {n.xcorr:.2f} vs the paper's {n.paper_xcorr:.2f}: the x-corr of PD alone "
+                         "follows how many start angles hold the motor, i.e. the spread of the static level read "
+                         "from Fig. 2c (a guess) and the draw of ten angles (its standard error above).")
         if n.paper_mae is not None and n.mae > 1.5 * n.paper_mae:
-            parts.append(f"{env}: PD alone's MAE {n.mae:.3f} N m exceeds the paper's {n.paper_mae:g}: the "
-                         "simulated static level (0.7 N m mean) sticks the motor further from the frictionless "
-                         "response than the testbed's friction did.")
+            parts.append(f"{env}: PD alone's MAE {n.mae:.3f} N m exceeds the paper's {n.paper_mae:g}: the simulated "
+                         "static level holds the motor further from the frictionless response than the testbed's "
+                         "friction did (its spread is read from Fig. 2c's three identifications, not measured).")
         if s.paper_mae is not None and s.mae < 0.5 * s.paper_mae:
             parts.append(f"{env}: the SFM's MAE {s.mae:.4f} N m is below the paper's {s.paper_mae:g}: the "
                          "simulated hardware has exactly the friction structure the extended SFM models "
                          "(viscous, Coulomb, angle harmonics), so its identified model is better than on the "
                          "testbed, where the fit reached 89.95 %.")
+        elif s.paper_mae is not None and s.mae > 1.5 * s.paper_mae:
+            parts.append(f"{env}: the SFM's MAE {s.mae:.4f} N m exceeds the paper's {s.paper_mae:g}: below its "
+                         "sign() dead band the feed-forward stops and the motor sticks wherever the angle-dependent "
+                         "static level holds it (the 'different static errors' Section 7 reports for this cell), "
+                         "further from the frictionless level here than on the testbed.")
         if e.paper_xcorr is not None and e.xcorr < e.paper_xcorr - 0.015:
             parts.append(f"{env}: the EA-FOB's x-corr {e.xcorr:.3f} is below the paper's {e.paper_xcorr:.2f}: its "
                          "10 Hz Q filter lets the first ~20 ms of the angle-dependent breakaway through, which "
@@ -598,18 +723,30 @@ def _table3_explanation(result: Table3Result) -> str:
         if s.paper_xcorr is not None and s.xcorr < s.paper_xcorr - 0.015:
             parts.append(f"{env}: the SFM's x-corr {s.xcorr:.3f} is below the paper's {s.paper_xcorr:.2f}: the "
                          "feed-forward cannot follow the angle-dependent static level, so some runs stop early.")
+    if result.mechanisms:
+        by_name: dict[str, list] = {}
+        for m in result.mechanisms:
+            by_name.setdefault(m["mechanism"], []).append(m)
+        parts.append("Every cell recomputed with one choice changed: " + "; ".join(
+            f"{name}: " + ", ".join(f"{m['environment']}/{m['compensator']} {m['xcorr']:.3f}" for m in rows)
+            for name, rows in by_name.items())
+            + ". With the derivative on the error the kick throws the motor past any static level and every run "
+              "rises alike (PD alone stays repeatable with the output locked, where the EA-FOB's breakaway "
+              "transient differs between runs instead); the couplings' play lies inside the measured deflection "
+              "k (theta - q), so while the motor crosses it the loop only softens.")
     if result.readings:
         parts.append("x-corr readings (Section 7 says only 'mean cross-correlation among step "
                      "responses'): " + "; ".join(
             f"{r['environment']}/{r['compensator']} " + ", ".join(f"{m} {r[m]:.3f}" for m in XCORR_MODES)
-            for r in result.readings) + ". Keeping the means ('raw') gives >= 0.99 to every cell, PD alone in "
-            "the soft environment included (paper 0.73), so the paper's values need the means removed; the best "
-            "lag changes nothing above 0.98. Rows use '" + str(result.choices.get("xcorr", "pearson")) + "'.")
+            for r in result.readings) + ". Keeping the means ('raw') gives >= 0.99 to every cell, PD alone "
+            "included (paper 0.73 / 0.90), so the paper's values need the means removed. Rows use '"
+            + str(result.choices.get("xcorr", "pearson")) + "'.")
     if result.sensitivity:
         parts.append("SFM with other sign() dead bands (sensitivity): " + "; ".join(
             f"{r['environment']} {r['sfm_deadband']:g} rad/s: xcorr {r['xcorr']:.3f}, MAE {r['mae']:.4f} N m"
             for r in result.sensitivity) + ". With the plain sign() (0 rad/s) the SFM drives a stick-slip limit "
-            "cycle once the motor stops, whose phase differs from run to run.")
+            "cycle once the motor stops, whose phase differs from run to run; a dead band of 0.1 rad/s no longer "
+            "compensates the few mrad/s of a step into the locked output.")
     return " ".join(parts)
 
 
@@ -643,37 +780,10 @@ def _paired_differences(result: Table3Result, env: str, n: Table3Row) -> str:
     return text
 
 
-def _locked_deviation(result: Table3Result, env: str, n: Table3Row) -> str:
-    """Why PD alone is not the least repeatable cell in ``env`` (the locked output), with the measurements."""
-    probe = {(m["environment"], m["compensator"]): m for m in result.mechanisms}
-    text = (f"{env}: deviation: PD alone ({n.xcorr:.3f}) is as repeatable as the compensated loops (paper "
-            f"{n.paper_xcorr:.2f}). With the output locked the motor turns only ~tau_s/k = 3 mrad, about the "
-            "LuGre presliding range F_s/sigma0 = 0.7/260 = 2.7 mrad, and the PD's derivative kick at the step "
-            "(D 0.1 x 0.2 N m = 0.02 N m s, 0.15 rad/s on J_m) sets every run moving the same way: each rises "
-            "alike and sticks at its first velocity reversal, so the angle-dependent stiction shifts the final "
-            "level, which the mean-removed correlation ignores, but hardly the shape.")
-    if probe:
-        name = next(iter(result.mechanisms))["mechanism"]
-        cells = "; ".join(f"{e}/{k} {probe[(e, k)]['xcorr']:.3f}" for e in dict.fromkeys(e for e, _ in probe)
-                          for k in ("none", "sfm", "ea-fob") if (e, k) in probe)
-        text += (f" Mechanism probe, {name} (Section 2's Oldham couplings; a backlash whose start inside the "
-                 f"play differs per repetition): {cells}. The play lies inside the measured deflection "
-                 "k (theta - q), so while the motor crosses it the PD sees the same k theta rise and only the "
-                 "loop stiffness changes (k (1 + P) to k P); it leaves PD alone repeatable with the output "
-                 "locked and costs the compensated loops repeatability in the soft environment instead.")
-    text += (" Also measured and rejected (locked Pearson x-corr PD / SFM / EA-FOB): a wider stiction "
-             "spread (F_s 0.7 -> 1.0 N m with +-0.5 N m harmonics): 0.982 / 0.987 / 0.976 while soft PD falls "
-             "to 0.43; stiffer bristles (sigma0 1000-30000 N m/rad, so the 3 mrad are true sliding): "
-             "0.992-0.995 / 0.995-0.997 / 0.95-0.87; a motor torque limit of 1.2-10 N m: 0.990-0.999 / "
-             "0.994-0.998 / 0.982-0.994; a 20-50 Hz derivative filter: 0.993-0.995 / 0.996-0.997 / "
-             "0.993-0.995; runs back to back from the previous run's end state: PD 0.998; a spring "
-             "pre-load held by stiction (+-0.2 N m): 0.97 / 0.97 / 0.95; a 0.5-4 mrad play between the spring "
-             "and the lock, outside the measured deflection (so q moves and the measured torque waits for the "
-             "gap to close; not the format's locked q = 0): 0.986-0.887 / 0.992-0.919 / 0.986-0.940, every cell "
-             "falling together. A stick-slip element in series with the spring (Oldham joint sliding) cannot "
-             "act here: the coupling holds the 1 N m references of Figs. 7 and 13, so it does not slip at "
-             "0.2 N m, and with the output locked its disc slides only misalignment x 3 mrad, micrometres. With a "
-             "fixed reference and no integrator the stuck motor sees a constant net torque below the breakaway "
-             "level, so no second slip follows the first stop; the testbed's spread in this cell needs a "
-             "time-varying torque or friction that the paper does not describe.")
-    return text
+def _pd_deviation(result: Table3Result, env: str, n: Table3Row) -> str:
+    """Why PD alone is not the least repeatable cell in ``env``: the choices that decide it, measured."""
+    return (f"{env}: deviation: PD alone ({n.xcorr:.3f}) is as repeatable as the compensated loops (paper "
+            f"{n.paper_xcorr:.2f}). PD alone varies between runs only when the static level at some start angles "
+            "comes close to its command (P x step) and the motor rises through sliding, not through a derivative "
+            "kick or the bristles' presliding spring: the rows recomputed with one choice changed (below) "
+            "measure each.")

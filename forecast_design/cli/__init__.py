@@ -189,6 +189,8 @@ def _configure_reproduce(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", metavar="OUT.png", help="draw the figure")
     p.add_argument("--xcorr", metavar="MODE", help="table3: reading of the paper's 'mean cross-correlation' "
                    "(pearson [default]: zero lag, means removed; pearson-max-lag; raw: means kept)")
+    p.add_argument("--derivative-on", metavar="WHERE", help="table3: where the board's PD takes its derivative "
+                   "(measurement [default]: no kick at the step; error: the format's u = P e + D de/dt)")
 
 
 def _write_json(target: str, obj: Any) -> None:
@@ -244,7 +246,7 @@ def _reproduce_fig7(args: argparse.Namespace) -> int:
 def _reproduce_table3(args: argparse.Namespace) -> int:
     from ..reproduce import reproduce_table3
 
-    result = reproduce_table3(xcorr=args.xcorr or "pearson")
+    result = reproduce_table3(xcorr=args.xcorr or "pearson", derivative_on=args.derivative_on or "measurement")
     if args.plot:
         from ..plotting.simulation import plot_table3
 
@@ -283,6 +285,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
                                     ("--skew", args.sigma)) if value]
     if args.xcorr is not None and args.figure != "table3":
         raise ParameterError(f"reproduce {args.figure}: --xcorr applies to table3 only", name="xcorr")
+    if args.derivative_on is not None and args.figure != "table3":
+        raise ParameterError(f"reproduce {args.figure}: --derivative-on applies to table3 only",
+                             name="derivative_on")
     if args.figure != "fig6" and given:
         raise ParameterError(f"reproduce {args.figure} runs the paper's own set-up; {', '.join(given)} applies to "
                              f"fig6 only", name=given[0].lstrip("-"))
