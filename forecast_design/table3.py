@@ -105,9 +105,9 @@ TABLE3_SFM_DEADBAND = 0.01
 TABLE3_DERIVATIVE_ON = "measurement"
 DERIVATIVE_ON = ("measurement", "error")
 
-#: Play [rad] of the Oldham couplings in the mechanism probe of ``Table3Result.mechanisms``: the
-#: candidate the paper names for the locked-output spread (Section 2: shaft misalignment at the
-#: Oldham couplings), with the coupling starting anywhere inside its play in each repetition
+#: Play [rad] of the Oldham couplings in the probe of ``Table3Result.mechanisms``: a source of
+#: run-to-run spread the paper names (Section 2: shaft misalignment at the Oldham couplings),
+#: with the coupling starting anywhere inside its play in each repetition
 #: (:class:`~forecast_design.simulation.scenario.Variability` ``backlash_position = "random"``).
 #: The paper gives no clearance; 2 mrad (7 arcmin) is a loose commercial Oldham coupling.
 TABLE3_PLAY_PROBE = 2e-3
@@ -182,8 +182,9 @@ class Table3Result:
         Every cell's x-corr under each reading of :data:`XCORR_MODES`: ``environment``,
         ``compensator`` and one key per mode [-].
     mechanisms : tuple of dict
-        Every cell recomputed with a candidate mechanism for the locked-output spread added to
-        the hardware: ``mechanism``, ``environment``, ``compensator``, ``xcorr`` [-], ``mae`` [N m].
+        Every cell recomputed with one choice changed (the PD's derivative on the other signal;
+        the Oldham couplings' play added to the hardware): ``mechanism``, ``environment``,
+        ``compensator``, ``xcorr`` [-], ``mae`` [N m].
     responses : dict
         ``(environment, compensator) -> list of SimulationResult`` (not in JSON).
     expected : dict
