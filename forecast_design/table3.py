@@ -48,7 +48,6 @@ __all__ = [
     "TABLE3_TRUTH",
     "TABLE3_SFM_DEADBAND",
     "TABLE3_DERIVATIVE_ON",
-    "DERIVATIVE_ON",
     "TABLE3_PLAY_PROBE",
     "Table3Row",
     "Table3Result",
@@ -96,14 +95,14 @@ TABLE3_TRUTH: tuple = (
 #: a step into the locked output (0.1 rad/s would not: sensitivity rows).
 TABLE3_SFM_DEADBAND = 0.01
 
-#: Where the board's PD takes its derivative in the Table 3 reproduction: ``measurement``,
-#: u = P (tau_r - tau_s) - D d tau_s/dt (no derivative kick at the step), or ``error``, the
+#: Where the board's PD takes its derivative in the Table 3 reproduction (``simulate``'s
+#: ``derivative_on``): ``measurement``, u = P (tau_r - tau_s) - D d tau_s/dt (no derivative kick
+#: at the step), or ``error``, the
 #: format's u = P e + D de/dt, whose kick at a 0.2 N m step (an impulse D x 0.2 = 0.02 N m s, one
 #: period of ~25 N m through the 200 Hz derivative filter) throws the motor past any stiction
 #: level and makes every run rise alike. Section 7 does not say; ``measurement`` is the common
 #: implementation of a PD on a stepped reference, and the other reading is reported too.
 TABLE3_DERIVATIVE_ON = "measurement"
-DERIVATIVE_ON = ("measurement", "error")
 
 #: Play [rad] of the Oldham couplings in the probe of ``Table3Result.mechanisms``: a source of
 #: run-to-run spread the paper names (Section 2: shaft misalignment at the Oldham couplings),
@@ -438,41 +437,6 @@ def identify_extended_sfm(effects: Sequence[Any] = TABLE3_TRUTH, *, seed: int = 
     return {k: float(v) for k, v in fit.params.items()}, fit, run
 
 
-def measurement_derivative_reference(reference: np.ndarray, controller: PDController, rate_hz: float,
-                                     derivative_cutoff_hz: float | None = None) -> np.ndarray:
-    """The reference r' for which the PD on the error r' - tau_s is the PD with its derivative on the measurement.
-
-    With C(z) the board's discretised PD (Tustin, filtered derivative), ``C (r' - y) = P r - C y``
-    when ``C r' = P r``: r' is r through ``P / C(z)`` (stable: C's zero lies at
-    s = -P / (P / w_d + D), -48 rad/s for the paper's gains).
-
-    Parameters
-    ----------
-    reference : ndarray, shape (n,)
-        The reference r at the control periods [N m].
-    controller : PDController
-        The PD gains.
-    rate_hz : float
-        Control rate [Hz].
-    derivative_cutoff_hz : float, optional
-        The PD's derivative filter [Hz] (default the simulator's).
-
-    Returns
-    -------
-    ndarray, shape (n,)
-        r' [N m].
-    """
-    from scipy.signal import lfilter
-
-    from .discrete import discretize
-    from .simulation.controllers import DEFAULT_DERIVATIVE_CUTOFF_HZ, pd_transfer_function
-
-    cutoff = DEFAULT_DERIVATIVE_CUTOFF_HZ if derivative_cutoff_hz is None else derivative_cutoff_hz
-    c = discretize(pd_transfer_function(controller, cutoff), rate_hz, "tustin")
-    return lfilter(controller.P * np.asarray(c.den, dtype=float), np.asarray(c.num, dtype=float),
-                   np.asarray(reference, dtype=float))
-
-
 def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_s: float = 1.0, seed: int = 0,
                      w_q_hz: float = 10.0, environments: Any = ("exp-soft", "locked"),
                      effects: Sequence[Any] = TABLE3_TRUTH, sfm_deadband: float = TABLE3_SFM_DEADBAND,
@@ -515,7 +479,8 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
         Width [rad] of the Oldham-coupling play added in the mechanism probe
         (``Table3Result.mechanisms``, default :data:`TABLE3_PLAY_PROBE`); None: no probe.
     derivative_on : str
-        Where the PD takes its derivative, one of :data:`DERIVATIVE_ON` (default
+        Where the PD takes its derivative, one of
+        :data:`~forecast_design.simulation.controllers.DERIVATIVE_ON` (default
         :data:`TABLE3_DERIVATIVE_ON`); the frictionless reference uses the same PD. Every cell is
         also recomputed with the other choice (``Table3Result.mechanisms``).
 
@@ -526,6 +491,7 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
         paper's values and standard errors), responses, the identified SFM and the explanation.
     """
     from .simulation import Step, simulate
+    from .simulation.controllers import DERIVATIVE_ON
     from .simulation.scenario import Variability
 
     if isinstance(repetitions, bool) or not isinstance(repetitions, int) or repetitions < 2:
@@ -544,23 +510,21 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
     angles = Variability(repetitions=repetitions, seed=seed).initial_angles()
     sfm_params, fit, _ = identify_extended_sfm(effects, seed=seed)
     pd = PDController(P=5.0, D=0.1)
-    n = int(round(duration_s * _RATE))
-    step = Step(amplitude=amplitude)(np.arange(n) / _RATE)
-    refs = {"error": step, "measurement": measurement_derivative_reference(step, pd, _RATE)}
+    ref = Step(amplitude=amplitude)
     envset = resolve_environments(environments)      # presets, inline values, files, Environment objects
     environments, env_of = envset.names, dict(envset.items())
     expected = {}
 
     def frictionless(env: str, on: str):
-        return simulate(Design(environment=env_of[env], controller=pd), reference=refs[on], duration_s=duration_s,
+        return simulate(Design(environment=env_of[env], controller=pd), reference=ref, duration_s=duration_s,
                         rate_hz=_RATE, include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None,
-                        description=f"reproduce table3: {env}, frictionless PD")
+                        derivative_on=on, description=f"reproduce table3: {env}, frictionless PD")
 
     def cell(env: str, kind: str, *, on: str = derivative_on, deadband: float = sfm_deadband,
              play: Any = None, keep: bool = False):
         comp = Compensator(kind=kind, w_q_hz=w_q_hz) if kind == "ea-fob" else Compensator(kind=kind)
         design = Design(environment=env_of[env], controller=pd, compensator=comp)
-        runs = [simulate(design, reference=refs[on], duration_s=duration_s, rate_hz=_RATE,
+        runs = [simulate(design, reference=ref, duration_s=duration_s, rate_hz=_RATE, derivative_on=on,
                          effects=tuple(effects) if play is None else play.effects_of(
                              tuple(effects) + (Backlash(width_rad=float(play_probe_rad)),), i),
                          initial_angle=float(a), seed=seed + 1 + i,

@@ -159,6 +159,25 @@ def test_the_eafob_beats_pd_alone_over_the_set(bench):
     assert sets["ea-fob:10"]["repeatability"] > sets["none"]["repeatability"]
 
 
+def test_a_pd_with_its_derivative_on_the_measurement_is_benchmarked_against_the_same_expected_response():
+    # derivative_on = "measurement": no kick at the step in the runs nor in the frictionless expected
+    # response (the MAE compares like with like); the cells get their own keys, and the default
+    # leaves the keys of cells stored before the option unchanged
+    from forecast_design.benchmark.runner import run_cell
+
+    plain, meas = _spec(repetitions=2), _spec(repetitions=2, derivative_on="measurement")
+    assert "derivative_on" not in plain.hardware() and meas.hardware()["derivative_on"] == "measurement"
+    cell = meas.cells()[2]                                    # none, locked
+    assert meas.cell_key(cell, None) != plain.cell_key(cell, None)
+    res = run_cell((meas.cell_key(cell, None), cell, meas, None))
+    kick = run_cell((plain.cell_key(cell, None), cell, plain, None))
+    # the kick's 25 N m command lifts tau_s within a few periods; without it the rise starts slowly
+    assert res.expected[2] < 0.5 * kick.expected[2]
+    assert np.all(np.isfinite([r["mae_N_m"] for r in res.runs]))
+    with pytest.raises(ParameterError, match="--derivative-on must be one of"):
+        _spec(derivative_on="setpoint")
+
+
 def test_bad_spec_is_one_line():
     with pytest.raises(ParameterError, match="repetitions must be an integer >= 2"):
         _spec(repetitions=1)
@@ -197,7 +216,8 @@ def test_benchmark_verb_writes_table_plots_report_and_json(tmp_path, capsys):
                                          (["--compensator", "none,fob"], "kind must be one of"),
                                          (["--repetitions", "1"], "repetitions"),
                                          (["--envs", "moon"], "moon"),
-                                         (["--scheduler", "nowhere"], "tcp://HOST:PORT")])
+                                         (["--scheduler", "nowhere"], "tcp://HOST:PORT"),
+                                         (["--derivative-on", "sideways"], "--derivative-on must be one of")])
 def test_benchmark_verb_bad_input_exits_2_with_one_line(tmp_path, capsys, extra, match):
     assert main(["benchmark", "--out", str(tmp_path / "o"), *extra]) == 2
     err = capsys.readouterr().err.strip()

@@ -167,7 +167,8 @@ def recorded_cell(task: tuple) -> CellResult:
     Parameters
     ----------
     task : tuple
-        ``(key, labels, paths)`` from :func:`group_runs`.
+        ``(key, labels, paths[, derivative_on])`` from :func:`group_runs` (``derivative_on``: where
+        the board's PD takes its derivative, for the expected response; default ``error``).
 
     Returns
     -------
@@ -175,7 +176,8 @@ def recorded_cell(task: tuple) -> CellResult:
         As :func:`~.runner.run_cell` gives for a simulated cell; ``initial_angle_rad`` is NaN
         (a recording does not know it).
     """
-    key, labels, paths = task
+    key, labels, paths, *rest = task
+    derivative_on = rest[0] if rest else "error"
     exps = [load_experiment(p) for p in paths]
     n = min(e.n_samples for e in exps)
     rate = exps[0].rate_hz
@@ -184,7 +186,7 @@ def recorded_cell(task: tuple) -> CellResult:
     tau = np.array([np.asarray(e.signals.tau_s[:n], dtype=float) for e in exps])
     tau_r = np.asarray(exps[0].signals.tau_r[:n], dtype=float)
     t = np.arange(n) / rate
-    expected = _expected_response(design, tau_r, n / rate, rate).tau_s
+    expected = _expected_response(design, tau_r, n / rate, rate, derivative_on).tau_s
     margin = disk_margin_of(design, comp, rate)
     step = step_of(tau_r, rate)
     per_run = repeatability_per_run(tau) if len(exps) >= 2 else np.full(1, math.nan)
@@ -202,8 +204,8 @@ def recorded_cell(task: tuple) -> CellResult:
 
 
 def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] | None = None,
-                 executor: Executor | None = None, progress: Callable[[int, int], None] | None = None
-                 ) -> tuple[list[CellResult], dict[str, Any]]:
+                 executor: Executor | None = None, progress: Callable[[int, int], None] | None = None,
+                 derivative_on: str = "error") -> tuple[list[CellResult], dict[str, Any]]:
     """Benchmark the recorded runs of a folder of experiments.
 
     Parameters
@@ -216,6 +218,10 @@ def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] 
         Where cells are computed; default: this process.
     progress : callable, optional
         ``progress(done, total)`` over the cells to compute.
+    derivative_on : str
+        Where the recording board's PD took its derivative
+        (:data:`~forecast_design.simulation.controllers.DERIVATIVE_ON`; the format's [controller]
+        cannot say): sets the frictionless expected response the MAE is measured against.
 
     Returns
     -------
@@ -238,7 +244,13 @@ def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] 
         raise ParameterError(f"--runs {os.fspath(folder)}: no closed-loop experiment (forecast-experiment/1 TOML with "
                              f"[controller] and a tau_r column) found among {len(paths)} experiment(s)",
                              name="runs", value=os.fspath(folder))
-    keys = [_cell_key(p) for _, p in groups]
+    from ..simulation.controllers import DERIVATIVE_ON
+
+    if derivative_on not in DERIVATIVE_ON:
+        raise ParameterError(f"--derivative-on must be one of {', '.join(DERIVATIVE_ON)}, got {derivative_on!r}",
+                             name="derivative_on", value=derivative_on)
+    # the default keeps the keys of cells stored before the option
+    keys = [_cell_key(p) + ("" if derivative_on == "error" else f"-{derivative_on}") for _, p in groups]
     store = None if out is None else Path(out) / "cells"
     found: dict[str, CellResult] = {}
     if store is not None:
@@ -246,7 +258,7 @@ def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] 
             stored = CellResult.load(store, k)
             if stored is not None:
                 found[k] = stored
-    todo = [(k, lab, p) for k, (lab, p) in zip(keys, groups) if k not in found]
+    todo = [(k, lab, p, derivative_on) for k, (lab, p) in zip(keys, groups) if k not in found]
     ex = executor or LocalExecutor(1)
     for res in ex.map(recorded_cell, todo, progress=progress):
         found[res.key] = res

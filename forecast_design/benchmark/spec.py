@@ -189,6 +189,11 @@ class BenchmarkSpec:
     testbed : Testbed
         The SEA under test (default the paper's Table 1); the extended SFM of the ``sfm`` cells
         is identified on it.
+    derivative_on : str
+        Where the PD controllers take their derivative
+        (:data:`~forecast_design.simulation.controllers.DERIVATIVE_ON`): ``error``, the format's
+        u = P e + D de/dt (default), or ``measurement`` (no kick at a step); the frictionless
+        expected response uses the same.
     """
 
     controllers: tuple
@@ -202,8 +207,14 @@ class BenchmarkSpec:
     sfm_deadband: float = 0.05
     rate_hz: float = 2000.0
     testbed: Testbed = field(default_factory=Testbed.nominal)
+    derivative_on: str = "error"
 
     def __post_init__(self) -> None:
+        from ..simulation.controllers import DERIVATIVE_ON
+
+        if self.derivative_on not in DERIVATIVE_ON:
+            raise ParameterError(f"--derivative-on must be one of {', '.join(DERIVATIVE_ON)}, got "
+                                 f"{self.derivative_on!r}", name="derivative_on", value=self.derivative_on)
         if isinstance(self.repetitions, bool) or not isinstance(self.repetitions, int) or self.repetitions < 2:
             raise ParameterError(f"--repetitions must be an integer >= 2 (repeatability compares runs), got "
                                  f"{self.repetitions!r}", name="repetitions", value=self.repetitions)
@@ -230,7 +241,9 @@ class BenchmarkSpec:
         """What every cell shares (part of each cell's key)."""
         return {"effects": effects_to_mappings(self.effects), "repetitions": self.repetitions, "seed": self.seed,
                 "viscous_drift": self.viscous_drift, "sfm_deadband": self.sfm_deadband, "rate_hz": self.rate_hz,
-                "testbed": self.testbed.to_mapping()}
+                "testbed": self.testbed.to_mapping(),
+                # only when not the default, so that the keys of cells stored before the option stay valid
+                **({"derivative_on": self.derivative_on} if self.derivative_on != "error" else {})}
 
     def cell_key(self, cell: Cell, sfm_params: dict | None) -> str:
         """Hash of every input of a cell: a stored result with this key is that cell's result."""

@@ -28,6 +28,9 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the initial angles and noise (default 0)")
     p.add_argument("--viscous-drift", type=float, default=0.0, metavar="FRACTION",
                    help="relative viscous-friction drift per repetition (default 0)")
+    p.add_argument("--derivative-on", default="error", metavar="WHERE",
+                   help="where the PD takes its derivative: error (the format's u = P e + D de/dt, default) or "
+                        "measurement (no kick at a step)")
     p.add_argument("--runs", default=None, metavar="DIR",
                    help="benchmark recorded runs instead: a folder of experiments (real or simulated), grouped "
                         "into cells by their TOML's environment, controller and compensator")
@@ -59,7 +62,8 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
                                  f"the testbed from the experiments; drop {', '.join(given)}", name="runs", value=given)
         with make_executor(args.scheduler, args.workers) as executor, \
                 _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
-            cells, info = run_recorded(args.runs, out=args.out, executor=executor, progress=progress)
+            cells, info = run_recorded(args.runs, out=args.out, executor=executor, progress=progress,
+                                       derivative_on=args.derivative_on)
         for why in info["skipped"]:
             print(f"note: skipped {why}", file=sys.stderr)
         spec_doc = {"runs": args.runs, "controllers": sorted({c.labels["controller"] for c in cells}),
@@ -78,7 +82,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             environments=tuple(envs.items()),
             references=tuple(parse_reference(r, duration_s=args.duration) for r in (args.reference or ["step:0.2"])),
             repetitions=10 if args.repetitions is None else args.repetitions, seed=args.seed,
-            viscous_drift=args.viscous_drift, testbed=testbed)
+            viscous_drift=args.viscous_drift, testbed=testbed, derivative_on=args.derivative_on)
         with make_executor(args.scheduler, args.workers) as executor, \
                 _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
             cells, info = run_benchmark(spec, out=args.out, executor=executor, progress=progress)

@@ -40,6 +40,7 @@ __all__ = ["BatchRun", "BatchResult", "simulate_batch", "simulate_scenario", "sc
 
 #: Options of :func:`~.run.simulate` shared by every run of a batch.
 SHARED_OPTIONS = ("derivative_cutoff_hz", "velocity_cutoff_hz", "sfm_deadband", "torque_limit", "encoder_counts",
+                  "derivative_on",
                   "process_noise_std", "include_nominal_viscous", "method", "sfm_params")
 
 

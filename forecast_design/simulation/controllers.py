@@ -60,6 +60,7 @@ from ..params import Compensator, Design, PDController
 __all__ = [
     "DEFAULT_DERIVATIVE_CUTOFF_HZ",
     "DEFAULT_VELOCITY_CUTOFF_HZ",
+    "DERIVATIVE_ON",
     "pd_transfer_function",
     "DiscretePD",
     "SfmCompensator",
@@ -70,6 +71,9 @@ __all__ = [
 
 #: Default derivative filter of the PD controller [Hz] (see module docstring).
 DEFAULT_DERIVATIVE_CUTOFF_HZ = 200.0
+#: Where the PD takes its derivative: ``error`` (the format's u = P e + D de/dt) or ``measurement``
+#: (u = P e - D d tau_s/dt: no derivative kick at a reference step).
+DERIVATIVE_ON = ("error", "measurement")
 #: Default velocity filter of the SFM compensator [Hz].
 DEFAULT_VELOCITY_CUTOFF_HZ = 50.0
 
@@ -172,6 +176,28 @@ class DiscretePD:
         self.tf: DiscreteTF = discretize(pd_transfer_function(controller, derivative_cutoff_hz), rate_hz, method)
         self._filter = DiscreteFilter(self.tf)
         self.sos = self._filter.sos
+
+    def measurement_reference(self, reference: np.ndarray) -> np.ndarray:
+        """The reference r' for which this PD on r' - tau_s takes its derivative on the measurement.
+
+        ``C (r' - y) = P r - C y`` when ``C r' = P r``: r' is r through ``P / C(z)``, stable since
+        C's zero lies at s = -P / (P / w_d + D) (-48 rad/s for P = 5, D = 0.1). No derivative of the
+        reference reaches the motor, so a step has no kick.
+
+        Parameters
+        ----------
+        reference : ndarray, shape (n,)
+            The reference r at the control periods [N m].
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            r' [N m].
+        """
+        from scipy.signal import lfilter
+
+        return lfilter(self.controller.P * np.asarray(self.tf.den, dtype=float), np.asarray(self.tf.num, dtype=float),
+                       np.asarray(reference, dtype=float))
 
     def reset(self) -> None:
         """Zero the filter state."""

@@ -43,6 +43,7 @@ from ..plausibility import SIGNAL_LIMITS, check_limit, check_physical, first_bey
 from .controllers import (
     DEFAULT_DERIVATIVE_CUTOFF_HZ,
     DEFAULT_VELOCITY_CUTOFF_HZ,
+    DERIVATIVE_ON,
     DiscretePD,
     ObserverCompensator,
     SfmCompensator,
@@ -356,7 +357,7 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
              torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
              include_nominal_viscous: bool = True, method: str = "tustin",
-             description: str = "") -> SimulationResult:
+             derivative_on: str = "error", description: str = "") -> SimulationResult:
     """Simulate the testbed: PD force control (+ compensator) or an open-loop torque profile.
 
     Parameters
@@ -405,6 +406,10 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         Keep ``d_m omega`` in the true plant (False: friction = effects only).
     method : str
         Discretisation of controller and observers (default ``tustin``).
+    derivative_on : str
+        Where the PD takes its derivative (:data:`~.controllers.DERIVATIVE_ON`): ``error`` (the
+        format's u = P e + D de/dt, default) or ``measurement`` (u = P e - D d tau_s/dt, no kick
+        at a reference step; the run's ``tau_r`` is still the reference given).
     description : str
         Free text for the experiment.
 
@@ -431,7 +436,8 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
                     derivative_cutoff_hz=derivative_cutoff_hz, velocity_cutoff_hz=velocity_cutoff_hz,
                     sfm_deadband=sfm_deadband, torque_limit=torque_limit, encoder_counts=encoder_counts,
                     process_noise_std=process_noise_std, initial_angle=initial_angle,
-                    include_nominal_viscous=include_nominal_viscous, method=method, description=description)
+                    include_nominal_viscous=include_nominal_viscous, method=method, derivative_on=derivative_on,
+                    description=description)
     meas = np.empty((prep.n, len(_MEAS)))
     truth = np.empty((prep.n, len(_TRUTH)))
     _check_kernel_cache(_loop)
@@ -516,8 +522,12 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
              velocity_cutoff_hz: float = DEFAULT_VELOCITY_CUTOFF_HZ, sfm_deadband: float = 0.0,
              torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
-             include_nominal_viscous: bool = True, method: str = "tustin", description: str = "") -> _Prepared:
+             include_nominal_viscous: bool = True, method: str = "tustin", derivative_on: str = "error",
+             description: str = "") -> _Prepared:
     """Validate :func:`simulate`'s arguments and pack one run for the kernel (no simulation)."""
+    if derivative_on not in DERIVATIVE_ON:
+        raise ParameterError(f"derivative_on must be one of {', '.join(DERIVATIVE_ON)}, got {derivative_on!r}",
+                             name="derivative_on", value=derivative_on)
     if not isinstance(design, Design):
         raise ParameterError(f"simulate needs a Design (e.g. Design.nominal('exp-soft')), got {type(design).__name__}",
                              name="design", value=design)
@@ -553,6 +563,8 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
     comp = design.compensator if design.compensator is not None else Compensator(kind="none")
     pd = DiscretePD(controller or PDController(), rate_hz, derivative_cutoff_hz=derivative_cutoff_hz,
                     method=method)
+    # the kernel's PD acts on (r' - tau_s); r' = r unless the derivative is on the measurement
+    loop_ref = pd.measurement_reference(ref) if closed_loop and derivative_on == "measurement" else ref
     zero_sos = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
     vel_sos, sfm_coef, sfm_harm = zero_sos, np.zeros(5), np.zeros((4, 1))
     gm_sos = gs_sos = gt_sos = zero_sos
@@ -588,9 +600,9 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
         "compensator": comp.kind, "w_q_hz": comp.w_q_hz if comp.is_observer else None,
         "q_family": comp.q_family if comp.is_observer else None,
         "q_order": comp.q_order if comp.is_observer else None,
-        "delay_substeps": int(plant.delay_substeps),
+        "delay_substeps": int(plant.delay_substeps), "derivative_on": derivative_on,
     }
-    arrays = {"p": rw(plant.params), "harm": rw(plant.harmonics), "ref": ref, "ol": ol, "noise": noise,
+    arrays = {"p": rw(plant.params), "harm": rw(plant.harmonics), "ref": rw(loop_ref), "ol": ol, "noise": noise,
               "pd_sos": pd_sos, "sfm_coef": rw(sfm_coef), "sfm_harm": rw(sfm_harm), "vel_sos": vel_sos,
               "gm_sos": gm_sos, "gs_sos": gs_sos, "gt_sos": gt_sos}
     return _Prepared(n=n, substeps=int(substeps), plant=plant, stability=stability, closed_loop=bool(closed_loop),

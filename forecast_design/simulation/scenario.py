@@ -71,6 +71,7 @@ sections, plus the hidden truth, the reference and the simulation options::
     velocity_cutoff_hz = 50.0        # SFM velocity filter [Hz]
     sfm_deadband = 0.0               # [rad/s]
     method = "tustin"                # controller/observer discretisation
+    derivative_on = "error"          # PD derivative on the error (kick) or the measurement
 
 Unknown keys are errors; a missing required key names the key and the file.
 Omitted optional keys take the defaults of :func:`~.run.simulate`.
@@ -106,7 +107,7 @@ _TOP = ("format", "description", "sampling", "testbed", "environment", "controll
 _SIM_KEYS = {
     "duration_s": float, "substeps": int, "seed": int, "encoder_counts": int, "process_noise_std": float,
     "torque_limit": float, "derivative_cutoff_hz": float, "velocity_cutoff_hz": float, "sfm_deadband": float,
-    "method": str,
+    "method": str, "derivative_on": str,
 }
 
 
@@ -597,6 +598,10 @@ def _check_simulation(options: Mapping[str, Any], rate: float, prefix: str, sour
     def fail(key: str, message: str) -> ExperimentFormatError:
         return ExperimentFormatError(f"{prefix}[simulation] {key} {message}", path=source, key=f"simulation.{key}")
 
+    from .controllers import DERIVATIVE_ON
+
+    if "derivative_on" in options and options["derivative_on"] not in DERIVATIVE_ON:
+        raise fail("derivative_on", f"must be one of {', '.join(DERIVATIVE_ON)}, got {options['derivative_on']!r}")
     nyquist = rate / 2.0
     bounds = {"duration_s": (0.0, None, False), "process_noise_std": (0.0, 100.0, True),
               "torque_limit": (0.0, None, False), "sfm_deadband": (0.0, None, True),
