@@ -251,6 +251,8 @@ def test_simulate_writes_an_experiment_that_loads_with_truth_apart(tmp_path, cap
     (("amplitude = 0.2", "amplitude = 0.2\nwobble = 1"), "wobble"),
     (('effect = "coulomb"', 'effect = "gremlins"'), "gremlins"),
     (("duration_s = 0.5", ""), "duration_s"),
+    (("duration_s = 0.5", 'duration_s = 0.5\nderivative_on = "sideways"'),
+     "[simulation] derivative_on must be one of error, measurement"),
 ])
 def test_simulate_bad_scenario_exit_2_names_key(tmp_path, capsys, edit, fragment):
     scenario = tmp_path / "s.toml"
