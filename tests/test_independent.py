@@ -221,13 +221,17 @@ def test_tau_s_omitted_or_from_an_independent_sensor():
     assert residual.mean() == pytest.approx(0.015, abs=5e-4)
 
 
-def test_drawn_torque_sensors_have_a_bounded_zero_offset_and_other_loggers_none():
-    from forecast_design.independent.draw import SENSOR_OFFSET_N_M, draw_independent_case
+def test_drawn_torque_sensors_have_a_bounded_zero_and_scale_and_other_loggers_none():
+    from forecast_design.independent.draw import SENSOR_GAIN_ERROR, SENSOR_OFFSET_N_M, draw_independent_case
 
     cases = [draw_independent_case("none", i, 3) for i in range(60)]
-    sensors = [c.sensor_offset for c in cases if c.tau_s_logging == "sensor"]
-    assert sensors and all(0 < abs(o) <= SENSOR_OFFSET_N_M for o in sensors)
-    assert all(c.sensor_offset == 0.0 for c in cases if c.tau_s_logging != "sensor")
+    sensors = [c for c in cases if c.tau_s_logging == "sensor"]
+    assert sensors and all(0 < abs(c.sensor_offset) <= SENSOR_OFFSET_N_M for c in sensors)
+    assert all(0 < abs(c.sensor_gain - 1) <= SENSOR_GAIN_ERROR for c in sensors)
+    assert all(c.sensor_offset == 0.0 and c.sensor_gain == 1.0 for c in cases if c.tau_s_logging != "sensor")
+    # the sensor reads gain x spring torque + offset
+    exp, tr = simulate_independent(_case(env="soft", tau_s_logging="sensor", sensor_gain=1.05))
+    assert np.asarray(exp.signals.tau_s) == pytest.approx(1.05 * tr.tau_spring, abs=1e-5)
 
 
 def test_printed_command_and_nominal_testbed():

@@ -117,11 +117,20 @@ def _calibration(data: GapData) -> list[_Coef]:
     tb = data.experiment.design.testbed
     tol = data.options.calibration_tolerance
     c = data.columns
+    if data.tau_s_measured:
+        # a torque sensor's scale: true spring torque = (1 + s) tau_s, so the coupling equation
+        # tau_s - k (theta - q) sees -s k (theta - q) too, which tells it from a torque gain or an
+        # environment mismatch. Unbounded: an 8 % sensor scale (inside no datasheet tolerance of the
+        # spring) was named environment_mismatch or torque_gain on effect-free logs; the spring's own
+        # k stays within the tolerance (dk)
+        s_coef = _Coef("s", data.stack({"motor": c["tau_s"], "environment": -c["tau_s"], "coupling": -c["spring"]}))
+    else:
+        # true spring torque = (1 + s) tau_s: enters motor (+) and environment (-) equations
+        s_coef = _Coef("s", data.stack({"motor": c["tau_s"], "environment": -c["tau_s"]}), -tol, tol)
     coefs = [
         _Coef("dJ_m", data.stack({"motor": c["a"]}), -tol * tb.J_m, tol * tb.J_m),
         _Coef("dd_m", data.stack({"motor": c["v"]}), -tb.d_m, np.inf),
-        # true spring torque = (1 + s) tau_s: enters motor (+) and environment (-) equations
-        _Coef("s", data.stack({"motor": c["tau_s"], "environment": -c["tau_s"]}), -tol, tol),
+        s_coef,
     ]
     if data.tau_s_measured:
         coefs.append(_Coef("dk", data.stack({"coupling": c["spring"] / tb.k}), -tol * tb.k, tol * tb.k))

@@ -532,7 +532,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
                        "torque_gain and a re-calibration cannot be told apart: "
                        f"'{eff}' is one reading of this log, not a unique one.")
     reduction = float(min(max(1.0 - gap_after / gap0, 0.0), 1.0)) if gap0 > 0 else 0.0
-    replay = replay_check(data, by_effect.get(str(eff)))
+    replay = replay_check(data, by_effect.get(str(eff), base))   # none: the calibrated nominal model
     return Diagnosis(effect=eff, gap_before=gap0, gap_after=gap_after, reduction=reduction, params=params,
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,

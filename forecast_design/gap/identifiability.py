@@ -347,8 +347,10 @@ def calibration_status(data: GapData, fit: CandidateFit) -> dict[str, ParameterS
     tb = data.experiment.design.testbed
     tol = data.options.calibration_tolerance
     c = fit.calibration
+    # with a measured tau_s the spring scale is the sensor's, unbounded (candidates._calibration)
+    scale_bounds = None if data.tau_s_measured else (1 - tol, 1 + tol)
     out = {"J_m": assess("J_m", c["J_m"], solver_bounds=(tb.J_m * (1 - tol), tb.J_m * (1 + tol)), rel_tol=1e-5),
-           "spring_scale": assess("spring_scale", c["spring_scale"], solver_bounds=(1 - tol, 1 + tol), rel_tol=1e-5)}
+           "spring_scale": assess("spring_scale", c["spring_scale"], solver_bounds=scale_bounds, rel_tol=1e-5)}
     if "k" in c:
         out["k"] = assess("k", c["k"], solver_bounds=(tb.k * (1 - tol), tb.k * (1 + tol)), rel_tol=1e-5)
     if "tau_s_offset_N_m" in c:      # unbounded: a constant is no effect

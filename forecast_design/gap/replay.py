@@ -170,11 +170,12 @@ def _replay(data: GapData, fit: Any | None, starts: np.ndarray, L: int) -> dict[
     out = {"t": np.asarray(sig.t, dtype=float)[idx], "tau_s": np.asarray(sig.tau_s, dtype=float)[idx],
            "theta": theta[idx]}
 
-    def run(tbx: Testbed, inputs: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    def run(tbx: Testbed, inputs: np.ndarray, scale: float, gain: float = 1.0, zero: float = 0.0
+            ) -> tuple[np.ndarray, np.ndarray]:
         X = replay_windows(tbx, env, inputs, x0, starts, L, rate, spring_scale=scale)
         qs = np.zeros_like(X[..., 0]) if env.locked else X[..., 2]
-        # the log's tau_s is k (theta - q) with the nominal k (or a sensor reading of it)
-        return tb.spring_torque(X[..., 0], qs), X[..., 0]
+        # the log's tau_s: k (theta - q) with the nominal k, or a sensor reading gain x k (theta - q) + zero
+        return gain * tb.spring_torque(X[..., 0], qs) + zero, X[..., 0]
 
     out["tau_s_before"], out["theta_before"] = run(tb, np.column_stack([tau_m, np.zeros(n)]), 1.0)
     out["tau_s_after"], out["theta_after"] = out["tau_s_before"], out["theta_before"]
@@ -182,14 +183,20 @@ def _replay(data: GapData, fit: Any | None, starts: np.ndarray, L: int) -> dict[
         m = data.t.size
         parts = {eq: fit.prediction[i * m:(i + 1) * m] for i, eq in enumerate(data.equations)}
         cal = fit.calibration
-        # a re-calibrated zero offset o of tau_s adds +o to the motor's and -o to the environment's error
+        # a torque sensor's zero o is in the reading, not in the plant (true spring torque = scale tau_s + o)
         offset = float(cal.get("tau_s_offset_N_m", 0.0))
-        wm = _upsample(data, parts.get("motor", np.zeros(m)), n) + offset
-        we = _upsample(data, parts.get("environment", np.zeros(m)), n) - (0.0 if env.locked else offset)
+        wm = _upsample(data, parts.get("motor", np.zeros(m)), n)
+        we = _upsample(data, parts.get("environment", np.zeros(m)), n)
         # the prediction is what the effect adds to the equation error: remove it from the drive
         inputs = np.column_stack([tau_m - wm, -we])
         tb1 = dataclasses.replace(tb, J_m=float(cal.get("J_m", tb.J_m)), d_m=float(max(cal.get("d_m", tb.d_m), 0.0)))
-        out["tau_s_after"], out["theta_after"] = run(tb1, inputs, float(cal.get("spring_scale", 1.0)))
+        if "k" in cal:
+            # a measured tau_s: the plant's spring is the coupling's k; the sensor reads
+            # (k_cal (theta - q) - o) / spring_scale (candidates._calibration)
+            k_scale, sensor = float(cal["k"]) / tb.k, float(cal.get("spring_scale", 1.0))
+            out["tau_s_after"], out["theta_after"] = run(tb1, inputs, k_scale, k_scale / sensor, -offset / sensor)
+        else:
+            out["tau_s_after"], out["theta_after"] = run(tb1, inputs, float(cal.get("spring_scale", 1.0)))
     return out
 
 

@@ -24,6 +24,8 @@ from .plant import simulate_independent
 
 #: Largest zero offset of a drawn torque sensor [N m] (0.2-0.4 % of a 5-10 N m sensor's range).
 SENSOR_OFFSET_N_M = 0.02
+#: Largest relative scale error of a drawn torque sensor [-].
+SENSOR_GAIN_ERROR = 0.08
 
 
 def _motor_gain(tb: Testbed, env: Environment, f_hz: float) -> float:
@@ -246,8 +248,9 @@ def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitud
         seed=int(rng.integers(0, 2**62)), index=int(index), attempt=int(attempt),
     )
     if tau_s == "sensor":
-        # a torque sensor's zero is never exact; drawn last, so the rest of the draw is unchanged
-        case = replace(case, sensor_offset=float(rng.uniform(-SENSOR_OFFSET_N_M, SENSOR_OFFSET_N_M)))
+        # a torque sensor's zero and scale are never exact; drawn last, so the rest of the draw is unchanged
+        case = replace(case, sensor_offset=float(rng.uniform(-SENSOR_OFFSET_N_M, SENSOR_OFFSET_N_M)),
+                       sensor_gain=float(1.0 + rng.uniform(-SENSOR_GAIN_ERROR, SENSOR_GAIN_ERROR)))
     return case
 
 

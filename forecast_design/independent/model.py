@@ -155,7 +155,9 @@ class IndependentCase:
     sensor_noise : float
         Standard deviation of the torque-sensor noise [N m].
     sensor_offset : float
-        Zero offset of the torque sensor (reads spring torque + offset) [N m].
+        Zero offset of the torque sensor (reads gain x spring torque + offset) [N m].
+    sensor_gain : float
+        Scale of the torque sensor [-] (1: calibrated).
     testbed : Testbed
         The nominal testbed written to the TOML.
     nominal_errors : Mapping[str, float]
@@ -195,6 +197,7 @@ class IndependentCase:
     encoder_noise_counts: float = 0.0
     sensor_noise: float = 0.0
     sensor_offset: float = 0.0
+    sensor_gain: float = 1.0
     testbed: Testbed = field(default_factory=Testbed.nominal)
     nominal_errors: Mapping[str, float] = field(default_factory=dict)
     effect_params: Mapping[str, Any] = field(default_factory=dict)

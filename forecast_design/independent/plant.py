@@ -332,7 +332,8 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
         q_meas = 0.0 if plant.locked else round((x[2] + enc_noise[k, 1]) / ENCODER_STEP) * ENCODER_STEP
         theta_m[k], q_m[k] = th_meas, q_meas
         if tau_s_mode == "sensor":
-            tau_meas = float(format(plant.spring_torque(x[0] - x[2]) + case.sensor_offset + sens_noise[k], ".6e"))
+            tau_meas = float(format(case.sensor_gain * plant.spring_torque(x[0] - x[2]) + case.sensor_offset
+                                    + sens_noise[k], ".6e"))
         else:
             tau_meas = k_nom * (th_meas - q_meas)
         tau_s_log[k] = tau_meas
