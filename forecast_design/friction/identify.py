@@ -22,6 +22,7 @@ from .source import FrictionLog, _check_array, _rate_from_time, experiment_scale
 from .selection import SampleSelection, resolve_selection, select_samples
 from .selection import encoder_step as _observed_step
 from .terms import FrictionModel, Inertia, Offset, friction_model
+from .tau_s import tau_s_scale_check, tau_s_zero_offset
 from .results import (FrictionFit, FrictionValidation, IdentificationData, IllConditionedWarning,
                       _relative_error, _ro, fit_percent)
 from .verdict import grade, identifiability
@@ -679,7 +680,7 @@ def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics
     data = friction_log(log)
     wants_inertia = estimate_inertia or data.inertia is None
     if offset is None:
-        offset = _tau_s_zero_offset(log)
+        offset = tau_s_zero_offset(log)
     if isinstance(model, str):
         fm = friction_model(model, harmonics=harmonics, offset=offset, estimate_inertia=wants_inertia)
     else:
@@ -691,19 +692,12 @@ def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics
         fit = fit_friction(data.t, data.position, data.force, fm,
                            inertia=None if "inertia" in fm.names else data.inertia,
                            holdout=holdout, selection=selection, **fit_options)
+        fit = tau_s_scale_check(log, fit, fm, fit_friction, holdout=holdout, selection=selection, **fit_options)
     if validation_log is not None:
         vdata = friction_log(validation_log)
         with _naming(vdata.source):
             fit = fit.with_validation(validate(fit, vdata))
     return fit
-
-
-def _tau_s_zero_offset(log: Any) -> bool:
-    """True for an SEA experiment whose ``tau_s`` column carries a constant beyond ``k_log (theta - q)``."""
-    from ..experiment import Experiment
-    from ..tau_s_source import tau_s_source_of
-
-    return isinstance(log, Experiment) and tau_s_source_of(log).zero_offset
 
 
 @contextlib.contextmanager
