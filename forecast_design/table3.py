@@ -514,11 +514,15 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
     envset = resolve_environments(environments)      # presets, inline values, files, Environment objects
     environments, env_of = envset.names, dict(envset.items())
     expected = {}
+    references: dict[tuple[str, str], Any] = {}      # (environment, derivative_on) -> frictionless run
 
     def frictionless(env: str, on: str):
-        return simulate(Design(environment=env_of[env], controller=pd), reference=ref, duration_s=duration_s,
-                        rate_hz=_RATE, include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None,
-                        derivative_on=on, description=f"reproduce table3: {env}, frictionless PD")
+        if (env, on) not in references:
+            references[(env, on)] = simulate(
+                Design(environment=env_of[env], controller=pd), reference=ref, duration_s=duration_s, rate_hz=_RATE,
+                include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None, derivative_on=on,
+                description=f"reproduce table3: {env}, frictionless PD")
+        return references[(env, on)]
 
     def cell(env: str, kind: str, *, on: str = derivative_on, deadband: float = sfm_deadband,
              play: Any = None, keep: bool = False):
@@ -531,7 +535,7 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
                          sfm_params=sfm_params if kind == "sfm" else None, sfm_deadband=float(deadband),
                          description=f"reproduce table3: {env}, {kind}, run {i}" if keep else "")
                 for i, a in enumerate(angles)]
-        ref_tau = expected[env].tau_s if on == derivative_on else frictionless(env, on).tau_s
+        ref_tau = frictionless(env, on).tau_s
         tau = np.array([r.tau_s for r in runs])
         return runs, tau, np.mean(np.abs(tau - ref_tau), axis=1)
 
