@@ -20,7 +20,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 from forecast_design import effects as fx
 from forecast_design.gap import diagnose
-from forecast_design.params import Compensator, Design, PDController
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design
 from forecast_design.simulation import references as refs
 from forecast_design.simulation import simulate
 
@@ -37,7 +38,7 @@ REFERENCES = {"square": refs.Square(high=1.0, low=-1.0, period_s=4.0),
 
 def _one(case: tuple) -> tuple[tuple[str, ...], str, float]:
     effect, env, comp, ref, duration_s, counts, noise = case
-    design = Design.nominal(env, controller=PDController(P=5.0, D=0.1), compensator=Compensator(kind=comp))
+    design = Design.nominal(env, controller=PD(P=5.0, D=0.1), compensator=Compensator(kind=comp))
     eff = () if EFFECTS[effect] is None else (EFFECTS[effect],)
     res = simulate(design, reference=REFERENCES[ref], duration_s=duration_s, effects=eff, seed=7, initial_angle=0.3,
                    encoder_counts=counts, process_noise_std=noise)

@@ -12,7 +12,8 @@ import argparse
 import time
 
 from forecast_design.effects import Cogging, PositionFriction, Stiction
-from forecast_design.params import Compensator, Design, PDController
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design
 from forecast_design.simulation import Square, simulate
 
 CASES = [
@@ -34,7 +35,7 @@ def main() -> None:
     args = parser.parse_args()
     print(f"{'case':58s} {'RT (cpu)':>10s} {'RT (wall)':>10s}")
     for label, env, kind, effects in CASES:
-        design = Design.nominal(env, controller=PDController(), compensator=Compensator(kind=kind, w_q_hz=10.0))
+        design = Design.nominal(env, controller=PD(), compensator=Compensator(kind=kind, w_q_hz=10.0))
         kw = dict(reference=Square(high=1.0, low=-1.0, period_s=2.0), effects=effects, substeps=args.substeps,
                   sfm_params={"viscous": 0.4, "coulomb": 0.4} if kind == "sfm" else None)
         simulate(design, duration_s=0.01, **kw)  # warm-up: numba compilation / cache load

@@ -33,7 +33,8 @@ import numpy as np
 
 from forecast_design.discrete import njit
 from forecast_design.effects import Stiction
-from forecast_design.params import Compensator, Design, PDController
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design
 from forecast_design.simulation import Square, simulate
 from forecast_design.simulation.batch import BatchRun, simulate_batch
 from forecast_design.simulation.plant import build_plant, integrate_open_loop
@@ -115,7 +116,7 @@ def _substep_costs(periods: int = 40000, repeats: int = 5) -> None:
     print("CPU per RK4 substep (integrate_open_loop, fig7, 2 kHz x 10): " + "; ".join(parts))
 
 def _runs(count: int) -> list[BatchRun]:
-    design = Design.nominal("fig7", controller=PDController(), compensator=Compensator(kind="ea-fob", w_q_hz=10.0))
+    design = Design.nominal("fig7", controller=PD(), compensator=Compensator(kind="ea-fob", w_q_hz=10.0))
     rng = np.random.default_rng(0)
     return [BatchRun(design=design, effects=(Stiction(F_s=float(rng.uniform(0.45, 0.6)), F_s_a=(0.05,), F_s_b=(0.02,),
                                                       v_s_a=(0.2,), v_s_b=(0.1,)),),

@@ -1,4 +1,4 @@
-"""Robustness of one force loop: its disk margin, continuous or sampled (the ``margins`` verb).
+"""Robustness of one force loop: disk and classical margins, continuous or sampled (the ``margins`` verb).
 
 The disk-margin mathematics lives in :mod:`forecast_design.margins`, the sampled-data loop in
 :mod:`forecast_design.loops.sampled`, the Fig. 6 table in :mod:`forecast_design.reproduce`;
@@ -9,11 +9,17 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import math
+from dataclasses import dataclass
 from typing import Any
+
+import numpy as np
 
 from .loops.sampled import SampledForceLoop, sampled_force_loop
 from .margins import (
+    ClassicalMargins,
     DiskMargin,
+    classical_margins,
     check_skew,
     DiskMarginCurve,
     disk_center_radius,
@@ -23,7 +29,8 @@ from .margins import (
     disk_phase_margin_deg,
 )
 from .environments import resolve_environments, resolve_testbed
-from .params import Compensator, Design, PDController
+from .controllers import PAPER_PD, resolve_controller
+from .params import Compensator, Design
 
 __all__ = [
     "DiskMargin",
@@ -36,6 +43,9 @@ __all__ = [
     "SampledForceLoop",
     "sampled_force_loop",
     "loop_margins",
+    "LoopAnalysis",
+    "LoopResponse",
+    "analyse_loop",
 ]
 
 # Names that moved to a higher layer (Fig. 6 is a reproduction); resolved on use, one release.
@@ -62,7 +72,7 @@ def loop_margins(
     *,
     testbed: Any = None,
     believed: Any = None,
-    controller: PDController | None = None,
+    controller: Any = None,
     break_at: str = "controller",
     sampled: bool = False,
     rate_hz: float = 2000.0,
@@ -87,14 +97,15 @@ def loop_margins(
     believed : Design, Environment, str or None
         What the observer believes (environment-knowledge error), in the same forms;
         ``None``: the truth.
-    controller : PDController or None
-        Force controller; ``None`` uses ``design.controller`` or the paper's P = 5, D = 0.1.
+    controller : Controller, str, python-control system or None
+        Force controller (:func:`~forecast_design.controllers.resolve_controller`); ``None``
+        uses ``design.controller`` or the paper's PD.
     break_at : str
         ``'controller'`` (paper) or ``'plant-input'``.
     sampled : bool
-        Analyse the sampled-data loop (:func:`sampled_force_loop`: 200 Hz derivative filter,
-        Tustin controller and observer, ZOH plant, delays) instead of the continuous one
-        (:func:`~forecast_design.loops.continuous.force_loop`, pure PD).
+        Analyse the sampled-data loop (:func:`sampled_force_loop`: the controller's difference
+        equation, Tustin observer, ZOH plant, delays) instead of the continuous one
+        (:func:`~forecast_design.loops.continuous.force_loop`, the controller's C(s)).
     rate_hz : float
         Sampling rate for ``sampled`` [Hz].
     delay_samples : int
@@ -117,7 +128,7 @@ def loop_margins(
         compensator = None if compensator == "none" else Compensator(kind=compensator)
     sigma = check_skew(skew if sigma is None else sigma)
     comp = compensator if compensator is not None else design.compensator
-    ctrl = controller if controller is not None else (design.controller or PDController(P=5.0, D=0.1))
+    ctrl = resolve_controller(controller if controller is not None else design.controller, default=PAPER_PD)
     if sampled:
         return sampled_force_loop(design, comp, controller=ctrl, believed=believed, rate_hz=rate_hz,
                                   break_at=break_at, delay_samples=delay_samples).disk_margin(sigma)
@@ -125,3 +136,180 @@ def loop_margins(
 
     loop = force_loop(design, comp, controller=ctrl, believed=believed, break_at=break_at)
     return disk_margin(loop.L, sigma, closed_loop_stable=bool(loop.stable))
+
+
+@dataclass(frozen=True, slots=True)
+class LoopResponse:
+    """A loop's frequency response on a grid, for the plots (computed here, drawn in plotting).
+
+    Parameters
+    ----------
+    w_rad_s : ndarray, shape (n,)
+        Frequencies [rad/s] (below Nyquist when sampled).
+    L, S, T : ndarray of complex, shape (n,)
+        Loop, sensitivity ``1/(1 + L)`` and complementary sensitivity ``L/(1 + L)`` [-].
+    alpha : ndarray, shape (n,)
+        Frequency-dependent disk margin ``1/|S + (sigma - 1)/2|`` [-].
+    """
+
+    w_rad_s: np.ndarray
+    L: np.ndarray
+    S: np.ndarray
+    T: np.ndarray
+    alpha: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class LoopAnalysis:
+    """Everything the ``margins`` verb says about one loop, and what it assumed.
+
+    Attributes
+    ----------
+    disk : DiskMargin
+        Exact disk margin [-] with its gain [dB], phase [deg] and delay [s] margins.
+    classical : ClassicalMargins
+        Every gain and phase crossover (MATLAB's ``allmargin``).
+    loop : ForceLoop or SampledForceLoop
+        The loop analysed.
+    assumptions : dict
+        Controller (label and table), compensator (table, cutoff, what the linear analysis
+        sees of it), testbed, environment, believed environment, break point, continuous or
+        sampled (rate, delay), skew.
+    notes : tuple of str
+        What was decided for the user (e.g. a discrete controller analysed sampled).
+    """
+
+    disk: DiskMargin
+    classical: ClassicalMargins
+    loop: Any
+    assumptions: dict
+    notes: tuple[str, ...] = ()
+
+    @property
+    def sampled(self) -> bool:
+        """True for the sampled-data loop."""
+        return isinstance(self.loop, SampledForceLoop)
+
+    def response(self, n: int = 800) -> LoopResponse:
+        """The loop's frequency response for plots: ``n`` log-spaced points up to 1e4 rad/s or Nyquist.
+
+        Parameters
+        ----------
+        n : int
+            Number of frequencies [-].
+
+        Returns
+        -------
+        LoopResponse
+            L, S, T and alpha(w).
+        """
+        top = 0.999 * math.pi * self.loop.rate_hz if self.sampled else 1e4
+        w = np.geomspace(1e-2, top, int(n))
+        if self.sampled:
+            W = 2.0 * self.loop.rate_hz * np.tan(w / (2.0 * self.loop.rate_hz))
+            L = self.loop.L_w(1j * W)
+        else:
+            L = self.loop.L(1j * w)
+        S = 1.0 / (1.0 + L)
+        alpha = 1.0 / np.abs(S + 0.5 * (self.disk.sigma - 1.0))
+        return LoopResponse(w, L, S, L * S, alpha)
+
+    def title(self) -> str:
+        """One line naming controller, compensator, environment and the loop (for plots)."""
+        a = self.assumptions
+        comp = a["compensator"]["label"]
+        kind = f"sampled {a['loop']['rate_hz']:g} Hz, delay {a['loop']['delay_samples']}" if self.sampled \
+            else "continuous"
+        return f"{a['controller']['label']} + {comp}, environment {a['environment']['name']} ({kind})"
+
+    def to_mapping(self) -> dict[str, Any]:
+        """JSON: the disk margin (top-level keys as before), the classical margins and the assumptions."""
+        return {**self.disk.to_mapping(), "classical": self.classical.to_mapping(),
+                "assumptions": self.assumptions, "notes": list(self.notes)}
+
+
+def analyse_loop(
+    design: Any,
+    compensator: Compensator | str | None = None,
+    *,
+    testbed: Any = None,
+    believed: Any = None,
+    controller: Any = None,
+    break_at: str = "controller",
+    sampled: bool = False,
+    rate_hz: float = 2000.0,
+    delay_samples: int = 1,
+    skew: float = 0.0,
+    environment_name: str | None = None,
+) -> LoopAnalysis:
+    """Disk and classical margins of one force loop, with everything it assumed (the ``margins`` verb).
+
+    Parameters
+    ----------
+    design, compensator, testbed, believed, controller, break_at, sampled, rate_hz, delay_samples, skew
+        As :func:`loop_margins`. A discrete controller (``C(z)``) has no continuous loop: it is
+        analysed sampled at its own rate (said in ``notes``).
+    environment_name : str, optional
+        How to name the environment in the assumptions (default: its preset name, or ``custom``).
+
+    Returns
+    -------
+    LoopAnalysis
+        Margins, the loop and the assumptions.
+
+    Examples
+    --------
+    >>> a = analyse_loop("soft", "ea-fob", controller="pid:6:20:0.05:0.002")
+    >>> a.assumptions["controller"]["label"], a.disk.stable
+    ('PID P=6 I=20 D=0.05 T_f=0.002', True)
+    """
+    from .compensators import compensator_strategy
+    from .environments import resolve_environments as _resolve
+    from .loops import force_loop
+
+    design = _as_design(design, testbed, "analyse_loop")
+    if believed is not None:
+        believed = _as_design(believed, design.testbed, "analyse_loop(believed=...)")
+    if isinstance(compensator, str):
+        compensator = None if compensator == "none" else Compensator(kind=compensator)
+    sigma = check_skew(skew)
+    comp = compensator if compensator is not None else design.compensator
+    ctrl = resolve_controller(controller if controller is not None else design.controller, default=PAPER_PD)
+    notes = []
+    if not ctrl.has_equations:
+        raise ctrl.no_equations("margins")
+    if not sampled and not ctrl.is_continuous:
+        sampled = True
+        if ctrl.rate_hz is not None:
+            rate_hz = ctrl.rate_hz
+        notes.append(f"controller {ctrl.spelling()} is discrete: the sampled loop at {rate_hz:g} Hz is analysed")
+    if sampled:
+        loop = sampled_force_loop(design, comp, controller=ctrl, believed=believed, rate_hz=rate_hz,
+                                  break_at=break_at, delay_samples=delay_samples)
+        dm = loop.disk_margin(sigma)
+        cm = classical_margins(loop.L_w, stable=loop.stable, rate_hz=rate_hz)
+    else:
+        loop = force_loop(design, comp, controller=ctrl, believed=believed, break_at=break_at)
+        dm = disk_margin(loop.L, sigma, closed_loop_stable=bool(loop.stable))
+        cm = classical_margins(loop.L, stable=loop.stable)
+    comp_value = comp or Compensator()
+    name = environment_name or next((n for n in ("soft", "stiff", "fig7", "exp-soft", "locked", "link-only")
+                                     if _resolve(n).single("x")[1] == design.environment), "custom")
+    assumptions = {
+        "controller": {"label": ctrl.label, "spelling": ctrl.spelling(), "table": ctrl.to_mapping()},
+        "compensator": {"label": comp_value.label, "table": comp_value.to_mapping(),
+                        "w_q_hz": comp_value.w_q_hz if comp_value.is_observer else None,
+                        "linear_analysis": compensator_strategy(comp_value).analysis_note(comp_value)},
+        "testbed": design.testbed.to_mapping(),
+        "environment": {"name": name, **design.environment.to_mapping()},
+        "believed_environment": None if believed is None else believed.environment.to_mapping(),
+        "break_at": break_at,
+        "loop": ({"kind": "sampled", "rate_hz": float(rate_hz), "delay_samples": int(delay_samples),
+                  "plant": "zero-order hold", "compensator_discretization": "tustin",
+                  "controller_discretization": getattr(ctrl, "discretization", None) if ctrl.is_continuous
+                  else "given in z"} if sampled else {"kind": "continuous"}),
+        "skew": sigma,
+        "conventions": "negative feedback 1 + L = 0; disk margin of Seiler, Packard and Gahinet (2020); "
+                       "classical margins at every crossover (MATLAB allmargin); frequencies in rad/s and Hz",
+    }
+    return LoopAnalysis(dm, cm, loop, assumptions, tuple(notes))

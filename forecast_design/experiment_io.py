@@ -49,7 +49,8 @@ import tomli_w
 
 from .errors import ExperimentFormatError, ParameterError
 from .fileio import Content, atomic_write_set
-from .params import Compensator, Design, Environment, PDController, Testbed
+from .controllers import controller_from_mapping
+from .params import Compensator, Design, Environment, Testbed
 
 __all__ = [
     "FORMAT",
@@ -217,7 +218,7 @@ def parse_toml(doc: Mapping[str, Any], label: str) -> tuple[Design, float, str, 
     environment = Environment.from_mapping(_require_table(doc, "environment", label, required=True),
                                            source=label)
     table = _require_table(doc, "controller", label, required=False)
-    controller = None if table is None else PDController.from_mapping(table, source=label)
+    controller = None if table is None else controller_from_mapping(table, source=label, rate_hz=rate)
     table = _require_table(doc, "compensator", label, required=False)
     compensator = None if table is None else Compensator.from_mapping(table, source=label)
     design = Design(testbed=testbed, environment=environment, controller=controller,

@@ -33,8 +33,19 @@ class RationalTF:
 
     Notes
     -----
-    There is deliberately no operator algebra: symbolic algebra happens in
-    sympy, numeric interconnection in python-control (``tf.to_control()``).
+    The algebra is python-control's (``*``, ``+``, ``-``, ``/``, :meth:`feedback`) with one
+    difference that the loop analysis relies on: nothing is ever cancelled. A product or a
+    feedback keeps every factor of its operands, so a mode hidden by a pole-zero cancellation
+    (an unstable observer mode cancelled in L, say) stays in the characteristic polynomial
+    ``feedback().den``; :meth:`minreal` cancels on request. Both operands must be continuous,
+    or discrete with the same ``dt``; a number is a static gain.
+
+    Examples
+    --------
+    >>> C = RationalTF((0.1, 5.0), (1.0,), name="C")          # P + D s
+    >>> P = RationalTF((58.0,), (0.133, 0.3, 58.0), name="P")
+    >>> [round(c, 12) for c in (C * P).feedback().den]         # den + num, nothing cancelled
+    [0.133, 6.1, 348.0]
     """
 
     num: tuple[float, ...]
@@ -58,6 +69,117 @@ class RationalTF:
         if self.dt is not None and not (isinstance(self.dt, (int, float)) and math.isfinite(self.dt) and self.dt > 0):
             raise ParameterError(f"RationalTF {self.name!r}: dt must be None or a sample period > 0 [s], "
                                  f"got {self.dt!r:.80}", name="dt", value=self.dt)
+
+    # --- algebra (python-control's operators, no cancellation) ---------------------------------
+
+    def _coerce(self, other: "RationalTF | float") -> "RationalTF":
+        if isinstance(other, RationalTF):
+            if (self.dt is None) != (other.dt is None) or (self.dt is not None and self.dt != other.dt):
+                raise ParameterError(f"RationalTF {self.name!r} (dt {self.dt}) and {other.name!r} (dt {other.dt}) "
+                                     "are not on the same time base", name="dt", value=other.dt)
+            return other
+        if isinstance(other, (int, float, np.integer, np.floating)) and not isinstance(other, bool) \
+                and math.isfinite(other):
+            return RationalTF((float(other),), (1.0,), self.dt)
+        raise ParameterError(f"RationalTF {self.name!r}: cannot combine with {type(other).__name__} {other!r:.60}",
+                             name="other", value=other)
+
+    def __mul__(self, other: "RationalTF | float") -> "RationalTF":
+        o = self._coerce(other)
+        return RationalTF(poly.mul(self.num, o.num), poly.mul(self.den, o.den), self.dt)
+
+    __rmul__ = __mul__
+
+    def __add__(self, other: "RationalTF | float") -> "RationalTF":
+        o = self._coerce(other)
+        return RationalTF(poly.add(poly.mul(self.num, o.den), poly.mul(o.num, self.den)),
+                          poly.mul(self.den, o.den), self.dt)
+
+    __radd__ = __add__
+
+    def __neg__(self) -> "RationalTF":
+        return RationalTF(tuple(-c for c in self.num), self.den, self.dt, self.name)
+
+    def __sub__(self, other: "RationalTF | float") -> "RationalTF":
+        return self + (-self._coerce(other))
+
+    def __rsub__(self, other: "RationalTF | float") -> "RationalTF":
+        return self._coerce(other) + (-self)
+
+    def inv(self) -> "RationalTF":
+        """``1 / self`` (den / num) [-]; refused for the zero TF."""
+        if self.num == (0.0,):
+            raise ParameterError(f"RationalTF {self.name!r} is zero: it has no inverse", name="num", value=self.num)
+        return RationalTF(self.den, self.num, self.dt)
+
+    def __truediv__(self, other: "RationalTF | float") -> "RationalTF":
+        return self * self._coerce(other).inv()
+
+    def __rtruediv__(self, other: "RationalTF | float") -> "RationalTF":
+        return self._coerce(other) * self.inv()
+
+    def feedback(self, other: "RationalTF | float" = 1.0, sign: int = -1) -> "RationalTF":
+        """Closed loop ``self / (1 - sign self other)`` (negative feedback by default), nothing cancelled.
+
+        Parameters
+        ----------
+        other : RationalTF or float
+            The feedback path H (default 1: unity feedback).
+        sign : int
+            -1 (negative feedback, python-control's default) or +1.
+
+        Returns
+        -------
+        RationalTF
+            ``G d_H / (d_G d_H - sign n_G n_H)``; its denominator is the characteristic
+            polynomial of the loop with every mode of G and H kept.
+        """
+        if sign not in (-1, 1):
+            raise ParameterError(f"feedback sign must be -1 or +1, got {sign!r}", name="sign", value=sign)
+        h = self._coerce(other)
+        return RationalTF(poly.mul(self.num, h.den),
+                          poly.add(poly.mul(self.den, h.den), -sign * poly.mul(self.num, h.num)), self.dt)
+
+    def minreal(self, rtol: float = 1e-7) -> "RationalTF":
+        """Remove pole-zero pairs that coincide to ``rtol`` (python-control's ``minreal``, on request).
+
+        Parameters
+        ----------
+        rtol : float
+            Relative distance under which a zero cancels a pole [-].
+
+        Returns
+        -------
+        RationalTF
+            The reduced TF with the same leading-coefficient ratio and name.
+        """
+        if self.num == (0.0,) or len(self.den) == 1 or len(self.num) == 1:
+            return self
+        zeros = list(np.roots(self.num))
+        keep_p = []
+        for p in np.roots(self.den):
+            best = None
+            for i, z in enumerate(zeros):
+                if abs(z - p) <= rtol * max(1.0, abs(p)) and (best is None or abs(z - p) < abs(zeros[best] - p)):
+                    best = i
+            if best is None:
+                keep_p.append(p)
+            else:
+                zeros.pop(best)
+        if len(keep_p) == len(self.den) - 1:
+            return self
+        num = np.real_if_close(np.poly(zeros)) * self.num[0] if zeros else np.array([self.num[0]])
+        den = np.real_if_close(np.poly(keep_p)) * self.den[0] if keep_p else np.array([self.den[0]])
+        return RationalTF(tuple(np.real(num)), tuple(np.real(den)), self.dt, self.name)
+
+    def named(self, name: str) -> "RationalTF":
+        """The same TF labelled ``name``."""
+        return RationalTF(self.num, self.den, self.dt, name)
+
+    @property
+    def is_proper(self) -> bool:
+        """deg(num) <= deg(den)."""
+        return self.relative_degree >= 0
 
     def normalized(self) -> "RationalTF":
         """Same TF with the denominator's leading coefficient equal to 1."""

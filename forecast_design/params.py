@@ -8,20 +8,17 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
 
-import numpy as np
-
+from .controllers import Controller, resolve_controller
 from .errors import ExperimentFormatError, ParameterError
-from .plausibility import check_limit, check_physical
+from .plausibility import check_limit, check_number, check_physical
 
 __all__ = [
     "Testbed",
     "Environment",
     "critically_damped",
-    "PDController",
     "Compensator",
     "Design",
     "ENVIRONMENT_PRESETS",
@@ -31,7 +28,6 @@ __all__ = [
     "BREAK_POINTS",
     "environment_preset",
     "require_design",
-    "parse_controller",
     "resolve_design",
 ]
 
@@ -47,39 +43,6 @@ BREAK_POINTS = ("controller", "plant-input")
 BOARDS = ("nucleo-f446re",)
 #: ESCON set-value paths: the DAC (PA4, analog set value) or a PWM timer (PA6, PWM set value).
 OUTPUT_STAGES = ("dac", "pwm")
-
-
-def check_number(owner: str, name: str, value: Any, *, positive: bool = False, nonneg: bool = True) -> float:
-    """Validate one physical number at the boundary; raise ParameterError naming it.
-
-    Parameters
-    ----------
-    owner : str
-        Where the number lives, e.g. ``"[testbed]"`` or ``"stiction"``.
-    name : str
-        Its name.
-    value : object
-        The candidate (bool and non-numbers are rejected).
-    positive : bool
-        Require > 0.
-    nonneg : bool
-        Require >= 0 (ignored when ``positive``).
-
-    Returns
-    -------
-    float
-        The value as a float.
-    """
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):   # numpy scalars are Real
-        raise ParameterError(f"{owner} {name} must be a number, got {value!r}", name=name, value=value)
-    value = float(value)
-    if not math.isfinite(value):
-        raise ParameterError(f"{owner} {name} must be finite, got {value!r}", name=name, value=value)
-    if positive and value <= 0.0:
-        raise ParameterError(f"{owner} {name} must be > 0, got {value!r}", name=name, value=value)
-    if nonneg and not positive and value < 0.0:
-        raise ParameterError(f"{owner} {name} must be >= 0, got {value!r}", name=name, value=value)
-    return value
 
 
 _number = check_number
@@ -316,41 +279,14 @@ def environment_preset(name: str) -> Environment:
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
-class PDController:
-    """PD force controller C_F(s) = P + D s acting on e = tau_r - tau_s."""
-
-    kind: ClassVar[str] = "pd"
-    P: float = 5.0  # proportional gain  [N m / N m]
-    D: float = 0.1  # derivative gain    [N m s / N m]
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "P", check_physical("[controller]", "P", _number("[controller]", "P", self.P)))
-        object.__setattr__(self, "D", check_physical("[controller]", "D", _number("[controller]", "D", self.D)))
-
-    @classmethod
-    def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "PDController":
-        """Build from a ``[controller]`` table (``kind = "pd"``)."""
-        where = f"{source}: " if source else ""
-        kind = mapping.get("kind", "pd") if isinstance(mapping, Mapping) else None
-        if kind != "pd":
-            raise ExperimentFormatError(
-                f"{where}[controller] kind must be 'pd', got {kind!r}", path=source, key="controller.kind"
-            )
-        return _from_mapping(cls, mapping, section="controller", source=source,
-                             required=("P", "D"), ignore=("kind",))
-
-    def to_mapping(self) -> dict[str, Any]:
-        """The ``[controller]`` table."""
-        return {"kind": self.kind, "P": self.P, "D": self.D}
-
-
-@dataclass(frozen=True, slots=True, kw_only=True)
 class Compensator:
-    """Friction compensator / disturbance observer specification.
+    """Friction compensator / disturbance observer: the value of a ``[compensator]`` table.
 
-    ``q_family`` and ``q_order`` choose the Q filter (our choice where the
-    paper is silent; default 2nd-order Butterworth). They are not part of the
-    experiment format's ``[compensator]`` table and are not written to it.
+    ``q_family``, ``q_order`` and ``q_damping`` choose the Q filter (our choice where the
+    paper is silent; default 2nd-order Butterworth); the format's table carries them when
+    they differ from the defaults. An ``sfm`` carries its identified ``friction``
+    (``[compensator.friction]``). What each kind does (its filters, its feed-forward) is its
+    strategy's: :func:`forecast_design.compensators.compensator_strategy`.
     """
 
     kind: str = "none"             # none | sfm | ea-fob | lo-dob | ld-dob | motor-fob
@@ -359,7 +295,8 @@ class Compensator:
     q_order: int = 2               # Q(s) order                    [-]
     q_damping: float | None = None  # 2nd-order Q damping ratio; None = the family's own [-]
     # identified friction of an 'sfm' compensator, (name, value) pairs as forecast_design.friction
-    # names them (viscous [N m s/rad], coulomb, offset, sin<i>, cos<i> [N m]); a Mapping is accepted
+    # names them (viscous [N m s/rad], coulomb, offset, sin<i>, cos<i> [N m], the asymmetric and
+    # Stribeck names); a Mapping is accepted
     friction: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
@@ -427,23 +364,64 @@ class Compensator:
 
     @classmethod
     def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "Compensator":
-        """Build from a ``[compensator]`` table (keys ``kind``, ``w_q_hz``)."""
+        """Build from a ``[compensator]`` table (experiment format).
+
+        Observer kinds take ``w_q_hz`` and optionally ``q_family``, ``q_order``, ``q_damping``;
+        ``sfm`` takes a ``[compensator.friction]`` sub-table of identified parameters; other keys
+        are errors naming the file and the key.
+
+        Parameters
+        ----------
+        mapping : Mapping
+            The table.
+        source : str, optional
+            The file, for messages.
+
+        Returns
+        -------
+        Compensator
+            The compensator.
+        """
         where = f"{source}: " if source else ""
-        if isinstance(mapping, Mapping):
-            for key in mapping:
-                if key not in ("kind", "w_q_hz"):
-                    raise ExperimentFormatError(
-                        f"{where}[compensator] unknown key '{key}'; allowed: kind, w_q_hz",
-                        path=source, key=f"compensator.{key}",
-                    )
+        if not isinstance(mapping, Mapping):
+            raise ExperimentFormatError(f"{where}[compensator] must be a table, got {type(mapping).__name__}",
+                                        path=source, key="compensator")
+        kind = mapping.get("kind", "none")
+        allowed = ("kind", *_OBSERVER_KEYS) if kind in OBSERVER_KINDS else \
+            ("kind", "friction") if kind == "sfm" else ("kind",)
+        for key in mapping:
+            if key not in allowed:
+                raise ExperimentFormatError(
+                    f"{where}[compensator] key '{key}' does not belong to kind {kind!r}; its keys: "
+                    f"{', '.join(allowed)}", path=source, key=f"compensator.{key}")
+        if "friction" in mapping and not isinstance(mapping["friction"], Mapping):
+            raise ExperimentFormatError(f"{where}[compensator] friction must be a table [compensator.friction]",
+                                        path=source, key="compensator.friction")
         return _from_mapping(cls, mapping, section="compensator", source=source, required=())
 
     def to_mapping(self) -> dict[str, Any]:
-        """The ``[compensator]`` table of the experiment format."""
+        """The ``[compensator]`` table of the experiment format (non-default Q keys, the SFM's friction)."""
         out: dict[str, Any] = {"kind": self.kind}
         if self.is_observer:
             out["w_q_hz"] = self.w_q_hz
+            if self.q_family != "butterworth":
+                out["q_family"] = self.q_family
+            if self.q_order != 2:
+                out["q_order"] = self.q_order
+            if self.q_damping is not None:
+                out["q_damping"] = self.q_damping
+        if self.friction:
+            out["friction"] = dict(self.friction)
         return out
+
+    @property
+    def label(self) -> str:
+        """A short label: ``ea-fob 10 Hz``, ``sfm``, ``none``."""
+        return f"{self.kind} {self.w_q_hz:g} Hz" if self.is_observer else self.kind
+
+
+#: Keys of an observer's ``[compensator]`` table besides ``kind``.
+_OBSERVER_KEYS = ("w_q_hz", "q_family", "q_order", "q_damping")
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -452,13 +430,13 @@ class Design:
 
     testbed: Testbed = field(default_factory=Testbed)
     environment: Environment = field(default_factory=lambda: ENVIRONMENT_PRESETS["soft"])
-    controller: PDController | None = None
+    controller: Controller | None = None
     compensator: Compensator | None = None
 
     def __post_init__(self) -> None:
         # a wrong type here would surface much later as a raw AttributeError deep in a model
         for name, kind, optional in (("testbed", Testbed, False), ("environment", Environment, False),
-                                     ("controller", PDController, True), ("compensator", Compensator, True)):
+                                     ("controller", Controller, True), ("compensator", Compensator, True)):
             value = getattr(self, name)
             if not (isinstance(value, kind) or (optional and value is None)):
                 hint = " (use Design.nominal(NAME) for a preset)" if name == "environment" else ""
@@ -527,43 +505,7 @@ class Design:
 # --- design parsing (command-line forms) ------------------------------------------------
 
 
-def parse_controller(text: str) -> PDController:
-    """Parse ``pd:P:D`` (e.g. ``"pd:5:0.1"``) into a PDController.
-
-    Parameters
-    ----------
-    text : str
-        ``pd:<P [N m/N m]>:<D [N m s/N m]>``.
-
-    Returns
-    -------
-    PDController
-        The controller.
-
-    Raises
-    ------
-    ParameterError
-        One line naming the string and the expected form.
-    """
-    parts = str(text).split(":")
-    form = "expected pd:P:D, e.g. pd:5:0.1"
-    if len(parts) != 3 or parts[0].lower() != "pd":
-        raise ParameterError(f"controller {text!r}: {form}", name="controller", value=text)
-    gains = []
-    for part in parts[1:]:
-        try:
-            gains.append(float(part))
-        except ValueError:
-            raise ParameterError(f"controller {text!r}: {part!r} is not a number; {form}", name="controller",
-                                 value=text) from None
-    P, D = gains
-    try:
-        return PDController(P=P, D=D)
-    except ParameterError as exc:
-        raise ParameterError(f"controller {text!r}: {exc}", name="controller", value=text) from None
-
-
-def resolve_design(design: Design | None = None, *, controller: PDController | str | None = None,
+def resolve_design(design: Design | None = None, *, controller: Any = None,
                    compensator: Compensator | str | None = None, env: str | None = None,
                    w_q_hz: float | None = None) -> Design:
     """Apply CLI-style overrides to a design (shared by ``export`` and ``run``).
@@ -571,9 +513,9 @@ def resolve_design(design: Design | None = None, *, controller: PDController | s
     Parameters
     ----------
     design : Design, optional
-        Base (default: Table 1 testbed, ``exp-soft``, PD 5/0.1, no compensator).
-    controller : PDController or str, optional
-        ``"pd:P:D"`` or a value.
+        Base (default: Table 1 testbed, ``exp-soft``, the paper's PD, no compensator).
+    controller : Controller, str or python-control system, optional
+        Anything :func:`~forecast_design.controllers.resolve_controller` takes (``"pd:5:0.1"``...).
     compensator : Compensator or str, optional
         Kind string or a value.
     env : str, optional
@@ -590,12 +532,10 @@ def resolve_design(design: Design | None = None, *, controller: PDController | s
         design = Design(environment=environment_preset("exp-soft"))
     if env is not None:
         design = design.with_environment(env)
-    if isinstance(controller, str):
-        controller = parse_controller(controller)
     if controller is not None:
-        design = dataclasses.replace(design, controller=controller)
+        design = dataclasses.replace(design, controller=resolve_controller(controller))
     elif design.controller is None:
-        design = dataclasses.replace(design, controller=PDController())
+        design = dataclasses.replace(design, controller=resolve_controller(None))
     if isinstance(compensator, str):
         compensator = Compensator(kind=compensator)
     comp = compensator if compensator is not None else (design.compensator or Compensator())

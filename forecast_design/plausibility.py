@@ -50,6 +50,7 @@ blames an effect; a re-calibration at that bound is itself reported.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
 
@@ -78,6 +79,7 @@ __all__ = [
     "COMPUTATION_LIMITS",
     "check_physical",
     "check_limit",
+    "check_number",
     "require_no_nan",
 ]
 
@@ -500,6 +502,13 @@ PHYSICAL_RANGES: Mapping[str, tuple[float, float, str]] = {
     "rate_hz": (1.0, 1e6, "Hz"),
     "P": (0.0, 1e4, "N m/N m"),
     "D": (0.0, 1e3, "N m s/N m"),
+    "I": (0.0, 1e6, "1/s"),
+    "T_f": (0.0, 10.0, "s"),
+    "T_t": (1e-6, 1e3, "s"),
+    "feedforward": (-1e3, 1e3, "-"),
+    "u_min": (-1e6, 1e6, "N m"),
+    "u_max": (-1e6, 1e6, "N m"),
+    "prewarp_hz": (1e-3, 1e6, "Hz"),
 }
 
 #: Sizes of a computation a user may ask for: name -> (lowest, highest, what it bounds).
@@ -659,3 +668,36 @@ def require_no_nan(result: Any, what: str) -> Any:
         raise SolverError(f"{what}: the result holds NaN at {found}: the parameters are outside what the "
                           "models evaluate reliably (see the plausible ranges in docs/reliability.md)")
     return result
+
+
+def check_number(owner: str, name: str, value: Any, *, positive: bool = False, nonneg: bool = True) -> float:
+    """Validate one physical number at the boundary; raise ParameterError naming it.
+
+    Parameters
+    ----------
+    owner : str
+        Where the number lives, e.g. ``"[testbed]"`` or ``"stiction"``.
+    name : str
+        Its name.
+    value : object
+        The candidate (bool and non-numbers are rejected).
+    positive : bool
+        Require > 0.
+    nonneg : bool
+        Require >= 0 (ignored when ``positive``).
+
+    Returns
+    -------
+    float
+        The value as a float.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):   # numpy scalars are Real
+        raise ParameterError(f"{owner} {name} must be a number, got {value!r}", name=name, value=value)
+    value = float(value)
+    if not math.isfinite(value):
+        raise ParameterError(f"{owner} {name} must be finite, got {value!r}", name=name, value=value)
+    if positive and value <= 0.0:
+        raise ParameterError(f"{owner} {name} must be > 0, got {value!r}", name=name, value=value)
+    if nonneg and not positive and value < 0.0:
+        raise ParameterError(f"{owner} {name} must be >= 0, got {value!r}", name=name, value=value)
+    return value

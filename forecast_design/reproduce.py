@@ -60,7 +60,8 @@ from .effects import Stiction
 from .errors import ParameterError
 from .environments import resolve_environments, resolve_testbed
 from .margins import resolve_skew, disk_margin, json_float
-from .params import COMPENSATOR_KINDS, Compensator, Design, PDController
+from .controllers import PAPER_PD, PD, resolve_controller
+from .params import COMPENSATOR_KINDS, Compensator, Design
 from .table3 import (PAPER_TABLE3, TABLE3_PLAY_PROBE, TABLE3_SFM_DEADBAND, TABLE3_TRUTH, XCORR_MODES, Table3Result,
                      Table3Row, identify_extended_sfm, pairwise_xcorr, pairwise_xcorr_per_run,
                      pairwise_xcorr_se, reproduce_table3, xcorr_se_from_per_run)
@@ -119,7 +120,8 @@ class Fig7Choices:
     w_q_hz : float
         Q cutoff [Hz].
     derivative_cutoff_hz : float
-        PD derivative filter [Hz].
+        PD derivative filter [Hz]: the reproduction's PD is 5/0.1 with ``T_f = 1/(2 pi
+        derivative_cutoff_hz)``, Tustin-discretised (:meth:`Fig7Choices.controller`).
     torque_limit : float or None
         Motor torque saturation [N m]; None for none.
     sfm_viscous : float
@@ -147,6 +149,10 @@ class Fig7Choices:
     sfm_coulomb: float = 0.4
     velocity_cutoff_hz: float = 50.0
     seed: int = 0
+
+    def controller(self) -> PD:
+        """The PD the reproduction runs: P = 5, D = 0.1, derivative filter at ``derivative_cutoff_hz``, Tustin."""
+        return PD(P=5.0, D=0.1, T_f=1.0 / (2.0 * math.pi * self.derivative_cutoff_hz), discretization="tustin")
 
     def __post_init__(self) -> None:
         from .params import environment_preset
@@ -229,12 +235,12 @@ def _fig7_runs(c: Fig7Choices) -> dict[str, Any]:
     runs = {}
     for kind in ("sfm", "ea-fob"):
         comp = Compensator(kind=kind, **c.compensator_kwargs) if kind == "ea-fob" else Compensator(kind="sfm")
-        design = Design.nominal(c.environment, controller=PDController(P=5.0, D=0.1), compensator=comp)
+        design = Design.nominal(c.environment, controller=c.controller(), compensator=comp)
         runs[kind] = simulate(
             design, reference=Square(high=c.high, low=c.low, period_s=c.period_s), duration_s=c.periods * c.period_s,
             effects=[Stiction()], rate_hz=_RATE, seed=c.seed, include_nominal_viscous=c.include_nominal_viscous,
             sfm_params={"viscous": c.sfm_viscous, "coulomb": c.sfm_coulomb} if kind == "sfm" else None,
-            derivative_cutoff_hz=c.derivative_cutoff_hz, velocity_cutoff_hz=c.velocity_cutoff_hz,
+            velocity_cutoff_hz=c.velocity_cutoff_hz,
             torque_limit=math.inf if c.torque_limit is None else float(c.torque_limit),
             description=f"reproduce fig7: {kind}",
         )
@@ -408,7 +414,7 @@ def fig6_table(
     environments: Any = ("soft", "stiff"),
     w_q_hz: Sequence[float] = (1.0, 5.0, 10.0),
     observers: Sequence[str] = ("none", "ea-fob", "lo-dob", "ld-dob"),
-    controller: PDController = PDController(P=5.0, D=0.1),
+    controller: Any = PAPER_PD,
     skew: float = 0.0,
     sigma: float | None = None,
     testbed: Any = None,
@@ -426,8 +432,8 @@ def fig6_table(
         Q(s) cutoffs [Hz] for every observer (paper: 1, 5, 10).
     observers : sequence of str
         Compensator kinds; ``none`` is the plant alone and gets a single row.
-    controller : PDController
-        Force controller (paper: P = 5 [N m / N m], D = 0.1 [N m s / N m]).
+    controller : Controller, str or python-control system
+        Force controller (paper: PD, P = 5 [N m / N m], D = 0.1 [N m s / N m]); its C(s).
     skew : float
         Skew of the disk [-] (the paper uses the balanced disk, 0); python-control's and MATLAB's name.
     sigma : float, optional
@@ -458,6 +464,7 @@ def fig6_table(
                 f"fig6_table: observer must be one of {', '.join(COMPENSATOR_KINDS)}, got {kind!r}",
                 name="observers", value=kind)
     from .loops import force_loop
+    controller = resolve_controller(controller)
     skew = resolve_skew(skew, sigma)
     tb = resolve_testbed(testbed)
     rows: list[MarginRow] = []

@@ -41,13 +41,15 @@ import numpy as np
 from .effects import Backlash, Cogging, PositionFriction, Stiction
 from .environments import resolve_environments
 from .errors import ParameterError
-from .params import Compensator, Design, PDController, Testbed
+from .controllers import DERIVATIVE_ON, PD
+from .params import Compensator, Design, Testbed
 
 __all__ = [
     "PAPER_TABLE3",
     "TABLE3_TRUTH",
     "TABLE3_SFM_DEADBAND",
     "TABLE3_DERIVATIVE_ON",
+    "table3_controller",
     "TABLE3_PLAY_PROBE",
     "Table3Row",
     "Table3Result",
@@ -103,6 +105,27 @@ TABLE3_SFM_DEADBAND = 0.01
 #: level and makes every run rise alike. Section 7 does not say; ``measurement`` is the common
 #: implementation of a PD on a stepped reference, and the other reading is reported too.
 TABLE3_DERIVATIVE_ON = "measurement"
+
+#: The derivative filter of the board's PD in the reproduction [Hz] (T_f = 1/(2 pi 200 Hz), Tustin):
+#: the filtered PD every Table 3 figure in benchmarks/RESULTS.md was measured with.
+TABLE3_DERIVATIVE_CUTOFF_HZ = 200.0
+
+
+def table3_controller(derivative_on: str = TABLE3_DERIVATIVE_ON) -> PD:
+    """The board's PD of the Table 3 reproduction: P = 5, D = 0.1, a 200 Hz derivative filter, Tustin.
+
+    Parameters
+    ----------
+    derivative_on : str
+        ``measurement`` (the reproduction's reading) or ``error``.
+
+    Returns
+    -------
+    PD
+        The controller (its ``[controller]`` table says all of this in the simulated logs).
+    """
+    return PD(P=5.0, D=0.1, T_f=1.0 / (2.0 * math.pi * TABLE3_DERIVATIVE_CUTOFF_HZ), discretization="tustin",
+              derivative_on=derivative_on)
 
 #: Play [rad] of the Oldham couplings in the probe of ``Table3Result.mechanisms``: a source of
 #: run-to-run spread the paper names (Section 2: shaft misalignment at the Oldham couplings),
@@ -480,7 +503,7 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
         (``Table3Result.mechanisms``, default :data:`TABLE3_PLAY_PROBE`); None: no probe.
     derivative_on : str
         Where the PD takes its derivative, one of
-        :data:`~forecast_design.simulation.controllers.DERIVATIVE_ON` (default
+        :data:`~forecast_design.controllers.DERIVATIVE_ON` (default
         :data:`TABLE3_DERIVATIVE_ON`); the frictionless reference uses the same PD. Every cell is
         also recomputed with the other choice (``Table3Result.mechanisms``).
 
@@ -491,7 +514,7 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
         paper's values and standard errors), responses, the identified SFM and the explanation.
     """
     from .simulation import Step, simulate
-    from .simulation.controllers import DERIVATIVE_ON
+
     from .simulation.scenario import Variability
 
     if isinstance(repetitions, bool) or not isinstance(repetitions, int) or repetitions < 2:
@@ -509,7 +532,7 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
                              f"{play_probe_rad!r}", name="play_probe_rad", value=play_probe_rad)
     angles = Variability(repetitions=repetitions, seed=seed).initial_angles()
     sfm_params, fit, _ = identify_extended_sfm(effects, seed=seed)
-    pd = PDController(P=5.0, D=0.1)
+    pds = {on: table3_controller(on) for on in DERIVATIVE_ON}
     ref = Step(amplitude=amplitude)
     envset = resolve_environments(environments)      # presets, inline values, files, Environment objects
     environments, env_of = envset.names, dict(envset.items())
@@ -519,16 +542,16 @@ def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_
     def frictionless(env: str, on: str):
         if (env, on) not in references:
             references[(env, on)] = simulate(
-                Design(environment=env_of[env], controller=pd), reference=ref, duration_s=duration_s, rate_hz=_RATE,
-                include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None, derivative_on=on,
+                Design(environment=env_of[env], controller=pds[on]), reference=ref, duration_s=duration_s, rate_hz=_RATE,
+                include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None,
                 description=f"reproduce table3: {env}, frictionless PD")
         return references[(env, on)]
 
     def cell(env: str, kind: str, *, on: str = derivative_on, deadband: float = sfm_deadband,
              play: Any = None, keep: bool = False):
         comp = Compensator(kind=kind, w_q_hz=w_q_hz) if kind == "ea-fob" else Compensator(kind=kind)
-        design = Design(environment=env_of[env], controller=pd, compensator=comp)
-        runs = [simulate(design, reference=ref, duration_s=duration_s, rate_hz=_RATE, derivative_on=on,
+        design = Design(environment=env_of[env], controller=pds[on], compensator=comp)
+        runs = [simulate(design, reference=ref, duration_s=duration_s, rate_hz=_RATE,
                          effects=tuple(effects) if play is None else play.effects_of(
                              tuple(effects) + (Backlash(width_rad=float(play_probe_rad)),), i),
                          initial_angle=float(a), seed=seed + 1 + i,

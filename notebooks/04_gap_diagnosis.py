@@ -41,7 +41,8 @@ import numpy as np
 from forecast_design import effects as fx
 from forecast_design.gap import diagnose
 from forecast_design.reporting import write_report
-from forecast_design.params import Design, PDController
+from forecast_design.controllers import PD
+from forecast_design.params import Design
 from forecast_design.simulation import references as refs
 from forecast_design.simulation import simulate
 
@@ -59,7 +60,7 @@ DURATION = 5.0 if FAST else 10.0
 
 # %%
 def make_log(effect, environment="link-only", closed_loop=False, seed=1):
-    design = Design.nominal(environment, controller=PDController() if closed_loop else None)
+    design = Design.nominal(environment, controller=PD() if closed_loop else None)
     swing = refs.Multisine(amplitudes=(2.0, 0.3, 0.3, 0.3), frequencies_hz=(0.08, 1.1, 2.9, 6.7),
                            phases_rad=(0.0, 1.0, 2.0, 3.0))
     run = simulate(design, reference=swing, duration_s=DURATION, effects=(effect,) if effect else (),

@@ -12,12 +12,12 @@ import math
 import numpy as np
 from hypothesis import strategies as st
 
+from forecast_design.controllers import PD, PID, TFController
 from forecast_design.params import (
     COMPENSATOR_KINDS,
     Compensator,
     Design,
     Environment,
-    PDController,
     Testbed,
 )
 
@@ -63,9 +63,16 @@ def environments(draw, locked: bool | None = None) -> Environment:
     )
 
 
-def controllers() -> st.SearchStrategy[PDController]:
-    """PD gains: P 1e-2..1e3 [N m / N m], D 0 or 1e-4..10 [N m s / N m]."""
-    return st.builds(PDController, P=log_uniform(1e-2, 1e3), D=maybe_zero(1e-4, 10.0))
+def controllers():
+    """Controllers of the format's LTI kinds: PD (P 1e-2..1e3 [N m / N m], D 0 or 1e-4..10 [N m s / N m]),
+    PID (I 0 or 1e-2..1e3 [1/s], a derivative filter), and proper tf lead/lag filters."""
+    pd = st.builds(PD, P=log_uniform(1e-2, 1e3), D=maybe_zero(1e-4, 10.0))
+    pid = st.builds(lambda P, I, D, T_f: PID(P=P, I=I, D=D, T_f=T_f, discretization="tustin"),
+                    P=log_uniform(1e-2, 1e3), I=maybe_zero(1e-2, 1e3), D=maybe_zero(1e-4, 1.0),
+                    T_f=log_uniform(1e-4, 1e-1))
+    tf = st.builds(lambda k, z, p: TFController(num=(k * z, k), den=(p, 1.0)),
+                   k=log_uniform(1e-1, 1e2), z=log_uniform(1e-4, 1.0), p=log_uniform(1e-4, 1.0))
+    return st.one_of(pd, pid, tf)
 
 
 @st.composite

@@ -15,7 +15,8 @@ from forecast_design.cli import main
 from forecast_design.effects import Stiction
 from forecast_design.errors import ExperimentFormatError, ParameterError
 from forecast_design.friction.laws import stribeck_level
-from forecast_design.params import Design, PDController, environment_preset
+from forecast_design.controllers import PD
+from forecast_design.params import Design, environment_preset
 from forecast_design.simulation import simulate
 from forecast_design.simulation.plant import _bristle_rate, build_plant
 from forecast_design.simulation.scenario import Variability, scenario_from_mapping
@@ -48,7 +49,7 @@ def test_tracking_bandwidth_of_the_frictionless_loop_matches_its_transfer_functi
     # continuous closed loop tau_s/tau_r = C P / (1 + C P) from python-control
     env = environment_preset("stiff")
     ref, dur = parse_reference("chirp:0.2:0.5:40:8")
-    r = simulate(Design.nominal("stiff", controller=PDController(P=5.0, D=0.1)), reference=ref, duration_s=dur,
+    r = simulate(Design.nominal("stiff", controller=PD(P=5.0, D=0.1)), reference=ref, duration_s=dur,
                  include_nominal_viscous=False, process_noise_std=0.0, encoder_counts=None)
     bw = tracking_bandwidth_hz(r.tau_r, r.tau_s, 2000.0, 0.5, 40.0)
     tb = Design.nominal().testbed
@@ -71,7 +72,7 @@ def test_repeatability_per_run_averages_to_the_pairwise_xcorr(rng):
     assert np.mean(repeatability_per_run(x)) == pytest.approx(pairwise_xcorr(x), rel=1e-12)
 
 
-@pytest.mark.parametrize("text,match", [("pi:5:0.1", "pd:P:D"), ("pd:5", "pd:P:D"), ("pd:x:0.1", "not a number")])
+@pytest.mark.parametrize("text,match", [("pi:5:0.1", "pd:P:D"), ("pd:5", "pd:P:D"), ("pd:x:0.1", "not a decimal number")])
 def test_bad_controller_is_one_line(text, match):
     with pytest.raises(ParameterError, match=match):
         parse_controller(text)
@@ -93,7 +94,7 @@ def test_parsing_compensators_and_references():
 
 
 def _spec(**kw):
-    base = dict(controllers=(PDController(P=5.0, D=0.1),), compensators=parse_compensators("none,ea-fob"),
+    base = dict(controllers=(PD(P=5.0, D=0.1),), compensators=parse_compensators("none,ea-fob"),
                 environments=(("exp-soft", environment_preset("exp-soft")), ("locked", environment_preset("locked"))),
                 references=(parse_reference("step:0.2:0.5"),), repetitions=3)
     base.update(kw)
@@ -160,22 +161,28 @@ def test_the_eafob_beats_pd_alone_over_the_set(bench):
 
 
 def test_a_pd_with_its_derivative_on_the_measurement_is_benchmarked_against_the_same_expected_response():
-    # derivative_on = "measurement": no kick at the step in the runs nor in the frictionless expected
-    # response (the MAE compares like with like); the cells get their own keys, and the default
-    # leaves the keys of cells stored before the option unchanged
+    # derivative_on = "measurement" is the controller's own: no kick at the step in the runs nor in the
+    # frictionless expected response (the MAE compares like with like); the cells get their own keys
     from forecast_design.benchmark.runner import run_cell
 
-    plain, meas = _spec(repetitions=2), _spec(repetitions=2, derivative_on="measurement")
-    assert "derivative_on" not in plain.hardware() and meas.hardware()["derivative_on"] == "measurement"
-    cell = meas.cells()[2]                                    # none, locked
-    assert meas.cell_key(cell, None) != plain.cell_key(cell, None)
-    res = run_cell((meas.cell_key(cell, None), cell, meas, None))
+    plain = _spec(repetitions=2)
+    meas = _spec(repetitions=2, controllers=(PD(P=5.0, D=0.1, derivative_on="measurement"),))
+    cell, cell_m = plain.cells()[2], meas.cells()[2]                  # none, locked
+    assert meas.cell_key(cell_m, None) != plain.cell_key(cell, None)
+    assert cell_m.labels["controller"] == "pd:5:0.1:derivative_on=measurement"
+    res = run_cell((meas.cell_key(cell_m, None), cell_m, meas, None))
     kick = run_cell((plain.cell_key(cell, None), cell, plain, None))
-    # the kick's 25 N m command lifts tau_s within a few periods; without it the rise starts slowly
+    # the kick's 200 N m command (D x 0.2 N m x 2000 Hz, one period) lifts tau_s at once; without it
+    # the rise starts slowly
     assert res.expected[2] < 0.5 * kick.expected[2]
     assert np.all(np.isfinite([r["mae_N_m"] for r in res.runs]))
-    with pytest.raises(ParameterError, match="--derivative-on must be one of"):
-        _spec(derivative_on="setpoint")
+    with pytest.raises(ParameterError, match="derivative_on must be one of"):
+        PD(P=5.0, D=0.1, derivative_on="setpoint")
+
+
+def test_the_same_controller_twice_is_refused():
+    with pytest.raises(ParameterError, match="controllers repeated: pd:5:0.1"):
+        _spec(controllers=(PD(P=5.0, D=0.1), PD(P=5.0, D=0.1)))
 
 
 def test_bad_spec_is_one_line():
@@ -217,7 +224,9 @@ def test_benchmark_verb_writes_table_plots_report_and_json(tmp_path, capsys):
                                          (["--repetitions", "1"], "repetitions"),
                                          (["--envs", "moon"], "moon"),
                                          (["--scheduler", "nowhere"], "tcp://HOST:PORT"),
-                                         (["--derivative-on", "sideways"], "--derivative-on must be one of")])
+                                         (["--derivative-on", "sideways"], "--derivative-on"),
+                                         (["--controller", "tf:1,2,3/1,1"], "improper"),
+                                         (["--controller", "other:my law"], "has no equations")])
 def test_benchmark_verb_bad_input_exits_2_with_one_line(tmp_path, capsys, extra, match):
     assert main(["benchmark", "--out", str(tmp_path / "o"), *extra]) == 2
     err = capsys.readouterr().err.strip()
@@ -368,7 +377,9 @@ def test_a_users_testbed_is_benchmarked_on_itself_with_the_substeps_its_plant_ne
     assert stable_substeps(Design.nominal("stiff"), TABLE3_TRUTH) == 10       # the paper's testbed: unchanged
 
     out = tmp_path / "bm"
-    code = main(["benchmark", "--controller", "pd:2:0.001", "--compensator", "none,sfm", "--testbed", SMALL_SEA,
+    # a PD with a 200 Hz derivative filter, Tustin-discretised: its sampled loop on this SEA is unstable
+    code = main(["benchmark", "--controller", "pd:2:0.001:0.0007957747154594767:discretization=tustin",
+                 "--compensator", "none,sfm", "--testbed", SMALL_SEA,
                  "--envs", "stiff", "--repetitions", "2", "--reference", "step:0.05", "--duration", "1.5",
                  "--out", str(out), "--no-plots", "--json", str(tmp_path / "s.json")])
     assert code == 0
@@ -385,10 +396,10 @@ def test_a_users_testbed_is_benchmarked_on_itself_with_the_substeps_its_plant_ne
     from forecast_design.analysis import loop_margins
 
     assert (table["disk_margin"] == 0.0).all()
-    assert float(loop_margins(Design(testbed=small, environment=env, controller=PDController(P=2.0, D=0.001)),
+    assert float(loop_margins(Design(testbed=small, environment=env, controller=PD(P=2.0, D=0.001)),
                               parse_compensators(["none"])[0]).alpha) > 0.4
     # the testbed is part of every cell's key: the paper's testbed is not served from this cache
-    spec = BenchmarkSpec(controllers=(PDController(P=2.0, D=0.001),), compensators=parse_compensators(["none"]),
+    spec = BenchmarkSpec(controllers=(PD(P=2.0, D=0.001),), compensators=parse_compensators(["none"]),
                          environments=(("stiff", env),), references=(parse_reference("step:0.05", duration_s=0.5),),
                          repetitions=2, testbed=small)
     cell = spec.cells()[0]

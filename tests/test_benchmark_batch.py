@@ -10,7 +10,8 @@ from forecast_design.benchmark.runner import _decimate
 from forecast_design.effects import Stiction
 from forecast_design.environments import environment_preset
 from forecast_design.executor import LocalExecutor
-from forecast_design.params import Compensator, Design, PDController
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design
 from forecast_design.simulation import simulate
 from forecast_design.simulation.scenario import Variability
 
@@ -18,7 +19,7 @@ SFM = {"viscous": 0.3, "coulomb": 0.4, "sin1": 0.01}
 
 
 def _tasks():
-    spec = BenchmarkSpec(controllers=(PDController(P=5.0, D=0.1),), compensators=parse_compensators("sfm,ea-fob"),
+    spec = BenchmarkSpec(controllers=(PD(P=5.0, D=0.1),), compensators=parse_compensators("sfm,ea-fob"),
                          environments=(("exp-soft", environment_preset("exp-soft")),),
                          references=(parse_reference("step:0.2:0.3"),), repetitions=3,
                          effects=(Stiction(F_s_a=(0.05,), F_s_b=(0.02,)),), sfm_deadband=0.01)

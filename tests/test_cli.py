@@ -251,8 +251,10 @@ def test_simulate_writes_an_experiment_that_loads_with_truth_apart(tmp_path, cap
     (("amplitude = 0.2", "amplitude = 0.2\nwobble = 1"), "wobble"),
     (('effect = "coulomb"', 'effect = "gremlins"'), "gremlins"),
     (("duration_s = 0.5", ""), "duration_s"),
-    (("duration_s = 0.5", 'duration_s = 0.5\nderivative_on = "sideways"'),
-     "[simulation] derivative_on must be one of error, measurement"),
+    (("duration_s = 0.5", 'duration_s = 0.5\nderivative_on = "error"'),
+     "[simulation] derivative_on belongs to the controller now: set derivative_on in [controller]"),
+    (("D = 0.1", 'D = 0.1\nderivative_on = "sideways"'), "derivative_on must be one of error, measurement"),
+    (("D = 0.1", "D = 0.1\nI = 3.0"), "key 'I' does not belong to kind 'pd'"),
 ])
 def test_simulate_bad_scenario_exit_2_names_key(tmp_path, capsys, edit, fragment):
     scenario = tmp_path / "s.toml"
@@ -295,9 +297,9 @@ def test_bench_gap_rejects_a_nonpositive_count(capsys):
 
 
 def test_export_bad_controller_string_exit_2(tmp_path, capsys):
-    assert _exit_code(["export", "--controller", "pid:1:2:3", "--out", str(tmp_path)]) == 2
+    assert _exit_code(["export", "--controller", "pi:1:2:3", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
-    assert "pid:1:2:3" in err and len(err.strip().splitlines()) == 1
+    assert "pi:1:2:3" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "fd_controller.c").exists()
 
 

@@ -134,7 +134,11 @@ def test_discretize_rejects_bad_input():
     with pytest.raises(ParameterError, match="improper"):
         discretize(RationalTF([1.0, 0.0], [1.0]), 100.0)
     with pytest.raises(ParameterError, match="method"):
-        discretize(RationalTF([1.0], [1.0, 1.0]), 100.0, "matched")
+        discretize(RationalTF([1.0], [1.0, 1.0]), 100.0, "bogus")
+    with pytest.raises(ParameterError, match="improper.*backward-euler"):
+        discretize(RationalTF([1.0, 0.0], [1.0]), 100.0, "matched")
+    with pytest.raises(ParameterError, match="needs prewarp_hz"):
+        discretize(RationalTF([1.0], [1.0, 1.0]), 100.0, "tustin-prewarp")
     with pytest.raises(ParameterError, match="prewarp_hz applies to tustin"):
         discretize(RationalTF([1.0], [1.0, 1.0]), 100.0, "zoh", prewarp_hz=1.0)
     with pytest.raises(ParameterError, match="rate_hz/2"):
@@ -161,11 +165,14 @@ def _delta_response(dsos, w_rad_s, rate_hz):
 
 
 def _observer_tfs(kind, env="exp-soft", w_q_hz=10.0, method="tustin"):
+    """The observer's filters as the compensator strategy realises them (Tustin), or with ``method``."""
+    from forecast_design.compensators import compensator_strategy
     from forecast_design.params import Compensator, Design
-    from forecast_design.simulation.controllers import ObserverCompensator
 
-    design = Design.nominal(env, compensator=Compensator(kind=kind, w_q_hz=w_q_hz))
-    return [tf for tf in ObserverCompensator(design.compensator, design, 2000.0, method=method).tfs
+    comp = Compensator(kind=kind, w_q_hz=w_q_hz)
+    design = Design.nominal(env, compensator=comp)
+    f = compensator_strategy(comp).linear_filters(comp, design)
+    return [discretize(tf.minreal(), 2000.0, method) for tf in (f.from_tau_m, f.from_tau_s, f.from_theta)
             if any(c != 0.0 for c in tf.num)]
 
 
@@ -239,3 +246,54 @@ def test_delta_and_shift_sections_convert_both_ways(b, r, phi):
 def test_zoh_of_a_zero_filter_raises_no_warning():
     d = discretize(RationalTF([0.0], [1.0, 88.9, 3948.0]), 2000.0, "zoh")  # warnings are errors here
     assert np.all(DiscreteFilter(d).filter(np.ones(5)) == 0.0)
+
+
+# --- matched pole-zero and improper backward Euler ------------------------------------------------
+
+
+@pytest.mark.parametrize("tf", [RationalTF([2.0, 3.0], [1.0, 4.0]), RationalTF([0.5, 1.0, 2.0], [1.0, 2.0, 100.0])],
+                         ids=["first-order", "second-order"])
+def test_matched_equals_python_control_for_a_biproper_tf(tf):
+    d = discretize(tf, 200.0, "matched")
+    ref = control.sample_system(tf.to_control(), 1 / 200.0, method="matched")
+    den = np.asarray(ref.den[0][0], dtype=float)
+    np.testing.assert_allclose(d.den, den / den[0], rtol=1e-12)
+    np.testing.assert_allclose(d.num, np.asarray(ref.num[0][0], dtype=float) / den[0], rtol=1e-10)
+
+
+def test_matched_zeros_at_infinity_go_to_z_minus_1():
+    """A strictly proper TF: python-control's result times ((z + 1)/2)^(relative degree), the same DC gain."""
+    tf = RationalTF([1.0, 3.0], [1.0, 4.0, 30.0])
+    d = discretize(tf, 200.0, "matched")
+    ref = control.sample_system(tf.to_control(), 1 / 200.0, method="matched") * control.tf([0.5, 0.5], [1.0], 1 / 200.0)
+    z = np.exp(1j * np.array([0.3, 3.0, 30.0]) / 200.0)
+    np.testing.assert_allclose(np.polyval(d.num, z) / np.polyval(d.den, z), [ref(zz) for zz in z], rtol=1e-10)
+    assert d.dcgain() == pytest.approx(tf.dcgain(), rel=1e-12)
+
+
+def test_matched_integrator_matches_the_low_frequency_asymptote():
+    """I/s has no DC gain: s H(s) = I is matched by ((z - 1)/T) H(z) at z = 1, which gives Tustin's integrator."""
+    d = discretize(RationalTF([20.0], [1.0, 0.0]), 2000.0, "matched")
+    np.testing.assert_allclose(d.num, [0.005, 0.005], rtol=1e-12)
+    np.testing.assert_allclose(d.den, [1.0, -1.0], rtol=0, atol=0)
+
+
+@settings(max_examples=30, deadline=None, derandomize=True)
+@given(P=st.floats(0.0, 50.0), D=st.floats(1e-4, 1.0), rate=st.sampled_from([500.0, 2000.0, 10000.0]))
+def test_backward_euler_of_an_unfiltered_pd_is_the_first_difference(P, D, rate):
+    """P + D s -> P + D (1 - z^-1) rate: u_k = P e_k + D (e_k - e_(k-1)) rate, and its delta sections run it."""
+    d = discretize(RationalTF([D, P], [1.0]), rate, "backward-euler")
+    e = np.array([0.0, 1.0, 1.0, -0.5, 2.0])
+    expected = P * e + D * np.diff(e, prepend=0.0) * rate
+    np.testing.assert_allclose(signal.lfilter(d.num, d.den, e), expected, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(DiscreteFilter(d).filter(e), expected, rtol=1e-12, atol=1e-9 * max(1.0, D * rate))
+
+
+def test_a_tf_given_in_z_is_realised_from_its_roots():
+    from forecast_design.discrete import DiscreteTF
+
+    d = DiscreteTF.from_z([5.2, -5.1], [1.0, -1.0], 2000.0)    # a PI in z
+    x = np.random.default_rng(3).normal(size=500)
+    np.testing.assert_allclose(DiscreteFilter(d).filter(x), signal.lfilter(d.num, d.den, x), rtol=1e-10, atol=1e-10)
+    with pytest.raises(ParameterError, match="not causal"):
+        DiscreteTF.from_z([1.0, 2.0, 3.0], [1.0, 0.5], 2000.0)

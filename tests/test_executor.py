@@ -14,11 +14,12 @@ import pytest
 from forecast_design.benchmark import BenchmarkSpec, parse_compensators, parse_reference, run_benchmark
 from forecast_design.errors import ParameterError
 from forecast_design.executor import DaskExecutor, LocalExecutor, batched, make_executor
-from forecast_design.params import PDController, environment_preset
+from forecast_design.controllers import PD
+from forecast_design.params import environment_preset
 
 
 def _spec(duration_s=0.5, repetitions=2, envs=("exp-soft", "locked")):
-    return BenchmarkSpec(controllers=(PDController(P=5.0, D=0.1),), compensators=parse_compensators("none,ea-fob"),
+    return BenchmarkSpec(controllers=(PD(P=5.0, D=0.1),), compensators=parse_compensators("none,ea-fob"),
                          environments=tuple((n, environment_preset(n)) for n in envs),
                          references=(parse_reference(f"step:0.2:{duration_s}"),), repetitions=repetitions)
 

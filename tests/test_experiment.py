@@ -25,7 +25,8 @@ from forecast_design.experiment import (
     load_experiment,
     save_experiment,
 )
-from forecast_design.params import Compensator, Design, Environment, PDController, Testbed, environment_preset
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design, Environment, Testbed, environment_preset
 
 import strategies
 
@@ -84,7 +85,7 @@ def _plain_csv(path: Path) -> tuple[list[str], np.ndarray]:
 
 def _closed_loop_design() -> Design:
     return Design(testbed=Testbed(), environment=Environment(J_e=1e-3, d_e=0.063, k_e=5.0),
-                  controller=PDController(P=5.0, D=0.1),
+                  controller=PD(P=5.0, D=0.1),
                   compensator=Compensator(kind="ea-fob", w_q_hz=10.0))
 
 
@@ -128,7 +129,7 @@ def test_save_measured_tau_s_is_kept_not_overwritten(tmp_path, rng):
 
 
 def test_round_trip_locked_environment(tmp_path, rng):
-    design = Design.nominal("locked", controller=PDController(P=2.0, D=0.05))
+    design = Design.nominal("locked", controller=PD(P=2.0, D=0.05))
     exp = _example(rng, 100, design=design)
     back = load_experiment(save_experiment(exp, tmp_path / "locked.toml"))
     assert back == exp
@@ -286,7 +287,7 @@ def test_golden_spec_example_loads_with_spec_values():
     assert exp.rate_hz == 2000.0
     assert exp.design.testbed == Testbed(J_m=0.133, d_m=0.3, k=58.0)
     assert exp.design.environment == Environment(J_e=0.001, d_e=0.063, k_e=5.0, J_l=0.0018, d_l=0.35)
-    assert exp.design.controller == PDController(P=5.0, D=0.1)
+    assert exp.design.controller == PD(P=5.0, D=0.1)
     assert exp.design.compensator == Compensator(kind="ea-fob", w_q_hz=10.0)
     header, table = _plain_csv(DATA / "spec_example.csv")
     assert list(exp.signals.columns()) == header
@@ -374,11 +375,12 @@ def test_missing_required_table_names_table(tmp_path, table):
 
 @pytest.mark.parametrize("section,key", [(None, "notes"), ("sampling", "dt"), ("testbed", "J_x"),
                                          ("environment", "k_env"), ("controller", "I"),
-                                         ("compensator", "q_order")])
+                                         ("compensator", "q_shape"), ("compensator", "friction")])
 def test_unknown_key_names_key_and_file(tmp_path, section, key):
+    # a key of another kind is as foreign as an unknown one (the pd's I, an ea-fob's friction)
     doc = _base_toml()
     (doc if section is None else doc[section])[key] = 1.0
-    err = _raises(tmp_path, rf"unknown (top-level )?key '{key}'", toml=doc)
+    err = _raises(tmp_path, rf"(unknown (top-level )?key '{key}'|key '{key}' does not belong to kind)", toml=doc)
     assert err.key == (key if section is None else f"{section}.{key}")
 
 

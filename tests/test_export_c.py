@@ -9,7 +9,9 @@ import pytest
 
 from forecast_design.errors import ParameterError
 from forecast_design.export import toolchain
-from forecast_design.export.c import ControllerProgram, export_controller, parse_controller, resolve_design
+from forecast_design.controllers import parse_controller
+from forecast_design.export.c import export_controller, resolve_design
+from forecast_design.program import ControllerProgram
 
 TOOLS = toolchain.find_tools()
 needs_cc = pytest.mark.skipif(TOOLS.cc is None, reason="no host C compiler (cc/gcc) on PATH")
@@ -78,9 +80,13 @@ def test_c_equals_float32_python(kind, tmp_path, closed_loop_log):
 
 @needs_cc
 @pytest.mark.parametrize("kind", KINDS)
-def test_c_matches_simulator_controller_float64(kind, tmp_path, closed_loop_log):
-    """Same 10 s input sequence into the C (float32) and the simulator's own step objects (float64)."""
-    from forecast_design.simulation.controllers import DiscretePD, ObserverCompensator, SfmCompensator
+def test_c_matches_an_independent_float64_implementation(kind, tmp_path, closed_loop_log):
+    """Same 10 s input sequence into the C (float32) and scipy's lfilter of the same laws (float64):
+    the controller's C(z) on the error, the compensator's discrete filters on their signals (or the
+    friction feed-forward)."""
+    from scipy.signal import lfilter
+
+    from forecast_design.compensators import compensator_strategy
 
     res = _export(kind, tmp_path)
     exe = _harness(tmp_path, override_prev=True)
@@ -89,19 +95,20 @@ def test_c_matches_simulator_controller_float64(kind, tmp_path, closed_loop_log)
     raw = np.column_stack([log[:, :3], prev]).astype("<f4").tobytes()
     y_c = np.frombuffer(subprocess.run([str(exe)], input=raw, capture_output=True, check=True).stdout,
                         dtype="<f4").astype(float)
-    pd = DiscretePD(res.design.controller, 2000.0)
+    C = res.design.controller.discrete_law(2000.0).feedback_tf()
+    u = lfilter(C.num, C.den, log[:, 0] - log[:, 1])
+    comp = res.design.compensator
+    strategy = compensator_strategy(comp)
     if kind == "sfm":
-        sfm = SfmCompensator(SFM_PARAMS, 2000.0)
-        y_py = np.array([pd.step(r - s) + sfm.step(th) for r, s, th, _ in log])
+        hat = strategy.feedforward(comp, 2000.0).evaluate(log[:, 2])
     else:
-        obs = ObserverCompensator(res.design.compensator, res.design, 2000.0) if kind != "none" else None
-        y_py = np.array([pd.step(r - s) + (obs.step(p, s, th) if obs else 0.0)
-                         for (r, s, th, _), p in zip(log, prev)])
+        signals = {"tau_m_prev": prev, "tau_s": log[:, 1], "theta": log[:, 2]}
+        hat = sum((lfilter(tf.num, tf.den, signals[src])
+                   for src, tf in strategy.discrete_filters(comp, res.design, 2000.0).paths()), np.zeros(len(log)))
+    y_py = u + hat
     err = np.max(np.abs(y_c - y_py))
     assert err <= TOL_F32_VS_F64, f"max |C - Python| = {err:.3g} N m"
     if kind != "none":  # the compensator matters: its share of the command is far above the tolerance
-        pd_only = DiscretePD(res.design.controller, 2000.0)
-        u = np.array([pd_only.step(r - s) for r, s, _, _ in log])
         assert np.max(np.abs(y_py - u)) > 100 * TOL_F32_VS_F64
 
 
@@ -140,7 +147,8 @@ def test_export_is_deterministic_and_records_provenance(tmp_path):
     b = export_controller(out_dir=tmp_path / "b", compensator="ea-fob")
     assert a.digest == b.digest
     text = a.source.read_text()
-    assert "method       tustin" in text and "w_q_hz = 10.0" in text and "forecast-design" in text
+    assert "law          PD P=5 D=0.1" in text and "w_q_hz = 10.0" in text and "forecast-design" in text
+    assert "filters discretised tustin" in text
     assert "malloc" not in text and "double" not in text and "math.h" not in text
     header = a.header.read_text()
     assert "typedef struct fd_state" in header and "float fd_step(fd_state *s, float tau_r, float tau_s" in header
@@ -154,7 +162,7 @@ def test_upload_blob_round_trips_float32(tmp_path):
         assert np.array_equal(c0.sos.astype(np.float32).astype(float), c1.sos)
 
 
-@pytest.mark.parametrize("text", ["pd:5", "pid:1:2:3", "pd:x:1", "pd:5:-1"])
+@pytest.mark.parametrize("text", ["pd:5", "pi:1:2:3", "pd:x:1", "pd:5:-1"])
 def test_parse_controller_garbage(text):
     with pytest.raises(ParameterError, match="controller"):
         parse_controller(text)

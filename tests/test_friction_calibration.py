@@ -18,7 +18,7 @@ import json
 import numpy as np
 import pytest
 
-from forecast_design import PDController
+from forecast_design import PD
 from forecast_design.cli import main
 from forecast_design.effects import Effect
 from forecast_design.experiment import save_experiment
@@ -133,7 +133,7 @@ def _little_sliding_log():
     case = IndependentCase(
         words=(Effect.STICTION,), environment=environment_preset("stiff"), environment_name="stiff",
         excitation=Excitation(kind="multisine", amplitude=0.3, f_lo_hz=0.2, f_hi_hz=3.0, lines=8),
-        closed_loop=True, controller=PDController(P=5.0, D=0.1), rate_hz=2000.0, duration_s=10.0, testbed=tb,
+        closed_loop=True, controller=PD(P=5.0, D=0.1), rate_hz=2000.0, duration_s=10.0, testbed=tb,
         effect_params=dict(F_c=0.3, F_s=0.45, v_s=0.05, sigma0=1000.0, sigma1=5.0), seed=3, tau_m_digits=9)
     return simulate_independent(case)[0]
 

@@ -42,7 +42,7 @@ def test_sfm_explains_less_than_the_model_with_the_right_structure(angle_frictio
 
 def test_closed_loop_coulomb_log_gives_coulomb_level():
     """A PD force-control run (the paper's data) also identifies the Coulomb level."""
-    run = simulate(Design.nominal("link-only", controller=__import__("forecast_design").PDController()),
+    run = simulate(Design.nominal("link-only", controller=__import__("forecast_design").PD()),
                    reference=Multisine(amplitudes=(0.6, 0.3), frequencies_hz=(0.3, 2.0)), duration_s=20.0,
                    effects=[Coulomb(F_c=0.3)], seed=2)
     params = identify(run.to_experiment(), "sfm").to_mapping()["params"]

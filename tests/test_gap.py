@@ -15,7 +15,8 @@ from forecast_design.gap import GapOptions, diagnose, held_out_test, prepare_gap
 from forecast_design.reporting import write_report
 from forecast_design.gap.locate import empirical_response
 from forecast_design.gap.residuals import delayed_input, zoh_input
-from forecast_design.params import Design, PDController
+from forecast_design.controllers import PD
+from forecast_design.params import Design
 from forecast_design.simulation import references as refs
 from forecast_design.simulation import simulate
 
@@ -24,7 +25,7 @@ VOCAB = {e.value for e in Effect}
 
 def _log(effects=(), env="exp-soft", duration_s=6.0, closed=False, seed=3, errors=(0.0, 0.0, 0.0),
          initial_angle=0.4, offset=0.0):
-    design = Design.nominal(env, controller=PDController() if closed else None)
+    design = Design.nominal(env, controller=PD() if closed else None)
     if closed:
         ref = refs.Multisine(amplitudes=(0.8, 0.5, 0.3), frequencies_hz=(0.4, 1.3, 3.1), phases_rad=(0.0, 1.0, 2.0))
     else:
@@ -80,7 +81,7 @@ def test_delayed_input_is_exact_for_a_pure_inertia_under_held_command(rng, delay
 
 def test_nominal_closed_loop_square_wave_leaves_no_residual_and_no_spurious_delay():
     # exact plant (no noise, no quantisation, exact parameters) under derivative kicks
-    design = Design.nominal("exp-soft", controller=PDController())
+    design = Design.nominal("exp-soft", controller=PD())
     res = simulate(design, reference=refs.Square(high=1.0, low=-1.0, period_s=1.3), duration_s=6.0, seed=5,
                    closed_loop=True, process_noise_std=0.0, encoder_counts=None)
     exp = res.to_experiment().replace_signals(tau_s=None)
@@ -180,7 +181,7 @@ def test_stiction_is_told_from_coulomb():
 
 def _locked_sine_log(F_c, amplitude, frequency_hz, seed, duration_s=6.0, errors=(0.01, 0.02, 0.01)):
     """Closed-loop PD force control of a sine in a locked environment: slow motor reversals."""
-    design = Design.nominal("locked", controller=PDController())
+    design = Design.nominal("locked", controller=PD())
     res = simulate(design, reference=refs.Sine(amplitude=amplitude, frequency_hz=frequency_hz),
                    duration_s=duration_s, effects=(fx.Coulomb(F_c=F_c),), seed=seed, closed_loop=True,
                    initial_angle=1.0)
@@ -313,7 +314,7 @@ def test_two_effects_are_both_named():
 
 
 def test_single_tone_none_verdict_warns_that_delay_is_not_excluded():
-    design = Design.nominal("stiff", controller=PDController())
+    design = Design.nominal("stiff", controller=PD())
     res = simulate(design, reference=refs.Sine(amplitude=1.0, frequency_hz=0.8), duration_s=6.0, seed=2,
                    closed_loop=True, effects=(fx.Delay(delay_s=4e-3),))
     d = diagnose(res.to_experiment().replace_signals(tau_s=None), joint=False)
@@ -404,7 +405,7 @@ def test_cogging_over_part_of_a_revolution_is_tested_on_the_direction_the_log_re
     # Over ~0.05-0.5 rad the four harmonics are collinear: no single coefficient is resolved,
     # yet their shared contribution is, and it is what the Wald test must judge (a test on the
     # coefficients' own correlation kept the unresolved directions and found nothing: p = 1).
-    design = Design.nominal(env, controller=PDController(P=5.0, D=0.1))
+    design = Design.nominal(env, controller=PD(P=5.0, D=0.1))
     ref = refs.Multisine(amplitudes=(0.8, 0.5, 0.3), frequencies_hz=(0.4, 1.3, 3.1), phases_rad=(0.0, 1.0, 2.0))
     res = simulate(design, reference=ref, duration_s=10.0, effects=(fx.Cogging(a=(0.15,), b=(0.05,)),), seed=7,
                    initial_angle=0.3)
@@ -431,7 +432,7 @@ def test_a_current_drivers_offset_is_named_cogging_only_with_the_caveat(tau_s):
     # say a constant explains it as well, with the constant's value
     from forecast_design import experiment_from_arrays
 
-    design = Design.nominal("locked", controller=PDController(P=5.0, D=0.1))
+    design = Design.nominal("locked", controller=PD(P=5.0, D=0.1))
     ref = refs.Multisine(amplitudes=(0.8, 0.5, 0.3), frequencies_hz=(0.4, 1.3, 3.1), phases_rad=(0.0, 1.0, 2.0))
     s = simulate(design, reference=ref, duration_s=10.0, seed=7, initial_angle=0.3).to_experiment().signals
     column = None if tau_s == "derived" else np.round(
@@ -451,7 +452,10 @@ def _closed_loop_log(effect, env, compensator, reference, duration_s=10.0, **sim
     references = {"square": refs.Square(high=1.0, low=-1.0, period_s=4.0),
                   "multisine": refs.Multisine(amplitudes=(0.8, 0.5, 0.3), frequencies_hz=(0.4, 1.3, 3.1),
                                               phases_rad=(0.0, 1.0, 2.0))}
-    design = Design.nominal(env, controller=PDController(P=5.0, D=0.1), compensator=Compensator(kind=compensator))
+    # the paper's PD with a 200 Hz derivative filter (Tustin): an unfiltered derivative would turn a coarse
+    # encoder's 1.5 mrad steps into ~18 N m command spikes
+    pd = PD(P=5.0, D=0.1, T_f=1.0 / (2.0 * np.pi * 200.0), discretization="tustin")
+    design = Design.nominal(env, controller=pd, compensator=Compensator(kind=compensator))
     return simulate(design, reference=references[reference], duration_s=duration_s, effects=(effect,), seed=7,
                     initial_angle=0.3, **simulate_options).to_experiment()
 
@@ -518,7 +522,7 @@ def test_coarse_encoder_narrows_the_equation_band_and_names_the_larger_of_two_ef
 
 
 def _gain_log(effect, env, P, D, reference, duration_s=20.0):
-    design = Design.nominal(env, controller=PDController(P=P, D=D))
+    design = Design.nominal(env, controller=PD(P=P, D=D))
     references = {"square": refs.Square(high=1.0, low=-1.0, period_s=4.0),
                   "multisine": refs.Multisine(amplitudes=(0.8, 0.5, 0.3), frequencies_hz=(0.4, 1.3, 3.1),
                                               phases_rad=(0.0, 1.0, 2.0))}

@@ -18,7 +18,8 @@ from forecast_design import independent as ind
 from forecast_design.effects import Effect
 from forecast_design.gap import diagnose
 from forecast_design.gap.residuals import classify_tau_s, significant_digits
-from forecast_design.params import PDController, environment_preset
+from forecast_design.controllers import PD
+from forecast_design.params import environment_preset
 
 
 def _log(word, index=0, seed=5, scale=1.0, **changes):
@@ -98,7 +99,7 @@ def test_a_torque_sensor_zero_and_scale_are_calibrated_out_not_blamed(word, env,
     params = {"none": {}, "delay": {"delay_s": 0.003}, "cogging": {"cog_a": (0.12,), "cog_b": (0.05,)}}[word]
     case = ind.IndependentCase(
         words=(word,), environment=environment_preset(env), environment_name=env, closed_loop=True,
-        controller=PDController(P=5.0, D=0.1),
+        controller=PD(P=5.0, D=0.1),
         excitation=ind.Excitation(kind="multisine", amplitude=0.6, f_lo_hz=0.2, f_hi_hz=3.0), rate_hz=2000.0,
         duration_s=10.0, tau_s_logging="sensor", sensor_noise=0.002, sensor_offset=offset, sensor_gain=gain,
         effect_params=params, seed=11)

@@ -25,7 +25,8 @@ from forecast_design.independent import (
     round_significant,
     simulate_independent,
 )
-from forecast_design.params import PDController, Testbed, environment_preset
+from forecast_design.controllers import PD
+from forecast_design.params import Testbed, environment_preset
 
 MULTISINE = Excitation(kind="multisine", amplitude=0.6, f_lo_hz=0.2, f_hi_hz=20.0, lines=16)
 
@@ -245,7 +246,7 @@ def test_printed_command_and_nominal_testbed():
 
 
 def test_closed_loop_command_is_the_filtered_pd_law_of_the_logged_signals():
-    case = _case(("coulomb",), env="locked", closed_loop=True, controller=PDController(P=5.0, D=0.1),
+    case = _case(("coulomb",), env="locked", closed_loop=True, controller=PD(P=5.0, D=0.1),
                  excitation=Excitation(kind="square", amplitude=0.3, period_s=1.0, slew=5.0),
                  effect_params={"F_c": 0.2}, derivative_filter_hz=80.0, rate_hz=1000.0, tau_m_digits=9)
     exp, tr = simulate_independent(case)

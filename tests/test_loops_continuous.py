@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 from scipy import signal
 
 from forecast_design.errors import ParameterError
-from forecast_design.params import Compensator, Design, Environment, PDController
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design, Environment
 from forecast_design.loops import force_loop
 from forecast_design.symbolic import force_plant_tf, observer_filters
 
@@ -89,7 +90,7 @@ CASES = [
     ("exp-soft", Compensator(kind="ld-dob", w_q_hz=5.0, q_family="binomial")),
     ("link-only", Compensator(kind="ea-fob", w_q_hz=5.0)),
 ]
-CONTROLLER = PDController(P=5.0, D=0.1)
+CONTROLLER = PD(P=5.0, D=0.1)
 
 
 @pytest.mark.parametrize("break_at", ["controller", "plant-input"])

@@ -9,7 +9,8 @@ import pytest
 
 from forecast_design.loops import force_loop, sampled_force_loop
 from forecast_design.loops.response import loop_response, q_argument, sensitivity
-from forecast_design.params import Compensator, Design, PDController
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design
 from forecast_design.symbolic import compensator_q_tf
 
 
@@ -22,7 +23,7 @@ def _dq(comp: Compensator, W: np.ndarray) -> np.ndarray:
 @pytest.mark.parametrize("env", ["soft", "stiff", "locked"])
 @pytest.mark.parametrize("break_at", ["controller", "plant-input"])
 def test_parts_give_the_continuous_loops_sensitivity(kind, env, break_at):
-    design, ctrl = Design.nominal(env), PDController(P=5.0, D=0.1)
+    design, ctrl = Design.nominal(env), PD(P=5.0, D=0.1)
     believed = Design.nominal("fig7") if env != "locked" else design
     comp = Compensator(kind=kind, w_q_hz=7.0)
     w = np.logspace(-1, 3.5, 60)
@@ -35,7 +36,7 @@ def test_parts_give_the_continuous_loops_sensitivity(kind, env, break_at):
 @pytest.mark.parametrize("kind", ["ea-fob", "lo-dob"])
 @pytest.mark.parametrize("delay", [0, 1, 2])
 def test_parts_give_the_sampled_loops_sensitivity(kind, delay):
-    design, ctrl, rate = Design.nominal("exp-soft"), PDController(P=5.0, D=0.1), 2000.0
+    design, ctrl, rate = Design.nominal("exp-soft"), PD(P=5.0, D=0.1), 2000.0
     comp = Compensator(kind=kind, w_q_hz=10.0)
     w = np.logspace(0, math.log10(0.9 * math.pi * rate), 50)
     r = loop_response(design, design, comp, ctrl, w, sampled=True, rate_hz=rate, delay_samples=delay)

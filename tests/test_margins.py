@@ -444,3 +444,59 @@ def test_disk_margin_accepts_python_control_models_and_the_skew_name():
     assert mapping["disk_margin"] == mapping["alpha"]
     assert mapping["phase_margins_deg"] == [-mapping["phase_margin_deg"], mapping["phase_margin_deg"]]
     assert mapping["frequency_hz"] == pytest.approx(mapping["frequency_rad_s"] / (2 * np.pi), rel=1e-15)
+
+
+# --- a discrete loop given as a state space is analysed on its own realisation ------------------
+
+
+def test_discrete_state_space_loop_uses_its_realisation():
+    """A 2 kHz state-space loop with modes clustered at z ~ 1 (the ZOH image of a stiff force loop): its
+    closed-loop eigenvalues and a dense grid of its own frequency response decide, not the roots of a
+    z-polynomial made from it."""
+    from forecast_design.loops import force_loop
+    from forecast_design.params import Compensator, Design
+
+    # soft / EA-FOB 10 Hz: its z-polynomials (ss -> tf) put a closed-loop root at |z| > 1 and said unstable
+    cont = force_loop(Design.nominal("soft"), Compensator(kind="ea-fob", w_q_hz=10.0)).L
+    ss = control.c2d(control.ss(cont.to_control()), 1 / 2000.0, "zoh")
+    closed = np.linalg.eigvals(ss.A - ss.B @ ss.C / (1.0 + ss.D[0, 0]))
+    stable = bool(np.max(np.abs(closed)) < 1.0)
+    dm = disk_margin(ss)
+    assert dm.stable == stable
+    w = np.geomspace(1e-2, np.pi * 2000.0 * 0.999999, 100_000)
+    L = np.asarray(ss(np.exp(1j * w / 2000.0))).ravel()
+    alpha_grid = 1.0 / np.max(np.abs(1.0 / (1.0 + L) - 0.5))
+    assert stable and dm.alpha == pytest.approx(alpha_grid, rel=1e-3) and dm.alpha <= alpha_grid * (1 + 1e-9)
+
+
+# --- classical margins (every crossover) against python-control -----------------------------------
+
+
+@pytest.mark.parametrize("sys", [control.tf([2.0], [1.0, 1.0, 1.0, 0.0]), control.tf([10.0], [1.0, 3.0, 3.0, 1.0]),
+                                 control.tf([1.0, 2.0], [1.0, 0.1, 2.0, 0.3, 0.01]),
+                                 control.tf([50.0, 5.0], [1.0, 2.0, 30.0, 10.0, 0.0])])
+def test_classical_margins_match_python_control_returnall(sys):
+    from forecast_design.margins import classical_margins
+
+    m = classical_margins(RationalTF.from_control(sys), stable=True)
+    gm, pm, _, wpc, wgc, _ = control.stability_margins(sys, returnall=True)
+    ours_g = sorted((c.frequency_rad_s, c.gain_margin) for c in m.phase_crossovers if c.frequency_rad_s > 0)
+    theirs_g = sorted((w, g) for w, g in zip(wpc, gm) if w > 0 and np.isfinite(g))
+    assert len(ours_g) == len(theirs_g)
+    for (w1, g1), (w2, g2) in zip(ours_g, theirs_g):
+        assert w1 == pytest.approx(w2, rel=1e-6) and g1 == pytest.approx(g2, rel=1e-6)
+    ours_p = sorted((c.frequency_rad_s, c.phase_margin_deg) for c in m.gain_crossovers)
+    theirs_p = sorted(zip(wgc, pm))
+    assert len(ours_p) == len(theirs_p)
+    for (w1, p1), (w2, p2) in zip(ours_p, theirs_p):
+        assert w1 == pytest.approx(w2, rel=1e-6) and p1 == pytest.approx(p2, abs=1e-6)
+
+
+def test_classical_delay_margin_is_the_delay_that_destabilises():
+    """A delay of the reported margin puts the loop exactly at the stability limit (L e^{-s tau} = -1)."""
+    from forecast_design.margins import classical_margins
+
+    L = RationalTF((4.0,), (1.0, 2.0, 0.0))
+    pm = classical_margins(L, stable=True).phase_margin
+    w, tau = pm.frequency_rad_s, pm.delay_margin_s
+    assert complex(L(1j * w) * np.exp(-1j * w * tau)) == pytest.approx(-1.0, abs=1e-9)

@@ -13,7 +13,7 @@ from forecast_design import (
     Environment,
     ExperimentFormatError,
     ParameterError,
-    PDController,
+    PD,
     Testbed,
     environment_preset,
 )
@@ -79,15 +79,21 @@ def test_from_mapping_rejects_unknown_and_missing_keys_naming_file():
 
 
 def test_controller_and_compensator_tables_round_trip():
-    pd = PDController(P=5.0, D=0.1)
-    assert PDController.from_mapping(pd.to_mapping()) == pd
+    pd = PD(P=5.0, D=0.1)
+    assert PD.from_mapping(pd.to_mapping()) == pd
     comp = Compensator(kind="ea-fob", w_q_hz=10.0)
     assert comp.to_mapping() == {"kind": "ea-fob", "w_q_hz": 10.0}
     assert Compensator.from_mapping(comp.to_mapping()) == comp
-    with pytest.raises(ExperimentFormatError, match=r"\[compensator\] unknown key 'q_order'"):
-        Compensator.from_mapping({"kind": "ea-fob", "q_order": 3}, source="x.toml")
+    # the format's optional Q keys are written only when they differ from the defaults, and read back
+    q = Compensator(kind="ea-fob", w_q_hz=5.0, q_family="binomial", q_order=3)
+    assert q.to_mapping() == {"kind": "ea-fob", "w_q_hz": 5.0, "q_family": "binomial", "q_order": 3}
+    assert Compensator.from_mapping(q.to_mapping()) == q
+    with pytest.raises(ExperimentFormatError, match=r"\[compensator\] key 'w_q_hz' does not belong to kind 'sfm'"):
+        Compensator.from_mapping({"kind": "sfm", "w_q_hz": 3}, source="x.toml")
+    with pytest.raises(ExperimentFormatError, match=r"\[compensator\] key 'q_shape' does not belong"):
+        Compensator.from_mapping({"kind": "ea-fob", "q_shape": 3}, source="x.toml")
     with pytest.raises(ExperimentFormatError, match=r"\[controller\] kind must be 'pd'"):
-        PDController.from_mapping({"kind": "pid", "P": 1.0, "D": 0.0}, source="x.toml")
+        PD.from_mapping({"kind": "pid", "P": 1.0, "D": 0.0}, source="x.toml")
 
 
 @pytest.mark.parametrize("kwargs,match", [
@@ -119,19 +125,21 @@ def test_design_parameters_flatten_environment_sums():
 def test_sfm_compensator_carries_its_identified_friction():
     import numpy as np
 
-    from forecast_design.export.c import build_program
+    from forecast_design.export.c import program_for_export
     from forecast_design.simulation import references as refs
     from forecast_design.simulation import simulate
 
     params = {"viscous": 0.3, "coulomb": 0.35, "sin1": 0.02}
     comp = Compensator(kind="sfm", friction=params)
     assert comp.friction_params == params and hash(comp) == hash(Compensator(kind="sfm", friction=params))
-    assert comp.to_mapping() == {"kind": "sfm"}          # the experiment format's table is unchanged
-    design = Design.nominal("exp-soft", controller=PDController(), compensator=comp)
-    plain = Design.nominal("exp-soft", controller=PDController(), compensator=Compensator(kind="sfm"))
+    # the experiment format's [compensator.friction] sub-table: a run with an SFM replays without its log
+    assert comp.to_mapping() == {"kind": "sfm", "friction": params}
+    assert Compensator.from_mapping(comp.to_mapping()) == comp
+    design = Design.nominal("exp-soft", controller=PD(), compensator=comp)
+    plain = Design.nominal("exp-soft", controller=PD(), compensator=Compensator(kind="sfm"))
     kw = dict(reference=refs.Step(amplitude=0.2), duration_s=0.2, process_noise_std=0.0)
     np.testing.assert_array_equal(simulate(design, **kw).tau_m, simulate(plain, sfm_params=params, **kw).tau_m)
-    assert build_program(design).info == build_program(plain, sfm_params=params).info
+    assert program_for_export(design).info == program_for_export(plain.with_friction(params)).info
     with pytest.raises(ParameterError, match="apply to kind 'sfm'"):
         Compensator(kind="ea-fob", friction=params)
     with pytest.raises(ParameterError, match="friction"):

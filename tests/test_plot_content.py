@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from forecast_design.errors import ParameterError
-from forecast_design.params import Compensator, Design, PDController, environment_preset
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design, environment_preset
 
 
 @pytest.fixture(autouse=True)
@@ -162,7 +163,7 @@ def test_friction_rejection_equals_the_loop_equations_solved_directly(kind, env,
     true = Design(environment=environment_preset(env))
     bel = Design(environment=environment_preset(believed))
     comp = Compensator(kind=kind, w_q_hz=4.0)
-    ctrl = PDController(P=5.0, D=0.1)
+    ctrl = PD(P=5.0, D=0.1)
     loop = force_loop(true, comp, controller=ctrl, believed=bel)
     w = np.logspace(-1, 3, 60)
     s = 1j * w
@@ -264,7 +265,7 @@ def coulomb_diagnosis():
     from forecast_design.simulation import references as refs
     from forecast_design.simulation import simulate
 
-    design = Design.nominal("exp-soft", controller=PDController())
+    design = Design.nominal("exp-soft", controller=PD())
     ref = refs.Multisine(amplitudes=(0.8, 0.5, 0.3), frequencies_hz=(0.4, 1.3, 3.1), phases_rad=(0.0, 1.0, 2.0))
     res = simulate(design, reference=ref, duration_s=6.0, effects=(fx.Coulomb(F_c=0.1),), seed=1,
                    closed_loop=True, initial_angle=0.4)

@@ -20,7 +20,8 @@ from hypothesis import strategies as st
 
 from forecast_design.cli import main
 from forecast_design.errors import ExperimentFormatError, ForecastError, ParameterError
-from forecast_design.params import Compensator, Design, Environment, PDController, Testbed
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design, Environment, Testbed
 from forecast_design.plausibility import COMPUTATION_LIMITS, PHYSICAL_RANGES, require_no_nan
 
 FUZZ = settings(derandomize=True, max_examples=25, deadline=None,
@@ -243,10 +244,22 @@ def test_experiment_from_arrays_rejects_complex_values():
 @given(name=st.sampled_from(sorted(set(PHYSICAL_RANGES) - {"w_q_hz", "rate_hz"})),
        value=st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([1e300, -1e-300, 1e308])))
 def test_physical_parameters_inside_their_range_or_one_line_error(name, value):
+    from forecast_design.controllers import PID, TFController
+
     lo, hi, _ = PHYSICAL_RANGES[name]
-    owner = Testbed if name in ("J_m", "d_m", "k") else PDController if name in ("P", "D") else Environment
-    base = {"J_e": 0.001, "d_e": 0.06, "k_e": 5.0} if owner is Environment else {}
-    inside = math.isfinite(value) and lo <= value <= hi and not (name in ("J_m", "k") and value <= 0)
+    owner, base = {
+        "J_m": (Testbed, {}), "d_m": (Testbed, {}), "k": (Testbed, {}),
+        "P": (PD, {}), "D": (PD, {}), "feedforward": (PD, {}), "u_min": (PD, {}), "u_max": (PD, {}),
+        "T_f": (PD, {"discretization": "tustin"}), "I": (PID, {"P": 1.0}),
+        "T_t": (PID, {"P": 1.0, "I": 1.0, "anti_windup": "back-calculation", "u_min": -1e6, "u_max": 1e6}),
+        "prewarp_hz": (TFController, {"num": (1.0,), "den": (0.01, 1.0), "discretization": "tustin-prewarp"}),
+    }.get(name, (Environment, {"J_e": 0.001, "d_e": 0.06, "k_e": 5.0}))
+    inside = math.isfinite(value) and lo <= value <= hi and not (name in ("J_m", "k", "T_t", "prewarp_hz")
+                                                                 and value <= 0)
+    if name in ("u_min", "u_max") and inside:
+        inside = not (name == "u_min" and value >= 1e6) and not (name == "u_max" and value <= -1e6)
+    if name == "T_f" and inside and value == 0.0:
+        inside = False                                     # tustin needs a filter: refused, naming T_f
     try:
         made = owner(**{**base, name: value})
     except ParameterError as exc:
@@ -278,8 +291,10 @@ def _example():
     ("simulation", "substeps", 100_000_000, "substeps"),
     ("simulation", "duration_s", 1e7, "samples"),
     ("sampling", "rate_hz", 1e9, "rate_hz"),
-    ("simulation", "derivative_cutoff_hz", 5000.0, "Nyquist"),
-    ("simulation", "derivative_cutoff_hz", -1.0, "derivative_cutoff_hz"),
+    ("simulation", "derivative_cutoff_hz", 200.0, "belongs to the controller"),
+    ("controller", "T_f", -1.0, "T_f"),
+    ("controller", "T_f", 1e3, "T_f"),
+    ("controller", "discretization", "bilinear", "discretization"),
     ("simulation", "process_noise_std", 1e200, "process_noise_std"),
     ("simulation", "seed", -3, "seed"),
     ("simulation", "sfm_deadband", -0.1, "sfm_deadband"),

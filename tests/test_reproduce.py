@@ -61,11 +61,12 @@ def test_fig7_eafob_estimate_is_the_q_filtered_true_friction(fig7):
 
 
 def test_fig7_eafob_compensation_tracks_better_than_no_compensation(fig7):
-    from forecast_design.params import Design, PDController
+    from forecast_design.controllers import PD
+    from forecast_design.params import Design
     from forecast_design.simulation import Square, simulate
 
     c = fig7.choices
-    bare = simulate(Design.nominal(c.environment, controller=PDController()), effects=[Stiction()],
+    bare = simulate(Design.nominal(c.environment, controller=PD()), effects=[Stiction()],
                     reference=Square(high=c.high, low=c.low, period_s=c.period_s), duration_s=c.periods * c.period_s)
     assert fig7.mae_tracking_eafob < np.mean(np.abs(bare.tau_r - bare.tau_s))
 
@@ -147,34 +148,31 @@ def test_table3_pd_repeatability_rests_on_the_stated_choices(table3):
         assert f"{m['environment']}/{m['compensator']} {m['xcorr']:.3f}" in table3.explanation
 
 
-def test_derivative_on_the_measurement_is_the_pd_on_a_prefiltered_reference():
-    # C (r' - y) = P r - C y: the PD on the prefiltered reference has no kick at the step (python-
-    # control's response of C to r' is P r), and a closed-loop run with derivative_on="measurement"
-    # commands u = P r - C y exactly, computed here from its logged signals
+def test_derivative_on_the_measurement_commands_P_r_minus_C_y():
+    # derivative_on = "measurement": u = P r - C(z) y exactly, C the controller's own law (python-
+    # control's response of C to the logged tau_s), so the step has no kick; on the error it kicks
     import control
 
-    from forecast_design.params import Design, PDController
+    from forecast_design.controllers import PD
+    from forecast_design.params import Design
     from forecast_design.simulation import Step, simulate
-    from forecast_design.simulation.controllers import DiscretePD
+    from forecast_design.table3 import table3_controller
 
-    pd = PDController(P=5.0, D=0.1)
-    c = DiscretePD(pd, 2000.0)
-    r = np.r_[np.zeros(5), 0.2 * np.ones(395)]
-    rp = c.measurement_reference(r)
-    C = control.tf(c.tf.num, c.tf.den, 1 / 2000.0)
-    assert np.allclose(control.forced_response(C, U=rp).outputs, 5.0 * r, atol=1e-12)
-    assert abs(rp[-1] - 0.2) < 1e-4 and np.all(np.diff(rp[5:]) >= -1e-15)    # P / C: a 20 ms lag to r
+    pd = table3_controller("measurement")
+    law = pd.discrete_law(2000.0)
+    C = control.tf(law.feedback_tf().num, law.feedback_tf().den, 1 / 2000.0)
     run = simulate(Design.nominal("locked", controller=pd), reference=Step(amplitude=0.2, t0=0.002),
-                   duration_s=0.2, derivative_on="measurement", encoder_counts=None, process_noise_std=0.0)
+                   duration_s=0.2, encoder_counts=None, process_noise_std=0.0)
     y = np.asarray(run.tau_s)
     u = 5.0 * np.asarray(run.tau_r) - control.forced_response(C, U=y).outputs
     assert np.allclose(run.tau_r, np.where(run.t >= 0.002, 0.2, 0.0))        # the reference as given
     assert np.allclose(run.u, u, atol=1e-9) and np.max(np.abs(run.u)) < 2.0   # no 25 N m kick
-    kick = simulate(Design.nominal("locked", controller=pd), reference=Step(amplitude=0.2, t0=0.002),
-                    duration_s=0.2, encoder_counts=None, process_noise_std=0.0)
+    kick = simulate(Design.nominal("locked", controller=table3_controller("error")),
+                    reference=Step(amplitude=0.2, t0=0.002), duration_s=0.2, encoder_counts=None,
+                    process_noise_std=0.0)
     assert np.max(np.abs(kick.u)) > 10.0
     with pytest.raises(ParameterError, match="derivative_on must be one of"):
-        simulate(Design.nominal("locked"), reference=Step(), duration_s=0.01, derivative_on="setpoint")
+        PD(P=5.0, D=0.1, derivative_on="setpoint")
 
 
 @pytest.mark.slow

@@ -18,16 +18,16 @@ from forecast_design.effects import (
     Stiction,
     TorqueGain,
 )
+from forecast_design.compensators import compensator_strategy, friction_feedforward
+from forecast_design.discrete import DiscreteFilter
 from forecast_design.errors import ExperimentFormatError, ParameterError
-from forecast_design.params import Compensator, Design, Environment, PDController, Testbed
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design, Environment, Testbed
 from forecast_design.simulation import (
     REFERENCE_KINDS,
     Chirp,
-    DiscretePD,
     Multisine,
-    ObserverCompensator,
     PiecewiseLinear,
-    SfmCompensator,
     Sine,
     Square,
     Step,
@@ -217,10 +217,10 @@ def test_environment_mismatch_simulates_the_true_environment_but_records_the_nom
 
 
 def test_closed_loop_pd_on_locked_plant_matches_discrete_linear_loop():
-    design = Design.nominal("locked", controller=PDController(P=5.0, D=0.1))
+    design = Design.nominal("locked", controller=PD(P=5.0, D=0.1))
     r = simulate(design, reference=Step(amplitude=0.2), duration_s=3.0, **EXACT)
-    pd_ = DiscretePD(design.controller, RATE)
-    c = control.tf(list(pd_.tf.num), list(pd_.tf.den), 1 / RATE)
+    law = design.controller.discrete_law(RATE).feedback_tf()     # backward Euler: 5 + 0.1 (1 - 1/z) 2000
+    c = control.tf(list(law.num), list(law.den), 1 / RATE)
     p = control.sample_system(_plant_tf(design), 1 / RATE, method="zoh")
     ref = control.forced_response(control.feedback(c * p, 1), T=r.t, U=r.tau_r)
     np.testing.assert_allclose(r.tau_s, ref.outputs, rtol=0, atol=1e-9)
@@ -255,12 +255,17 @@ def test_torque_saturation():
 def test_observer_in_the_loop_is_the_python_filter_object(kind):
     design = Design.nominal("exp-soft", compensator=Compensator(kind=kind, w_q_hz=10.0))
     r = simulate(design, reference=Sine(amplitude=0.3, frequency_hz=1.0), duration_s=0.5, effects=[Coulomb()])
-    obs = ObserverCompensator(design.compensator, design, RATE)
-    pd_ = DiscretePD(PDController(), RATE)
+    filters = compensator_strategy(design.compensator).discrete_filters(design.compensator, design, RATE)
+    running = [(src, DiscreteFilter(tf)) for src, tf in filters.paths()]
+    pd_ = DiscreteFilter(PD().discrete_law(RATE).channels[0].tf)
     prev = 0.0
     hat, u = np.empty(r.t.size), np.empty(r.t.size)
     for n in range(r.t.size):
-        hat[n] = obs.step(prev, r.tau_s[n], r.theta[n])
+        inputs = {"tau_m_prev": prev, "tau_s": r.tau_s[n], "theta": r.theta[n]}
+        total = 0.0
+        for src, f in running:
+            total = total + f.step(inputs[src])
+        hat[n] = total
         u[n] = pd_.step(r.tau_r[n] - r.tau_s[n])
         prev = r.tau_m[n]
     np.testing.assert_array_equal(hat, r.tau_frc_hat)
@@ -273,8 +278,7 @@ def test_sfm_in_the_loop_is_the_python_object():
     design = Design.nominal("locked", compensator=Compensator(kind="sfm"))
     r = simulate(design, reference=Sine(amplitude=0.5, frequency_hz=1.0), duration_s=0.5, effects=[Stiction()],
                  sfm_params=params, initial_angle=0.4)
-    sfm = SfmCompensator(params, RATE, angle_offset=0.4)
-    hat = np.array([sfm.step(th) for th in r.theta])
+    hat = friction_feedforward(params, RATE, angle_offset=0.4).evaluate(r.theta)
     np.testing.assert_array_equal(hat, r.tau_frc_hat)
 
 
@@ -314,7 +318,7 @@ def test_bad_options_raise():
     with pytest.raises(ParameterError, match="given 2 times"):
         simulate(d, reference=Step(), duration_s=0.1, effects=[Coulomb(), Coulomb()])
     with pytest.raises(ParameterError, match="unknown"):
-        SfmCompensator({"visc": 1.0}, RATE)
+        friction_feedforward({"visc": 1.0}, RATE)
 
 
 # --- files ----------------------------------------------------------------------------------
@@ -329,7 +333,7 @@ def test_saved_run_is_a_nominal_experiment_with_truth_sidecars(tmp_path):
     paths = save_simulation(r, tmp_path / "run.toml")
     exp = load_experiment(paths["experiment"])
     assert exp.design.environment == nominal.environment
-    assert exp.design.compensator.kind == "ea-fob" and exp.design.controller == PDController()
+    assert exp.design.compensator.kind == "ea-fob" and exp.design.controller == PD()
     np.testing.assert_array_equal(exp.signals.theta, r.theta)
     np.testing.assert_array_equal(exp.signals.extra["tau_frc_hat"], r.tau_frc_hat)
     assert "stiction" not in paths["experiment"].read_text()
@@ -380,7 +384,8 @@ def test_scenario_file_runs_like_simulate(tmp_path):
      "truth.effects[1].effect"),
     (lambda d: d["reference"].update(amplitud=0.3), "unknown key 'amplitud'", "reference.amplitud"),
     (lambda d: d["sampling"].pop("rate_hz"), "missing required key 'rate_hz'", "sampling.rate_hz"),
-    (lambda d: d["compensator"].update(kind="sfm"), r"needs a \[sfm\] table", "sfm"),
+    (lambda d: d["compensator"].update(kind="sfm") or d["compensator"].pop("w_q_hz"), r"needs a \[sfm\] table", "sfm"),
+    (lambda d: d["compensator"].update(kind="sfm"), "key .w_q_hz. does not belong to kind .sfm.", "compensator.w_q_hz"),
     (lambda d: d["reference"].update(kind="sawtooth"), "kind must be one of", "reference.kind"),
     (lambda d: d.update(extra=1), "unknown key 'extra'", "extra"),
 ])

@@ -6,7 +6,8 @@ import pytest
 from forecast_design.effects import Cogging, Delay, EnvironmentMismatch, PositionFriction, Stiction, TorqueGain
 from forecast_design.environments import environment_preset
 from forecast_design.errors import ParameterError
-from forecast_design.params import Compensator, Design, PDController
+from forecast_design.controllers import PD
+from forecast_design.params import Compensator, Design
 from forecast_design.simulation import Sine, Square, simulate
 from forecast_design.simulation.batch import MEASURED, TRUE, BatchRun, simulate_batch, simulate_scenario
 from forecast_design.simulation.scenario import Variability, scenario_from_mapping
@@ -27,7 +28,7 @@ def _runs() -> list[BatchRun]:
     ]
     runs = []
     for i, (env, comp, effects) in enumerate(cases):
-        design = Design.nominal(env, controller=PDController(P=5.0 - 0.5 * i), compensator=comp)
+        design = Design.nominal(env, controller=PD(P=5.0 - 0.5 * i), compensator=comp)
         runs.append(BatchRun(design=design, effects=effects, seed=10 + i, initial_angle=0.7 * i,
                              reference=Sine(amplitude=0.3, frequency_hz=3.0) if i == 2 else None))
     return runs

@@ -94,10 +94,10 @@ def test_bounded_scan_finds_the_same_best_cutoff_as_the_full_exact_scan(observer
 
 def test_grid_ratio_is_an_upper_bound_of_the_exact_ratio():
     from forecast_design.tuning.plants import _exact_ratios, _grid_ratios, _plants, _q_polynomial, _Setting
-    from forecast_design.params import PDController
+    from forecast_design.controllers import PD
 
     for sampled in (False, True):
-        setting = _Setting(PDController(), "controller", 0.0, sampled)
+        setting = _Setting(PD(), "controller", 0.0, sampled)
         base = Compensator(kind="lo-dob", w_q_hz=1.0)
         plants = _plants(base, "soft,stiff", 0.2, setting)
         for wq in (0.7, 3.0, 12.0):

@@ -3,7 +3,8 @@
 ``forecast-design benchmark`` in library form::
 
     from forecast_design.benchmark import BenchmarkSpec, run_benchmark, result_table
-    spec = BenchmarkSpec(controllers=(PDController(P=5, D=0.1),), compensators=parse_compensators("none,ea-fob"),
+    spec = BenchmarkSpec(controllers=(PD(P=5, D=0.1), parse_controller("pid:6:20:0.05:0.002")),
+                         compensators=parse_compensators("none,ea-fob"),
                          environments=tuple(resolve_environments("soft,stiff")),
                          references=(parse_reference("step:0.2"),), repetitions=10)
     cells, info = run_benchmark(spec, out="bench", executor=make_executor())

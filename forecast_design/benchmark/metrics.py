@@ -210,9 +210,10 @@ def disk_margin_of(design: Design, compensator: Compensator, rate_hz: float = 20
     design : Design
         Testbed, environment and controller.
     compensator : Compensator
-        Friction compensator; the SFM (a feed-forward) is analysed as ``none``.
+        Friction compensator: its linear part is in the loop (an observer's filters; an SFM's
+        viscous feed-forward when it carries its identified friction).
     rate_hz : float
         Control rate [Hz].
     """
-    comp = compensator if compensator.is_observer else Compensator(kind="none")
+    comp = compensator if compensator.is_observer or compensator.friction else Compensator(kind="none")
     return float(loop_margins(design, comp, sampled=True, rate_hz=rate_hz, delay_samples=0).alpha)

@@ -24,6 +24,7 @@ hashes its files' bytes, so reruns with ``--out`` reuse unchanged cells.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -33,6 +34,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..controllers import DERIVATIVE_ON, with_derivative_on
 from ..environments import resolve_environments
 from ..errors import ExperimentFormatError, ParameterError
 from ..executor import Executor, LocalExecutor
@@ -168,7 +170,8 @@ def recorded_cell(task: tuple) -> CellResult:
     ----------
     task : tuple
         ``(key, labels, paths[, derivative_on])`` from :func:`group_runs` (``derivative_on``: where
-        the board's PD takes its derivative, for the expected response; default ``error``).
+        a recorded PD/PID takes its derivative, overriding its ``[controller]`` table for the expected
+        response; default None: the table's).
 
     Returns
     -------
@@ -177,17 +180,23 @@ def recorded_cell(task: tuple) -> CellResult:
         (a recording does not know it).
     """
     key, labels, paths, *rest = task
-    derivative_on = rest[0] if rest else "error"
+    derivative_on = rest[0] if rest else None
     exps = [load_experiment(p) for p in paths]
     n = min(e.n_samples for e in exps)
     rate = exps[0].rate_hz
     design = exps[0].design
+    if derivative_on is not None:
+        design = dataclasses.replace(design, controller=with_derivative_on(design.controller, derivative_on))
     comp = design.compensator or Compensator(kind="none")
     tau = np.array([np.asarray(e.signals.tau_s[:n], dtype=float) for e in exps])
     tau_r = np.asarray(exps[0].signals.tau_r[:n], dtype=float)
     t = np.arange(n) / rate
-    expected = _expected_response(design, tau_r, n / rate, rate, derivative_on).tau_s
-    margin = disk_margin_of(design, comp, rate)
+    if design.controller.has_equations:
+        expected = _expected_response(design, tau_r, n / rate, rate).tau_s
+        margin = disk_margin_of(design, comp, rate)
+    else:   # an 'other' controller: no equations, so no expected response nor margin; the rest goes on
+        expected = np.full(n, math.nan)
+        margin = math.nan
     step = step_of(tau_r, rate)
     per_run = repeatability_per_run(tau) if len(exps) >= 2 else np.full(1, math.nan)
     rows = []
@@ -205,7 +214,7 @@ def recorded_cell(task: tuple) -> CellResult:
 
 def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] | None = None,
                  executor: Executor | None = None, progress: Callable[[int, int], None] | None = None,
-                 derivative_on: str = "error") -> tuple[list[CellResult], dict[str, Any]]:
+                 derivative_on: str | None = None) -> tuple[list[CellResult], dict[str, Any]]:
     """Benchmark the recorded runs of a folder of experiments.
 
     Parameters
@@ -218,10 +227,10 @@ def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] 
         Where cells are computed; default: this process.
     progress : callable, optional
         ``progress(done, total)`` over the cells to compute.
-    derivative_on : str
-        Where the recording board's PD took its derivative
-        (:data:`~forecast_design.simulation.controllers.DERIVATIVE_ON`; the format's [controller]
-        cannot say): sets the frictionless expected response the MAE is measured against.
+    derivative_on : str or None
+        Where the recorded PD/PID controllers take their derivative, overriding their
+        ``[controller]`` tables (:data:`~forecast_design.controllers.DERIVATIVE_ON`; None: what the
+        tables say): sets the frictionless expected response the MAE is measured against.
 
     Returns
     -------
@@ -244,13 +253,10 @@ def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] 
         raise ParameterError(f"--runs {os.fspath(folder)}: no closed-loop experiment (forecast-experiment/1 TOML with "
                              f"[controller] and a tau_r column) found among {len(paths)} experiment(s)",
                              name="runs", value=os.fspath(folder))
-    from ..simulation.controllers import DERIVATIVE_ON
-
-    if derivative_on not in DERIVATIVE_ON:
+    if derivative_on is not None and derivative_on not in DERIVATIVE_ON:
         raise ParameterError(f"--derivative-on must be one of {', '.join(DERIVATIVE_ON)}, got {derivative_on!r}",
                              name="derivative_on", value=derivative_on)
-    # the default keeps the keys of cells stored before the option
-    keys = [_cell_key(p) + ("" if derivative_on == "error" else f"-{derivative_on}") for _, p in groups]
+    keys = [_cell_key(p) + ("" if derivative_on is None else f"-{derivative_on}") for _, p in groups]
     store = None if out is None else Path(out) / "cells"
     found: dict[str, CellResult] = {}
     if store is not None:

@@ -129,14 +129,12 @@ def _decimate(n: int) -> slice:
 _STEP_KEYS = ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m")
 
 
-def _expected_response(design: Design, reference: Any, duration_s: float, rate_hz: float,
-                       derivative_on: str = "error"):
-    """The frictionless expected response: the design's controller on its nominal plant, no
+def _expected_response(design: Design, reference: Any, duration_s: float, rate_hz: float):
+    """The frictionless expected response: the design's controller (its own law) on its nominal plant, no
     compensator, no nominal viscous friction, no noise, exact encoders (simulated and recorded cells)."""
     return simulate(dataclasses.replace(design, compensator=Compensator(kind="none")), reference=reference,
                     duration_s=duration_s, rate_hz=rate_hz, include_nominal_viscous=False, process_noise_std=0.0,
-                    encoder_counts=None, derivative_on=derivative_on,
-                    description="benchmark: frictionless expected response")
+                    encoder_counts=None, description="benchmark: frictionless expected response")
 
 
 def _run_metrics(tau_s: np.ndarray, expected: np.ndarray, repeatability: float, margin: float) -> dict[str, Any]:
@@ -166,7 +164,7 @@ def run_cell(task: tuple) -> CellResult:
                     compensator=cell.compensator)
     var = Variability(repetitions=spec.repetitions, viscous_drift=spec.viscous_drift, seed=spec.seed)
     angles = var.initial_angles()
-    expected = _expected_response(design, cell.reference, cell.duration_s, spec.rate_hz, spec.derivative_on)
+    expected = _expected_response(design, cell.reference, cell.duration_s, spec.rate_hz)
     sfm = cell.compensator.kind == "sfm"
     # the repetitions as one batch (each run bit-equal to `simulate` with the same arguments); in a
     # worker process the executor's processes already fill the cores, so the batch takes one thread
@@ -178,13 +176,13 @@ def run_cell(task: tuple) -> CellResult:
                            duration_s=cell.duration_s, reference=cell.reference, rate_hz=spec.rate_hz,
                            substeps=substeps,
                            threads=1 if multiprocessing.parent_process() is not None else None,
-                           sfm_params=sfm_params if sfm else None, sfm_deadband=spec.sfm_deadband if sfm else 0.0,
-                           derivative_on=spec.derivative_on)
+                           sfm_params=sfm_params if sfm else None, sfm_deadband=spec.sfm_deadband if sfm else 0.0)
     runs = list(batch.results())
     tau = np.array([r.tau_s for r in runs])
     t = runs[0].t
     per_run_rep = repeatability_per_run(tau)
-    margin = disk_margin_of(design, cell.compensator, spec.rate_hz)
+    margin = disk_margin_of(design, design.compensator if not sfm else design.with_friction(sfm_params).compensator,
+                            spec.rate_hz)
     chirp = isinstance(cell.reference, Chirp)
     rows = []
     expected_diverged = expected.diverged_at_s is not None

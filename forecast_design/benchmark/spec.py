@@ -2,7 +2,8 @@
 
 The command-line forms (``forecast-design benchmark``)::
 
-    --controller pd:P:D          PD force controller (paper: pd:5:0.1)
+    --controller SPEC            any force controller, repeatable: pd:5:0.1 (the paper's), pid:P:I:D[:T_f],
+                                 tf:NUM/DEN, discrete:NUM/DEN, or a TOML file with a [controller] table
     --compensator none,sfm,ea-fob[:W_Q_HZ]
     --reference step:AMP[:DURATION_S] | chirp:AMP:F0_HZ:F1_HZ[:DURATION_S]
 
@@ -22,7 +23,8 @@ from typing import Any, Sequence
 from ..effects import effects_to_mappings
 from ..errors import ParameterError
 from ..plausibility import check_limit
-from ..params import COMPENSATOR_KINDS, Compensator, Environment, PDController, Testbed, parse_controller
+from ..controllers import Controller, parse_controller
+from ..params import COMPENSATOR_KINDS, Compensator, Environment, Testbed
 from ..reproduce import TABLE3_TRUTH
 from ..simulation.references import Chirp, Step
 
@@ -45,9 +47,9 @@ def _number(text: str, what: str, form: str) -> float:
     return value
 
 
-def controller_label(c: PDController) -> str:
-    """``pd:P:D`` of a controller (inverse of :func:`parse_controller`)."""
-    return f"pd:{c.P:g}:{c.D:g}"
+def controller_label(c: Controller) -> str:
+    """The controller's command-line spelling (``pd:5:0.1``; read back by :func:`parse_controller`)."""
+    return c.spelling()
 
 
 def parse_compensators(text: str | Sequence[str]) -> tuple[Compensator, ...]:
@@ -144,7 +146,7 @@ def reference_label(ref: Any, duration_s: float) -> str:
 class Cell:
     """One benchmark cell: a controller and compensator in one environment under one reference."""
 
-    controller: PDController
+    controller: Controller
     compensator: Compensator
     environment_name: str
     environment: Environment
@@ -164,8 +166,9 @@ class BenchmarkSpec:
 
     Attributes
     ----------
-    controllers : tuple of PDController
-        Force controllers under test.
+    controllers : tuple of Controller
+        Force controllers under test, any kind with equations (each runs its own law: its
+        discretisation, derivative filter and placement, saturation).
     compensators : tuple of Compensator
         Friction compensators (part of the benchmarking system, paper Section 1).
     environments : tuple of (str, Environment)
@@ -189,11 +192,6 @@ class BenchmarkSpec:
     testbed : Testbed
         The SEA under test (default the paper's Table 1); the extended SFM of the ``sfm`` cells
         is identified on it.
-    derivative_on : str
-        Where the PD controllers take their derivative
-        (:data:`~forecast_design.simulation.controllers.DERIVATIVE_ON`): ``error``, the format's
-        u = P e + D de/dt (default), or ``measurement`` (no kick at a step); the frictionless
-        expected response uses the same.
     """
 
     controllers: tuple
@@ -207,14 +205,8 @@ class BenchmarkSpec:
     sfm_deadband: float = 0.05
     rate_hz: float = 2000.0
     testbed: Testbed = field(default_factory=Testbed.nominal)
-    derivative_on: str = "error"
 
     def __post_init__(self) -> None:
-        from ..simulation.controllers import DERIVATIVE_ON
-
-        if self.derivative_on not in DERIVATIVE_ON:
-            raise ParameterError(f"--derivative-on must be one of {', '.join(DERIVATIVE_ON)}, got "
-                                 f"{self.derivative_on!r}", name="derivative_on", value=self.derivative_on)
         if isinstance(self.repetitions, bool) or not isinstance(self.repetitions, int) or self.repetitions < 2:
             raise ParameterError(f"--repetitions must be an integer >= 2 (repeatability compares runs), got "
                                  f"{self.repetitions!r}", name="repetitions", value=self.repetitions)
@@ -223,6 +215,16 @@ class BenchmarkSpec:
             if not value:
                 raise ParameterError(f"benchmark needs at least one of {name}", name=name, value=value)
             object.__setattr__(self, name, value)
+        for c in self.controllers:
+            if not isinstance(c, Controller):
+                raise ParameterError(f"benchmark controllers must be Controller values, got {type(c).__name__}",
+                                     name="controllers", value=c)
+            if not c.has_equations:
+                raise c.no_equations("a simulated benchmark")
+        spellings = [c.spelling() for c in self.controllers]
+        if len(set(spellings)) != len(spellings):
+            raise ParameterError(f"controllers repeated: {', '.join(sorted({x for x in spellings if spellings.count(x) > 1}))}",
+                                 name="controllers", value=spellings)
         names = [n for n, _ in self.environments]
         if len(set(names)) != len(names):
             dup = sorted({n for n in names if names.count(n) > 1})
@@ -241,16 +243,14 @@ class BenchmarkSpec:
         """What every cell shares (part of each cell's key)."""
         return {"effects": effects_to_mappings(self.effects), "repetitions": self.repetitions, "seed": self.seed,
                 "viscous_drift": self.viscous_drift, "sfm_deadband": self.sfm_deadband, "rate_hz": self.rate_hz,
-                "testbed": self.testbed.to_mapping(),
-                # only when not the default, so that the keys of cells stored before the option stay valid
-                **({"derivative_on": self.derivative_on} if self.derivative_on != "error" else {})}
+                "testbed": self.testbed.to_mapping()}
 
     def cell_key(self, cell: Cell, sfm_params: dict | None) -> str:
         """Hash of every input of a cell: a stored result with this key is that cell's result."""
         doc = {"cell": cell.labels, "controller": cell.controller.to_mapping(),
                "compensator": cell.compensator.to_mapping(), "environment": cell.environment.to_mapping(),
                "reference": cell.reference.to_mapping(), "duration_s": cell.duration_s, "hardware": self.hardware(),
-               "sfm": sfm_params if cell.compensator.kind == "sfm" else None, "version": 1}
+               "sfm": sfm_params if cell.compensator.kind == "sfm" else None, "version": 2}
         text = json.dumps(doc, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:20]
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import sys
 import warnings
@@ -121,7 +122,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 # --- shared option helpers -------------------------------------------------
 
 from ._options import (  # noqa: E402  (the shared option helpers; verb modules import them from here)
+    _add_controller_option,
     _add_environment_options,
+    _controller_from_args,
     _add_json_option,
     _add_skew_option,
     _compensator_from_args,
@@ -300,6 +303,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 def _configure_tune_q(p: argparse.ArgumentParser) -> None:
     p.add_argument("--compensator", "--observer", dest="observer", required=True, choices=OBSERVER_KINDS,
                    help="the observer whose Q cutoff is tuned")
+    _add_controller_option(p)
     _add_environment_options(p, default="soft,stiff", many=True)
     p.add_argument("--uncertainty", type=_float_range, default=0.0, metavar="FRACTION",
                    help="relative range of the true J, d, k_e (vertices of the box)")
@@ -337,6 +341,7 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
     # random:N is expanded here with --seed; the set (an EnvironmentSet) is what tune_q receives
     args.envs = _environments_from_args(args, seed=args.seed)
     testbed = _testbed_from_args(args)
+    controller = _controller_from_args(args)
     with contextlib.ExitStack() as stack:
         executor = None
         if args.scheduler or args.workers is not None:
@@ -345,13 +350,13 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
             executor = stack.enter_context(make_executor(args.scheduler, args.workers))
         if args.max_margin is not None:
             result = tune_q_shape(args.observer, args.envs, w_q_hz=args.max_margin, uncertainty=args.uncertainty,
-                                  break_at=args.break_at, seed=args.seed, sampled=args.sampled, rate_hz=args.rate_hz,
+                                  controller=controller, break_at=args.break_at, seed=args.seed, sampled=args.sampled, rate_hz=args.rate_hz,
                                   delay_samples=args.delay_samples, testbed=testbed, executor=executor)
         else:
             with _progress_bar("exact scan", "cutoff") as progress:
                 result = tune_q(args.observer, args.envs, uncertainty=args.uncertainty, min_ratio=args.min_ratio,
                                 band_hz=tuple(args.band), q_family=args.q_family, q_order=args.q_order,
-                                break_at=args.break_at, seed=args.seed, progress=progress, sampled=args.sampled,
+                                controller=controller, break_at=args.break_at, seed=args.seed, progress=progress, sampled=args.sampled,
                                 rate_hz=args.rate_hz, delay_samples=args.delay_samples,
                                 scan="exact" if args.exact_scan else "bounded", testbed=testbed, executor=executor)
     mapping = require_no_nan(result.to_mapping(), "tune-q")
@@ -493,7 +498,7 @@ _COMPENSATOR_CHOICES = COMPENSATOR_KINDS
 
 
 def _configure_export(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D", help="force controller (default pd:5:0.1)")
+    _add_controller_option(p)
     p.add_argument("--compensator", "--observer", dest="compensator", default="none", choices=_COMPENSATOR_CHOICES)
     _add_environment_options(p, default="exp-soft", many=False)
     p.add_argument("--friction", metavar="F.json", help="identified friction for --compensator sfm "
@@ -501,7 +506,9 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tau-max", type=_float_range, default=float("inf"), metavar="N_M",
                    help="command saturation |tau_m| <= TAU_MAX [N m] (default: none)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz] (default 10)")
-    p.add_argument("--method", default="tustin", help="discretisation: tustin (default), zoh, backward-euler")
+    p.add_argument("--method", default=None, choices=("backward-euler", "tustin", "zoh", "matched"),
+                   help="set the controller's discretization (default: the controller's own, e.g. backward-euler "
+                        "for pd/pid, tustin for tf); the observers are discretised with tustin")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0, help="control rate [Hz] (default 2000)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for fd_controller.h / fd_controller.c")
     p.add_argument("--check-arm", action="store_true",
@@ -525,10 +532,10 @@ def _cmd_export(args: argparse.Namespace) -> int:
         from ._firmware import _cmd_export_firmware
 
         return _cmd_export_firmware(args, env, comp)
-    result = export_controller(out_dir=args.out, controller=args.controller,
+    result = export_controller(out_dir=args.out, controller=_controller_from_args(args),
                                compensator=comp if comp is not None else "none", env=env,
                                testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz,
-                               method=args.method, tau_max=args.tau_max)
+                               tau_max=args.tau_max)
     mapping = result.to_mapping()
     if args.check_arm:
         from ..export.toolchain import check_on_cortex_m4
@@ -577,7 +584,7 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
 
 def _configure_run(p: argparse.ArgumentParser) -> None:
     p.add_argument("--port", required=True, help="serial port (device path, pty, or a pyserial URL)")
-    p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D")
+    _add_controller_option(p)
     p.add_argument("--compensator", "--observer", dest="compensator", default="none", choices=_COMPENSATOR_CHOICES)
     p.add_argument("--friction", metavar="F.json", help="identified friction for --compensator sfm (identify --json)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0)
@@ -598,7 +605,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     try:
         comp = _compensator_from_args(args)
         result = run_on_port(args.port, out=args.out, reference=args.reference, duration=args.duration,
-                             controller=args.controller, compensator=comp if comp is not None else "none",
+                             controller=_controller_from_args(args), compensator=comp if comp is not None else "none",
                              w_q_hz=args.w_q_hz, env=_one_environment_from_args(args, "run")[1],
                              testbed=_testbed_from_args(args), timeout=args.timeout)
         summary = result.to_mapping()
@@ -705,22 +712,23 @@ def _configure_margins(p: argparse.ArgumentParser) -> None:
                    help="compensator/observer in the loop (default none)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz]")
     p.add_argument("--q-family", default="butterworth", choices=Q_FAMILIES)
-    p.add_argument("--controller", default="pd:5:0.1", metavar="pd:P:D")
+    _add_controller_option(p)
     p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
     p.add_argument("--sampled", action="store_true", help="sampled-data loop at --rate-hz")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0)
     p.add_argument("--delay-samples", type=int, default=1)
     _add_skew_option(p)
     _add_json_option(p, "the margins")
-    p.add_argument("--plot", metavar="OUT.png", help="frequency-dependent disk margin")
+    p.add_argument("--plot", metavar="OUT.png", help="the loop at a glance: disk margin over frequency, |S| and |T|, "
+                                                    "the Nyquist curve near -1")
 
 
-@_command("margins", "disk margins of one force loop (environment, observer, knowledge error); exit 1 if unstable",
-          _configure_margins)
+@_command("margins", "disk and classical margins of one force loop (any controller, compensator, environment, "
+          "knowledge error); exit 1 if unstable", _configure_margins)
 def _cmd_margins(args: argparse.Namespace) -> int:
-    from ..analysis import loop_margins
+    from ..analysis import analyse_loop
     from ..environments import resolve_environments
-    from ..params import Compensator, Design, parse_controller
+    from ..params import Compensator, Design
 
     env_name, env = _one_environment_from_args(args, "margins")
     design = Design(testbed=_testbed_from_args(args), environment=env)
@@ -730,35 +738,38 @@ def _cmd_margins(args: argparse.Namespace) -> int:
     if args.believed:
         believed_env = resolve_environments(args.believed, testbed=design.testbed).single("--believed")[1]
         believed = Design(testbed=design.testbed, environment=believed_env)
-    controller = parse_controller(args.controller)
-    dm = loop_margins(design, comp, believed=believed, controller=controller, break_at=args.break_at,
-                      sampled=args.sampled, rate_hz=args.rate_hz, delay_samples=args.delay_samples, sigma=args.sigma)
-    if args.plot and dm.stable:
-        import numpy as np
+    analysis = analyse_loop(design, comp, believed=believed, controller=_controller_from_args(args),
+                            break_at=args.break_at, sampled=args.sampled, rate_hz=args.rate_hz,
+                            delay_samples=args.delay_samples, skew=args.sigma, environment_name=env_name)
+    _note(analysis.notes)
+    dm = analysis.disk
+    if args.plot:
+        from ..plotting.margins import plot_loop_analysis
 
-        from ..analysis import disk_margin_curve, sampled_force_loop
-        from ..plotting.margins import plot_disk_margin_curve
-        from ..loops import force_loop
-
-        kwargs = dict(controller=controller, believed=believed, break_at=args.break_at)
-        loop = (sampled_force_loop(design, comp, rate_hz=args.rate_hz, delay_samples=args.delay_samples, **kwargs)
-                if args.sampled else force_loop(design, comp, **kwargs))
-        top = np.pi * args.rate_hz if args.sampled else 1e4
-        plot_disk_margin_curve(disk_margin_curve(loop.L, np.geomspace(1e-2, top, 800), args.sigma), args.plot)
-    mapping = require_no_nan({**dm.to_mapping(), "environment": env_name, "compensator": args.observer}, "margins")
+        plot_loop_analysis(analysis, args.plot)
+    mapping = require_no_nan({**analysis.to_mapping(), "environment": env_name, "compensator": args.observer},
+                             "margins")
     if args.json:
         _write_json(args.json, mapping)
+    out = sys.stderr if args.json == "-" else sys.stdout
+    print(f"loop: {analysis.title()}", file=out)
     if not dm.stable:
-        loop = f"{args.observer} at {args.w_q_hz:g} Hz" if comp is not None else "the plain PD loop"
-        print(f"the closed loop is UNSTABLE ({loop}, environment {env_name}): no margin; "
-              "disk margin 0" + (", no plot written" if args.plot else ""),
-              file=sys.stderr if args.json == "-" else sys.stdout)
+        print(f"the closed loop is UNSTABLE: no margin; disk margin 0" + (f"; plot: {args.plot}" if args.plot else ""),
+              file=out)
         return 1
     if args.json != "-":
         lo, hi = dm.gain_margin_db
         print(f"disk margin {dm.alpha:.4f} (stable): gain [{lo:.3f}, {hi:.3f}] dB, phase "
-              f"+-{dm.phase_margin_deg:.2f} deg at {dm.frequency_rad_s / (2 * 3.141592653589793):.4g} Hz "
+              f"+-{dm.phase_margin_deg:.2f} deg at {dm.frequency_rad_s / (2 * math.pi):.4g} Hz "
               f"({dm.frequency_rad_s:.4g} rad/s); delay margin {dm.delay_margin_s:.4g} s")
+        cm = analysis.classical
+        gm, pm = cm.gain_margin, cm.phase_margin
+        print("classical: gain margin " + (f"{gm.gain_margin_db:+.2f} dB at {gm.frequency_rad_s:.4g} rad/s"
+                                           if gm else "infinite") +
+              (f", phase margin {pm.phase_margin_deg:.2f} deg at {pm.frequency_rad_s:.4g} rad/s, delay margin "
+               f"{pm.delay_margin_s:.4g} s" if pm else ", no gain crossover") +
+              f" ({len(cm.phase_crossovers)} phase and {len(cm.gain_crossovers)} gain crossovers)")
+        print(f"compensator: {analysis.assumptions['compensator']['linear_analysis']}")
         if args.plot:
             print(f"plot: {args.plot}")
     return 0

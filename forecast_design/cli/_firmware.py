@@ -37,12 +37,12 @@ def _firmware_options_from_args(args: argparse.Namespace):
 def _cmd_export_firmware(args: argparse.Namespace, env, comp) -> int:
     """``export --firmware``: write the firmware project (and build it when --check-arm)."""
     from ..export.firmware import build_firmware, export_firmware
-    from . import _testbed_from_args, _write_json
+    from . import _controller_from_args, _testbed_from_args, _write_json
 
-    result = export_firmware(out_dir=args.out, controller=args.controller,
+    result = export_firmware(out_dir=args.out, controller=_controller_from_args(args),
                              compensator=comp if comp is not None else "none", env=env,
                              testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz,
-                             method=args.method, options=_firmware_options_from_args(args))
+                             options=_firmware_options_from_args(args))
     mapping = result.to_mapping()
     if args.check_arm:   # build both targets here (-Werror) as a check
         mapping["elf"] = [str(build_firmware(args.out, "board")), str(build_firmware(args.out, "pil"))]

@@ -20,6 +20,37 @@ def _float_range(text: str) -> float:
     return value
 
 
+#: How the verbs spell a controller (forecast_design.controllers.parse_controller).
+CONTROLLER_FORMS = ("pd:P:D[:T_f], pid:P:I:D[:T_f], tf:NUM/DEN or discrete:NUM/DEN (comma-separated "
+                    "coefficients, descending powers), other:NAME, with :key=value for the kind's other keys "
+                    "(e.g. pd:5:0.1:0.0008:discretization=tustin, pid:8:160:0:u_min=-2:u_max=2:anti_windup=clamping), "
+                    "or a TOML file with a [controller] table")
+
+
+def _add_controller_option(p: argparse.ArgumentParser, *, default: str = "pd:5:0.1") -> None:
+    """The one spelling of ``--controller`` (any kind; default the paper's PD)."""
+    p.add_argument("--controller", default=None, metavar="SPEC",
+                   help=f"force controller (default {default}, the paper's): {CONTROLLER_FORMS}")
+
+
+def _controller_from_args(args: argparse.Namespace, default: str = "pd:5:0.1"):
+    """The controller the verb runs, resolved once here (the boundary); ``--method`` (export, pil)
+    sets its discretization."""
+    import dataclasses
+
+    from ..controllers import LinearController, resolve_controller
+    from ..errors import ParameterError
+
+    controller = resolve_controller(getattr(args, "controller", None) or default)
+    method = getattr(args, "method", None)
+    if method is not None:
+        if not isinstance(controller, LinearController) or not controller.is_continuous:
+            raise ParameterError(f"--method sets a continuous controller's discretization; {controller.spelling()} "
+                                 "has none", name="method", value=method)
+        controller = dataclasses.replace(controller, discretization=method)
+    return controller
+
+
 _ENV_HELP = ("environment: a preset (soft), inline values (k_e=20,J_e=0.02[,d_e=..][,locked=true]), "
              "a TOML file (one or a set, docs/environments.md) or a comma list of presets")
 

@@ -8,11 +8,12 @@ import sys
 import time
 
 from . import _command, _progress_bar, _write_json
+from ._options import CONTROLLER_FORMS
 
 
 def _configure(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--controller", action="append", default=None, metavar="pd:P:D",
-                   help="force controller under test, repeatable (default pd:5:0.1, the paper's)")
+    p.add_argument("--controller", action="append", default=None, metavar="SPEC",
+                   help="force controller under test, repeatable (default pd:5:0.1, the paper's): " + CONTROLLER_FORMS)
     p.add_argument("--compensator", action="append", default=None, metavar="LIST",
                    help="comma list of friction compensators, KIND[:W_Q_HZ] (default none,sfm,ea-fob)")
     p.add_argument("--envs", default=None, metavar="SET",
@@ -28,9 +29,10 @@ def _configure(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the initial angles and noise (default 0)")
     p.add_argument("--viscous-drift", type=float, default=0.0, metavar="FRACTION",
                    help="relative viscous-friction drift per repetition (default 0)")
-    p.add_argument("--derivative-on", default="error", metavar="WHERE",
-                   help="where the PD takes its derivative: error (the format's u = P e + D de/dt, default) or "
-                        "measurement (no kick at a step)")
+    p.add_argument("--derivative-on", default=None, metavar="WHERE",
+                   help="override where every pd/pid controller takes its derivative: error (the format's "
+                        "u = P e + D de/dt) or measurement (no kick at a step); default: each controller's own "
+                        "(for --runs: each recorded [controller] table's)")
     p.add_argument("--runs", default=None, metavar="DIR",
                    help="benchmark recorded runs instead: a folder of experiments (real or simulated), grouped "
                         "into cells by their TOML's environment, controller and compensator")
@@ -44,13 +46,17 @@ def _configure(p: argparse.ArgumentParser) -> None:
 
 @_command("benchmark", "benchmark force controllers and friction compensators over an environment set", _configure)
 def _cmd_benchmark(args: argparse.Namespace) -> int:
-    from ..benchmark import (BenchmarkSpec, markdown_report, parse_compensators, parse_controller, parse_reference,
+    from ..benchmark import (BenchmarkSpec, markdown_report, parse_compensators, parse_reference,
                              result_rows, result_table, run_benchmark, run_recorded, summary, write_report,
                              write_summary, write_tables)
+    from ..controllers import resolve_controller, with_derivative_on
     from ..environments import resolve_environments, resolve_testbed
     from ..errors import ParameterError
     from ..executor import make_executor
 
+    if args.derivative_on is not None and args.derivative_on not in ("error", "measurement"):
+        raise ParameterError(f"--derivative-on must be error or measurement, got {args.derivative_on!r}",
+                             name="derivative_on", value=args.derivative_on)
     if not (args.duration > 0):
         raise ParameterError(f"--duration must be > 0 [s], got {args.duration}", name="duration")
     t0 = time.perf_counter()
@@ -77,12 +83,13 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         for note in envs.notes:
             print(f"note: {note}", file=sys.stderr)
         spec = BenchmarkSpec(
-            controllers=tuple(parse_controller(c) for c in (args.controller or ["pd:5:0.1"])),
+            controllers=tuple(c if args.derivative_on is None else with_derivative_on(c, args.derivative_on)
+                              for c in (resolve_controller(x) for x in (args.controller or ["pd:5:0.1"]))),
             compensators=parse_compensators(args.compensator or ["none,sfm,ea-fob"]),
             environments=tuple(envs.items()),
             references=tuple(parse_reference(r, duration_s=args.duration) for r in (args.reference or ["step:0.2"])),
             repetitions=10 if args.repetitions is None else args.repetitions, seed=args.seed,
-            viscous_drift=args.viscous_drift, testbed=testbed, derivative_on=args.derivative_on)
+            viscous_drift=args.viscous_drift, testbed=testbed)
         with make_executor(args.scheduler, args.workers) as executor, \
                 _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
             cells, info = run_benchmark(spec, out=args.out, executor=executor, progress=progress)

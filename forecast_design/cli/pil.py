@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from . import _command, _compensator_from_args, _configure_export, _one_environment_from_args, _testbed_from_args
+from . import _command, _compensator_from_args, _configure_export, _controller_from_args, _one_environment_from_args
+from . import _testbed_from_args
 from . import _write_json
 from ._firmware import _firmware_options_from_args
 
@@ -30,8 +31,8 @@ def _cmd_pil(args: argparse.Namespace) -> int:
                              name="check_arm")
     _, env = _one_environment_from_args(args, "pil")
     comp = _compensator_from_args(args)
-    result = run_pil(controller=args.controller, compensator=comp if comp is not None else "none", env=env,
-                     testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz, method=args.method,
+    result = run_pil(controller=_controller_from_args(args), compensator=comp if comp is not None else "none", env=env,
+                     testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz,
                      reference=args.reference, duration=args.duration, out=args.out, work_dir=args.work_dir,
                      options=_firmware_options_from_args(args), icount=not args.no_icount)
     summary = result.to_mapping()

@@ -22,8 +22,9 @@ import numpy as np
 
 from ..errors import ExportError, ParameterError
 from ..fileio import atomic_write_set
-from ..params import BOARDS, OUTPUT_STAGES, Compensator, Design, PDController
-from .c import ControllerProgram, c_float_literal, export_controller
+from ..params import BOARDS, OUTPUT_STAGES, Compensator, Design
+from ..program import ControllerProgram
+from .c import c_float_literal, export_controller
 from .toolchain import ARM_CFLAGS, M4_CLOCK_HZ
 
 __all__ = ["BOARDS", "OUTPUT_STAGES", "FirmwareOptions", "FirmwareResult", "export_firmware", "build_firmware",
@@ -147,7 +148,7 @@ class FirmwareResult:
         """Summary for ``--json``."""
         return {"out_dir": str(self.out_dir), "board": self.options.board, "options": self.options.to_mapping(),
                 "files": list(self.files), "sha256": self.digest, "rate_hz": self.program.rate_hz,
-                "n_sections": self.program.n_sections, "tau_max": self.program.tau_max,
+                "n_sections": self.program.n_sections, "tau_max_N_m": self.program.tau_max,
                 "controller": None if self.design.controller is None else self.design.controller.to_mapping(),
                 "compensator": (self.design.compensator or Compensator()).to_mapping(),
                 "build": "make (board: build/fd_firmware.elf, .bin); make pil (qemu netduinoplus2: build/fd_pil.elf)"}
@@ -198,9 +199,9 @@ def _blob_source(program: ControllerProgram) -> str:
 
 
 def export_firmware(design: Design | None = None, out_dir: str | Path = ".", *,
-                    controller: PDController | str | None = None, compensator: Compensator | str | None = None,
+                    controller: Any = None, compensator: Compensator | str | None = None,
                     env: Any = None, w_q_hz: float | None = None, rate_hz: float = 2000.0,
-                    method: str = "tustin", sfm_params: Mapping[str, float] | None = None,
+                    sfm_params: Mapping[str, float] | None = None,
                     options: FirmwareOptions | None = None, testbed: Any = None) -> FirmwareResult:
     """Write the bare-metal firmware project for the Nucleo F446RE.
 
@@ -210,7 +211,7 @@ def export_firmware(design: Design | None = None, out_dir: str | Path = ".", *,
         Base design (default: Table 1 testbed, ``exp-soft``).
     out_dir : str or Path
         Project folder (created).
-    controller, compensator, env, w_q_hz, rate_hz, method, sfm_params, testbed
+    controller, compensator, env, w_q_hz, rate_hz, sfm_params, testbed
         As :func:`forecast_design.export.c.export_controller`.
     options : FirmwareOptions, optional
         Board settings (output stage, torque limit and scaling, link timeout...).
@@ -228,7 +229,7 @@ def export_firmware(design: Design | None = None, out_dir: str | Path = ".", *,
     opt = options or FirmwareOptions()
     out = Path(out_dir)
     res = export_controller(design, out, controller=controller, compensator=compensator, env=env,
-                            w_q_hz=w_q_hz, rate_hz=rate_hz, method=method, sfm_params=sfm_params,
+                            w_q_hz=w_q_hz, rate_hz=rate_hz, sfm_params=sfm_params,
                             tau_max=opt.tau_limit_N_m, testbed=testbed)
     texts: dict[str, str] = {}
     src = resources.files("forecast_design.export").joinpath("templates", "firmware")

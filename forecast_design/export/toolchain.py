@@ -214,8 +214,8 @@ class HostController:
         self._lib.fd_init.restype = None
         self._lib.fd_step.argtypes = [ctypes.c_void_p, ctypes.c_float, ctypes.c_float, ctypes.c_float]
         self._lib.fd_step.restype = ctypes.c_float
-        # struct { float z[n][2]; float tau_m_prev, u, hat; }: all floats, no padding
-        self._state = (ctypes.c_float * (2 * max(int(n_sections), 1) + 3))()
+        # struct { float z[n][2]; float tau_m_prev, u, hat, xi, e_prev; }: all floats, no padding
+        self._state = (ctypes.c_float * (2 * max(int(n_sections), 1) + 5))()
         self.reset()
 
     def reset(self) -> None:

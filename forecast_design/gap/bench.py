@@ -55,7 +55,8 @@ from .. import effects as fx
 from ..effects import Effect
 from ..errors import ParameterError
 from ..executor import available_workers, make_executor
-from ..params import Design, PDController, environment_preset
+from ..controllers import PAPER_PD
+from ..params import Design, environment_preset
 from ..plausibility import check_limit
 
 __all__ = ["BenchCase", "BenchResult", "benchmark", "draw_case", "run_case", "make_log", "make_logs", "simulate_cases",
@@ -455,7 +456,7 @@ def simulate_case(spec: CaseSpec):
 def _setup(spec: CaseSpec):
     """The case's reference, loop (closed or open) and true design."""
     ref, closed = _reference(spec, np.random.default_rng(spec.seed))
-    return ref, closed, Design.nominal(spec.environment, controller=PDController() if closed else None)
+    return ref, closed, Design.nominal(spec.environment, controller=PAPER_PD if closed else None)
 
 
 def simulate_cases(specs: Sequence[CaseSpec]) -> list:

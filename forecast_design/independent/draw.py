@@ -11,7 +11,8 @@ import numpy as np
 
 from ..effects import Effect
 from ..errors import IdentifiabilityError, ParameterError, SolverError
-from ..params import Environment, PDController, Testbed, environment_preset
+from ..controllers import PD
+from ..params import Environment, Testbed, environment_preset
 from ..plausibility import DATASHEET_TOLERANCE
 from .model import (ANGLE_WORDS, ENCODER_STEP, MAX_ATTEMPTS, RATES_HZ, _WORDS, Excitation, IndependentCase,
                     IndependentLog, IndependentTruth, _word)
@@ -232,7 +233,7 @@ def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitud
     if effect in ANGLE_WORDS and env_name == "custom":
         closed = False      # a PD force loop cannot turn a k_e ~ 1 N m/rad spring a revolution
     excitation = _draw_excitation(rng, effect, closed, tb, env, duration, rate, _static_friction(params))
-    controller = PDController(P=float(rng.uniform(3.0, 6.0)), D=float(rng.uniform(0.05, 0.12)))
+    controller = PD(P=float(rng.uniform(3.0, 6.0)), D=float(rng.uniform(0.05, 0.12)))
     r = rng.random()
     tau_s = "omitted" if r < 0.3 else ("sensor" if r > 0.8 else f"derived:{int(rng.integers(6, 11))}")
     case = IndependentCase(

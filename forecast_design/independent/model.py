@@ -13,7 +13,8 @@ import numpy as np
 from ..effects import Effect
 from ..errors import ParameterError
 from ..experiment import Experiment
-from ..params import Environment, Design, PDController, Testbed
+from ..controllers import PD
+from ..params import Environment, Design, Testbed
 
 COUNTS_PER_REV = 2_000_000
 #: One encoder count [rad].
@@ -132,7 +133,7 @@ class IndependentCase:
         Open-loop command, or the force reference when `closed_loop`.
     closed_loop : bool
         PD force control (``controller``) instead of an open-loop command.
-    controller : PDController or None
+    controller : PD or None
         Gains of the PD force controller (closed loop).
     derivative_filter_hz : float
         Cutoff of the controller's first-order derivative filter [Hz].
@@ -186,7 +187,7 @@ class IndependentCase:
     environment_name: str = "custom"
     excitation: Excitation
     closed_loop: bool = False
-    controller: PDController | None = None
+    controller: PD | None = None
     derivative_filter_hz: float = 100.0
     torque_limit: float = 5.0
     rate_hz: float = 2000.0
@@ -254,9 +255,13 @@ class IndependentCase:
 
     @property
     def design(self) -> Design:
-        """The nominal design written to the TOML (with the controller when closed loop)."""
-        return Design(testbed=self.testbed, environment=self.environment,
-                      controller=self.controller if self.closed_loop else None)
+        """The nominal design written to the TOML (with the controller that ran when closed loop: its gains,
+        the first-order derivative filter and the Tustin discretisation of :func:`~.plant` 's loop)."""
+        ran = None
+        if self.closed_loop and self.controller is not None:
+            ran = PD(P=self.controller.P, D=self.controller.D, T_f=1.0 / (2.0 * math.pi * self.derivative_filter_hz),
+                     discretization="tustin")
+        return Design(testbed=self.testbed, environment=self.environment, controller=ran)
 
     @property
     def n_samples(self) -> int:

@@ -3,8 +3,9 @@
 See :mod:`forecast_design.loops.continuous` and :mod:`forecast_design.loops.sampled`.
 """
 
-from .continuous import BREAK_POINTS, ForceLoop, force_loop
-from .sampled import SampledForceLoop, ZohPlant, sampled_force_loop, to_w, zoh_plant
+from .closing import BREAK_POINTS, ObservedPlant, close_loop
+from .continuous import ForceLoop, force_loop
+from .sampled import SampledForceLoop, ZohPlant, law_in_w, sampled_force_loop, to_w, zoh_plant
 
-__all__ = ["ForceLoop", "force_loop", "BREAK_POINTS", "SampledForceLoop", "sampled_force_loop", "ZohPlant",
-           "zoh_plant", "to_w"]
+__all__ = ["ForceLoop", "force_loop", "BREAK_POINTS", "ObservedPlant", "close_loop", "SampledForceLoop",
+           "sampled_force_loop", "ZohPlant", "zoh_plant", "to_w", "law_in_w"]

@@ -1,19 +1,18 @@
-"""Numeric force loop: plant, observer and PD controller assembled with polynomials.
+"""The continuous force loop: true plant, compensator's linear part and any force controller.
 
-The loop is built from numpy polynomials without any pole-zero
-cancellation, so a mode hidden by a cancellation (e.g. an unstable
-observer mode cancelled in L(s)) stays in the characteristic polynomial.
+The loop is built without any pole-zero cancellation, so a mode hidden by a cancellation
+(e.g. an unstable observer mode cancelled in L(s)) stays in the characteristic polynomial.
 
 Signals (Laplace domain, true plant P = N_s/D, P_theta = N_theta/D over one
-denominator; observer filters G = A/D_o over one denominator)::
+denominator; compensator filters G = A/D_o over one denominator)::
 
-    tau_m = u + G_m tau_m + G_s tau_s + G_theta theta      (observer feed-forward)
+    tau_m = u + G_m tau_m + G_s tau_s + G_theta theta      (compensator feed-forward)
     tau_s = P tau_m,   theta = P_theta tau_m               (true plant)
-    u     = C_F (tau_r - tau_s),  C_F(s) = P + D s         (force controller)
+    u     = C_r tau_r - C tau_s                            (force controller, any kind)
 
 which gives F_DOB = tau_s/u = N_s D_o / Delta with
-Delta = D_o D - A_m D - A_s N_s - A_theta N_theta, and the closed-loop
-characteristic polynomial chi = Delta + C_F N_s D_o.
+Delta = D_o D - A_m D - A_s N_s - A_theta N_theta; the controller closes the loop in
+:func:`~forecast_design.loops.closing.close_loop` (L = C F_DOB, chi = C_d Delta + C_n N_s D_o).
 """
 
 from __future__ import annotations
@@ -26,9 +25,12 @@ from ..errors import ParameterError
 from .. import polynomials as poly
 from ..lti import RationalTF
 from ..margins import STABILITY_TOLERANCE
-from ..params import BREAK_POINTS, Compensator, Design, PDController
+from ..compensators import compensator_strategy
+from ..controllers import PAPER_PD, Controller, resolve_controller
+from ..params import Compensator, Design
 from ..symbolic.numeric import catalogue_polynomials
-from ..symbolic.observers import ObserverFilters, observer_filters
+from ..symbolic.observers import ObserverFilters
+from .closing import BREAK_POINTS, ObservedPlant, close_loop
 
 __all__ = ["ForceLoop", "force_loop", "BREAK_POINTS", "STABILITY_TOLERANCE"]
 
@@ -50,7 +52,7 @@ def _mul(*polys: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True, eq=False)
 class ForceLoop:
-    """The closed force loop of one design, observer and PD controller.
+    """The closed force loop of one design, compensator and force controller.
 
     Attributes
     ----------
@@ -69,9 +71,13 @@ class ForceLoop:
     F_DOB : RationalTF
         tau_s/u with the observer (eq. (4) for the DOB kinds; P without observer) [N m/N m].
     filters : ObserverFilters
-        The observer filters used.
+        The compensator's linear filters used.
     break_at : str
         ``'controller'`` or ``'plant-input'``.
+    C : RationalTF
+        The controller's feedback path C(s) [N m/N m].
+    controller : Controller
+        The controller analysed.
     """
 
     L: RationalTF
@@ -82,6 +88,8 @@ class ForceLoop:
     F_DOB: RationalTF
     filters: ObserverFilters
     break_at: str
+    C: RationalTF
+    controller: Controller
 
     @property
     def max_real_pole(self) -> float:
@@ -93,11 +101,11 @@ def force_loop(
     true_design: Design,
     compensator: Compensator | None = None,
     *,
-    controller: PDController = PDController(P=5.0, D=0.1),
+    controller: object = PAPER_PD,
     believed: Design | None = None,
     break_at: str = "controller",
 ) -> ForceLoop:
-    """Assemble the force loop: true plant, observer (believing ``believed``) and PD controller.
+    """Assemble the force loop: true plant, compensator (believing ``believed``) and controller.
 
     Parameters
     ----------
@@ -106,18 +114,18 @@ def force_loop(
         environment (locked allowed). Its ``controller`` and ``compensator``
         fields are *not* consulted; pass them explicitly.
     compensator : Compensator or None
-        Observer kind, cutoff ``w_q_hz`` [Hz] and Q filter. ``None``,
-        ``'none'`` and ``'sfm'`` (static, no linear dynamics) give the plant
-        alone.
-    controller : PDController
-        C_F(s) = P + D s [N m/N m], [N m s/N m] (the paper's pure PD).
+        Compensator; its linear part (:mod:`forecast_design.compensators`) enters the loop:
+        an observer's filters, an SFM's viscous feed-forward. ``None``/``'none'``: the plant alone.
+    controller : Controller, str or python-control system
+        The force controller (anything :func:`~forecast_design.controllers.resolve_controller`
+        takes); its continuous law C(s) closes the loop. Default the paper's PD 5/0.1.
     believed : Design or None
-        What the observer believes (environment-knowledge error);
+        What the compensator believes (environment-knowledge error);
         ``None`` means ``true_design``.
     break_at : str
-        ``'controller'``: L = C_F F_DOB, at the force-controller output
+        ``'controller'``: L = C F_DOB, at the force-controller output
         (as in the paper); ``'plant-input'``: at the motor-torque input,
-        L = (C_F P - G_s P - G_theta P_theta) / (1 - G_m).
+        L = (C P - G_s P - G_theta P_theta) / (1 - G_m).
 
     Returns
     -------
@@ -128,12 +136,13 @@ def force_loop(
     Raises
     ------
     ParameterError
-        For an unknown ``break_at`` or an improper observer (see
-        :func:`~forecast_design.symbolic.observers.observer_filters`).
+        For an unknown ``break_at``, an improper observer (see
+        :func:`~forecast_design.symbolic.observers.observer_filters`), or a controller with no
+        continuous law (``discrete``: use the sampled loop; ``other``: no equations).
 
     Notes
     -----
-    The closed loop is proper although C_F is not: P has relative degree 2.
+    The closed loop is proper when C is (an unfiltered PD is not, but P has relative degree 2).
     A free output (k_e = 0 exactly) adds a rigid-body position mode at
     s = 0 that neither tau_s nor the motor acceleration sees; that exact
     common factor s is divided out (as in ``force_plant_tf``). Any other
@@ -144,23 +153,22 @@ def force_loop(
             f"break_at must be one of {', '.join(BREAK_POINTS)}, got {break_at!r}",
             name="break_at", value=break_at,
         )
-    if not isinstance(controller, PDController):
-        raise ParameterError(
-            f"controller must be a PDController, got {type(controller).__name__}",
-            name="controller", value=controller,
-        )
+    controller = resolve_controller(controller)
+    C = controller.feedback_tf()
     if not isinstance(true_design, Design):
         raise ParameterError(f"true_design must be a Design (Design.nominal('soft')), got {type(true_design).__name__}",
                              name="true_design", value=true_design)
-    filters = observer_filters(compensator, believed if believed is not None else true_design)
+    filters = compensator_strategy(compensator).linear_filters(
+        compensator or Compensator(), believed if believed is not None else true_design)
     N_s, N_theta, D = _plant_polynomials(true_design)
     D_o = np.asarray(filters.den, dtype=float)
     A_m = np.asarray(filters.from_tau_m.num, dtype=float)
     A_s = np.asarray(filters.from_tau_s.num, dtype=float)
     A_t = np.asarray(filters.from_theta.num, dtype=float)
 
-    # G_theta acts on s^r theta (r = 2 for the motor FOB: acceleration); moving s^r
-    # into the plant lets the rigid-body position mode cancel exactly when k_e = 0.
+    # G_theta acts on s^r theta (r = 2 for the motor FOB: acceleration; 1 for a viscous
+    # feed-forward); moving s^r into the plant lets the rigid-body position mode cancel exactly
+    # when k_e = 0.
     uses_theta = bool(np.any(A_t != 0.0))
     if uses_theta:
         r = poly.trailing_zeros(A_t)
@@ -170,14 +178,10 @@ def force_loop(
     if 0 < m < 10**9:
         N_s, D, N_theta = poly.drop_trailing(N_s, m), poly.drop_trailing(D, m), poly.drop_trailing(N_theta, m)
 
-    C = poly.trim(np.array([controller.D, controller.P], dtype=float))
-    delta = _add(_mul(D_o, D), -_mul(A_m, D), -_mul(A_s, N_s), -_mul(A_t, N_theta))
-    chi = _add(delta, _mul(C, N_s, D_o))
-    if break_at == "controller":
-        L = RationalTF(_mul(C, N_s, D_o), delta, name="L")
-    else:
-        L = RationalTF(_add(_mul(C, N_s, D_o), -_mul(A_s, N_s), -_mul(A_t, N_theta)),
-                       _mul(_add(D_o, -A_m), D), name="L")
+    obs = _add(_mul(A_s, N_s), _mul(A_t, N_theta))
+    delta = _add(_mul(D_o, D), -_mul(A_m, D), -obs)
+    plant = ObservedPlant(_mul(N_s, D_o), delta, obs, _mul(_add(D_o, -A_m), D))
+    L, chi = close_loop(plant, C, break_at)
     poles = np.roots(chi) if len(chi) > 1 else np.zeros(0, dtype=complex)
     stable = bool(np.all(poles.real < -STABILITY_TOLERANCE * np.maximum(1.0, np.abs(poles))))
     chi = chi.copy()
@@ -190,7 +194,9 @@ def force_loop(
         closed_loop_poles=poles,
         stable=stable,
         P=RationalTF(N_s, D, name="P"),
-        F_DOB=RationalTF(_mul(N_s, D_o), delta, name="F_DOB"),
+        F_DOB=plant.F_DOB,
         filters=filters,
         break_at=break_at,
+        C=C,
+        controller=controller,
     )

@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from ..params import Compensator, Design, PDController
+from ..controllers import Controller
+from ..params import Compensator, Design
 
 __all__ = ["LoopResponse", "loop_response", "observer_responses", "sensitivity", "sensitivity_terms", "q_argument"]
 
@@ -85,7 +86,7 @@ def observer_responses(compensator: Compensator, believed: Design, s: np.ndarray
     return -np.polyval(filters.from_tau_s.num, s) / g_m, -np.polyval(filters.from_theta.num, s) / g_m
 
 
-def loop_response(true_design: Design, believed: Design, compensator: Compensator, controller: PDController,
+def loop_response(true_design: Design, believed: Design, compensator: Compensator, controller: Controller,
                   w: np.ndarray, *, sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1,
                   observer: tuple[np.ndarray, np.ndarray] | None = None) -> LoopResponse:
     """The cutoff-free parts of the force loop's response on a frequency grid.
@@ -98,8 +99,9 @@ def loop_response(true_design: Design, believed: Design, compensator: Compensato
         What the observer believes.
     compensator : Compensator
         The observer (its cutoff is not used).
-    controller : PDController
-        Force controller (continuous: pure PD; sampled: the simulator's discrete PD).
+    controller : Controller
+        Force controller (continuous: its C(s); sampled: its difference equation at ``rate_hz``,
+        the same C(w) as :func:`~.sampled.sampled_force_loop`).
     w : ndarray
         Frequencies [rad/s] (below Nyquist when sampled).
     sampled : bool
@@ -118,8 +120,7 @@ def loop_response(true_design: Design, believed: Design, compensator: Compensato
     """
     w = np.asarray(w, dtype=float)
     if sampled:
-        from ..simulation.controllers import DiscretePD
-        from .sampled import to_w, zoh_plant
+        from .sampled import law_in_w, zoh_plant
 
         T = 1.0 / rate_hz
         W = q_argument(w, sampled=True, rate_hz=rate_hz)
@@ -127,8 +128,7 @@ def loop_response(true_design: Design, believed: Design, compensator: Compensato
         zp = zoh_plant(true_design, rate_hz)
         P = np.polyval(zp.Ns_w, s) / np.polyval(zp.D_w, s)
         P_theta = np.polyval(zp.Nt_w, s) / np.polyval(zp.D_w, s)
-        cn, cd = to_w(DiscretePD(controller, rate_hz).tf)
-        C = np.polyval(cn, s) / np.polyval(cd, s)
+        C = law_in_w(controller.discrete_law(rate_hz))(s)
         dm = np.exp(-1j * w * T)
         dp = dm ** delay_samples
     else:
@@ -138,7 +138,7 @@ def loop_response(true_design: Design, believed: Design, compensator: Compensato
         s = 1j * w
         P = force_plant_tf(true_design)(s)
         P_theta = motor_angle_tf(true_design)(s)
-        C = controller.P + controller.D * s
+        C = controller.feedback_tf()(s)
         dm = np.ones_like(s)
         dp = dm
     A, B = observer if observer is not None else observer_responses(compensator, believed, s)

@@ -19,10 +19,13 @@ from .. import polynomials as poly
 from ..errors import ParameterError
 from ..lti import RationalTF
 from ..margins import STABILITY_TOLERANCE, DiskMargin, check_skew, disk_margin_from_polynomials
-from ..params import Compensator, Design, PDController
+from ..compensators import compensator_strategy
+from ..controllers import PAPER_PD, Controller, DiscreteLaw, resolve_controller
+from ..params import Compensator, Design
 from ..plausibility import check_limit, check_physical
+from .closing import BREAK_POINTS, ObservedPlant, close_loop
 
-__all__ = ["SampledForceLoop", "sampled_force_loop", "ZohPlant", "zoh_plant", "to_w"]
+__all__ = ["SampledForceLoop", "sampled_force_loop", "ZohPlant", "zoh_plant", "to_w", "law_in_w"]
 
 # ---------------------------------------------------------------------------------------------
 # Sampled-data force loop (2 kHz): discretised controller and observer, ZOH plant, delays
@@ -64,12 +67,16 @@ class SampledForceLoop:
     break_at : str
         ``'controller'`` or ``'plant-input'``.
     C : RationalTF
-        Discretised force controller C_F(z) [N m/N m].
+        The force controller's feedback path C(z) as it runs (``u = C_r tau_r - C tau_s``) [N m/N m].
     P, P_theta : RationalTF
         ZOH-discretised tau_s/tau_m [N m/N m] and theta/tau_m [rad/(N m)], z-domain.
     observer : tuple of RationalTF
-        Discretised (G_m, G_s, G_theta) as the simulator and the C export run them; empty
-        without an observer.
+        The compensator's discrete linear filters (G_m, G_s, G_theta; an absent path is the zero
+        TF) as the simulator and the C export run them; empty without a linear part.
+    controller : Controller
+        The controller analysed.
+    law : DiscreteLaw
+        Its difference equation at ``rate_hz``.
     """
 
     L_w: RationalTF
@@ -83,6 +90,8 @@ class SampledForceLoop:
     P: RationalTF
     P_theta: RationalTF
     observer: tuple[RationalTF, ...]
+    controller: Controller
+    law: DiscreteLaw
 
     @property
     def max_pole_magnitude(self) -> float:
@@ -147,16 +156,17 @@ def to_w(dtf: Any) -> tuple[np.ndarray, np.ndarray]:
 
     Parameters
     ----------
-    dtf : DiscreteTF
-        From :func:`forecast_design.discrete.discretize`; a Tustin one without prewarp maps
-        back to its continuous source exactly.
+    dtf : DiscreteTF or RationalTF
+        From :func:`forecast_design.discrete.discretize` (a Tustin one without prewarp maps back
+        to its continuous source exactly), or a discrete RationalTF (``dt`` set).
 
     Returns
     -------
     (ndarray, ndarray)
         Numerator and denominator in ``w``, descending powers.
     """
-    if dtf.method == "tustin" and dtf.prewarp_hz is None:
+    if getattr(dtf, "method", None) == "tustin" and getattr(dtf, "prewarp_hz", None) is None \
+            and dtf.source is not None:
         return np.asarray(dtf.source.num, float), np.asarray(dtf.source.den, float)
     a = 0.5 * dtf.dt
     num, den = np.asarray(dtf.num, float), np.asarray(dtf.den, float)
@@ -171,6 +181,29 @@ def to_w(dtf: Any) -> tuple[np.ndarray, np.ndarray]:
         return poly.trim(out)
 
     return mapped(num), mapped(den)
+
+
+def law_in_w(law: DiscreteLaw) -> RationalTF:
+    """A controller's feedback path ``C(z)`` in the w-plane, channel by channel (Tustin channels exactly).
+
+    Parameters
+    ----------
+    law : DiscreteLaw
+        The controller's difference equation.
+
+    Returns
+    -------
+    RationalTF
+        ``C`` as a function of ``w`` (a continuous-time object) [N m/N m].
+    """
+    total = RationalTF((0.0,), (1.0,))
+    sign = {"error": 1.0, "tau_r": 0.0, "tau_s": -1.0}
+    for ch in law.channels:
+        if sign[ch.source]:
+            total = total + sign[ch.source] * RationalTF(*to_w(ch.tf))
+    if law.integrator is not None:
+        total = total + RationalTF(*to_w(law.integrator.tf(law.dt)))
+    return total.named("C_w")
 
 
 def _common_plant(design: Design) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -262,36 +295,35 @@ def sampled_force_loop(
     true_design: Design,
     compensator: Compensator | None = None,
     *,
-    controller: PDController = PDController(P=5.0, D=0.1),
+    controller: object = PAPER_PD,
     believed: Design | None = None,
     rate_hz: float = 2000.0,
     break_at: str = "controller",
     delay_samples: int = 1,
-    derivative_cutoff_hz: float | None = None,
 ) -> SampledForceLoop:
-    """The force loop as it runs on the board: discrete controller and observer, ZOH plant.
+    """The force loop as it runs on the board: the controller's difference equation, discrete compensator, ZOH plant.
 
     Parameters
     ----------
     true_design : Design
         The real testbed and environment (its ``controller``/``compensator`` are not used).
     compensator : Compensator or None
-        Observer (``None``, ``'none'``, ``'sfm'``: plant alone).
-    controller : PDController
-        Gains of C_F(s) = P + D s / (s / w_d + 1) [N m/N m], [N m s/N m].
+        Compensator (its discrete linear part enters: an observer's filters, an SFM's viscous
+        feed-forward); ``None``/``'none'``: plant alone.
+    controller : Controller, str or python-control system
+        The force controller; its :meth:`~forecast_design.controllers.Controller.discrete_law`
+        at ``rate_hz`` (its own discretisation) closes the loop. Default the paper's PD.
     believed : Design or None
-        What the observer believes (``None``: the truth).
+        What the compensator believes (``None``: the truth).
     rate_hz : float
         Sampling rate [Hz] (Forecast: 2000).
     break_at : str
-        ``'controller'``: L = C_F(z) F_DOB(z) at the force-controller output (default, the
+        ``'controller'``: L = C(z) F_DOB(z) at the force-controller output (default, the
         paper's); ``'plant-input'``: at the command going to the motor (the observer's own
         ``tau_m_prev`` loop stays closed: it is memory inside the controller).
     delay_samples : int
         Computation delay d >= 0 [samples]: the command computed from the samples at t_n is
         applied from t_(n+d) (the issue's model: 1; the simulator applies it at once: 0).
-    derivative_cutoff_hz : float or None
-        Derivative filter of the PD [Hz]; ``None``: the simulator's default (200 Hz).
 
     Returns
     -------
@@ -302,37 +334,33 @@ def sampled_force_loop(
     Raises
     ------
     ParameterError
-        For a bad rate, delay or break point, or an improper observer.
+        For a bad rate, delay or break point, an improper observer, a controller without
+        equations or whose discretisation is unstable.
 
     Notes
     -----
     The pieces are those of the simulator and the C export (one construction, reused):
-    C_F(z) is :class:`~forecast_design.simulation.controllers.DiscretePD`'s Tustin
-    discretisation, the observer filters are
-    :class:`~forecast_design.simulation.controllers.ObserverCompensator`'s (Tustin, each
-    filter its own sections) with G_m fed the previous command (z^-1), and the plant
-    [P; P_theta] is discretised with a zero-order hold from one state-space realisation
-    (both outputs share the poles exp(p T)). A Tustin filter is, in the w-plane, exactly
-    the continuous filter it was made from. With the command c, the applied torque
-    a = z^-d c, G_x = B_x / E over the product E of the filter denominators,
-    P = N_s / D, P_theta = N_theta / D, rho = 1 + w T/2, ell = 1 - w T/2 (z = rho/ell):
+    C(z) is the controller's law (:mod:`forecast_design.controllers`), the compensator filters
+    its strategy's (:mod:`forecast_design.compensators`; Tustin, each filter its own sections)
+    with G_m fed the previous command (z^-1), and the plant [P; P_theta] is discretised with a
+    zero-order hold from one state-space realisation (both outputs share the poles exp(p T)).
+    A Tustin filter is, in the w-plane, exactly the continuous filter it was made from. With
+    the command c, the applied torque a = z^-d c, G_x = B_x / E over the product E of the
+    filter denominators, P = N_s / D, P_theta = N_theta / D, rho = 1 + w T/2,
+    ell = 1 - w T/2 (z = rho/ell), the compensator closed around the plant gives
+    (:class:`~forecast_design.loops.closing.ObservedPlant`)
 
+        F_DOB = N_s E ell^d rho / Delta,
         Delta = D E rho^(d+1) - B_m ell rho^d D - (B_s N_s + B_theta N_theta) ell^d rho
-        controller:   L = C_n N_s E ell^d rho / (C_d Delta)
-        plant-input:  L = (C_n E N_s - C_d (B_s N_s + B_theta N_theta)) ell^d rho
-                          / (C_d D rho^d (E rho - B_m ell))
-        chi = C_d Delta + C_n N_s E ell^d rho   (both break points: num + den of L)
 
-    chi has the full order (controller, filters, plant and delays): a mode cancelled in L
-    still decides stability. A free output (k_e = 0) has the rigid-body root w = 0 in D and
+    and the controller closes it in :func:`~forecast_design.loops.closing.close_loop`:
+    L = C F_DOB, chi = C_d Delta + C_n N_s E ell^d rho (full order: a mode cancelled in L
+    still decides stability). A free output (k_e = 0) has the rigid-body root w = 0 in D and
     N_s (and in B_theta, the motor FOB's double differentiator): that exact factor is
     divided out, as :func:`~forecast_design.loops.continuous.force_loop` divides out s.
     As T -> 0, rho, ell -> 1 and the plant tends to P(s): the loop tends to the continuous
-    loop with the same (filtered) PD.
+    loop with the same controller (whose discretisation tends to its C(s)).
     """
-    from ..simulation.controllers import DEFAULT_DERIVATIVE_CUTOFF_HZ, DiscretePD, ObserverCompensator
-    from .continuous import BREAK_POINTS
-
     if break_at not in BREAK_POINTS:
         raise ParameterError(f"break_at must be one of {', '.join(BREAK_POINTS)}, got {break_at!r}",
                              name="break_at", value=break_at)
@@ -342,27 +370,27 @@ def sampled_force_loop(
                              name="rate_hz", value=rate_hz)
     check_limit("delay_samples", "delay_samples", delay_samples)
     check_physical("sampled loop", "rate_hz", rate_hz)
-    if not isinstance(controller, PDController):
-        raise ParameterError(f"controller must be a PDController, got {type(controller).__name__}",
-                             name="controller", value=controller)
+    controller = resolve_controller(controller)
     rate_hz = float(rate_hz)
     T = 1.0 / rate_hz
     a = 0.5 * T
     d = delay_samples
     rho, ell = np.array([a, 1.0]), np.array([-a, 1.0])
-    cutoff = DEFAULT_DERIVATIVE_CUTOFF_HZ if derivative_cutoff_hz is None else derivative_cutoff_hz
-    ctf = DiscretePD(controller, rate_hz, derivative_cutoff_hz=cutoff).tf
-    Cn, Cd = (poly.trim(p) for p in to_w(ctf))
+    law = controller.discrete_law(rate_hz)
+    C_w = law_in_w(law)
     plant = zoh_plant(true_design, rate_hz)
     Ns, Nt, D = plant.Ns_w, plant.Nt_w, plant.D_w
-    if compensator is not None and compensator.is_observer:
-        obs = ObserverCompensator(compensator, believed if believed is not None else true_design, rate_hz)
-        # a zero filter (e.g. G_theta of the DOBs) runs as one zero section: no poles
-        pairs = [to_w(tf) if any(c != 0.0 for c in tf.num) else (np.zeros(1), np.ones(1)) for tf in obs.tfs]
+    filters = compensator_strategy(compensator).discrete_filters(
+        compensator or Compensator(), believed if believed is not None else true_design, rate_hz)
+    if not filters.is_zero:
+        tfs = (filters.from_tau_m, filters.from_tau_s, filters.from_theta)
+        # an absent path (e.g. G_theta of the DOBs) is a zero filter: no poles
+        pairs = [to_w(tf) if tf is not None else (np.zeros(1), np.ones(1)) for tf in tfs]
         dens = [den for _, den in pairs]
         E = poly.mul(*dens)
         Bm, Bs, Bt = (poly.mul(num, *(dens[j] for j in range(3) if j != i)) for i, (num, _) in enumerate(pairs))
-        observer = tuple(tf.to_rational() for tf in obs.tfs)
+        observer = tuple(tf.to_rational() if tf is not None else RationalTF((0.0,), (1.0,), dt=T, name=name)
+                         for tf, name in zip(tfs, ("G_m", "G_s", "G_theta")))
     else:
         E, Bm, Bs, Bt = np.ones(1), np.zeros(1), np.zeros(1), np.zeros(1)
         observer = ()
@@ -378,15 +406,11 @@ def sampled_force_loop(
     ell_d = poly.power(ell, d)
     delta = poly.trim(poly.sub(poly.sub(poly.mul(D, E, poly.power(rho, d + 1)), poly.mul(Bm, ell, poly.power(rho, d), D)),
                        poly.mul(obs_terms, ell_d, rho)))
-    feed = poly.trim(poly.mul(Cn, Ns, E, ell_d, rho))
-    chi = poly.trim(poly.add(poly.mul(Cd, delta), feed))
-    if break_at == "controller":
-        Lw = RationalTF(feed, poly.trim(poly.mul(Cd, delta)), name="L_w")
-    else:
-        num = poly.mul(poly.sub(poly.mul(Cn, E, Ns), poly.mul(Cd, obs_terms)), ell_d, rho)
-        den = poly.mul(Cd, D, poly.power(rho, d), poly.sub(poly.mul(E, rho), poly.mul(Bm, ell)))
-        Lw = RationalTF(poly.trim(num), poly.trim(den), name="L_w")
-    order = (len(Cd) - 1) + (len(D) - 1) + (len(E) - 1) + d + 1
+    observed = ObservedPlant(poly.trim(poly.mul(Ns, E, ell_d, rho)), delta, poly.trim(poly.mul(obs_terms, ell_d, rho)),
+                             poly.trim(poly.mul(D, poly.power(rho, d), poly.sub(poly.mul(E, rho), poly.mul(Bm, ell)))))
+    Lw, chi = close_loop(observed, C_w, break_at)
+    Lw = Lw.named("L_w")
+    order = (len(C_w.den) - 1) + (len(D) - 1) + (len(E) - 1) + d + 1
     roots = np.roots(chi) if len(chi) > 1 else np.zeros(0, dtype=complex)
     stable = len(chi) - 1 == order and bool(
         np.all(roots.real < -STABILITY_TOLERANCE * np.maximum(1.0, np.abs(roots))))
@@ -396,9 +420,10 @@ def sampled_force_loop(
     chi.flags.writeable = False
     poles = np.asarray(poles, dtype=complex)
     poles.flags.writeable = False
+    cz = law.feedback_tf()
     return SampledForceLoop(
         L_w=Lw, characteristic_polynomial=chi,
         closed_loop_poles=poles, stable=stable, rate_hz=rate_hz, delay_samples=d, break_at=break_at,
-        C=RationalTF(ctf.num, ctf.den, dt=T, name="C_F"),
-        P=RationalTF(plant.Ns_z, plant.D_z, dt=T, name="P"),
-        P_theta=RationalTF(plant.Nt_z, plant.D_z, dt=T, name="P_theta"), observer=observer)
+        C=cz, P=RationalTF(plant.Ns_z, plant.D_z, dt=T, name="P"),
+        P_theta=RationalTF(plant.Nt_z, plant.D_z, dt=T, name="P_theta"), observer=observer,
+        controller=controller, law=law)

@@ -382,6 +382,56 @@ def as_loop(L: Any) -> RationalTF:
     return L
 
 
+def _state_space_loop(sys: Any) -> tuple[RationalTF, np.ndarray, np.ndarray, bool]:
+    """A SISO python-control StateSpace loop: (proxy, num, den in s or s~, closed-loop stable).
+
+    Discrete: with ``z = (1 + s~)/(1 - s~)``, ``zI - A`` factors so that
+    ``L(z) = D - C (I + A)^-1 B + C (I + A)^-1 (I - A_c) (s~ I - A_c)^-1 B`` with
+    ``A_c = (A - I)(I + A)^-1``: the eigenvalues near z = 1 become well-separated roots near
+    s~ = 0. Stability: the eigenvalues of ``A - B (1 + D)^-1 C`` (unit circle or left half-plane).
+    """
+    from scipy import signal
+
+    if sys.ninputs != 1 or sys.noutputs != 1:
+        raise ParameterError(f"only SISO loops are supported, got {sys.noutputs}x{sys.ninputs}", name="L", value=sys)
+    A, B, C, D = (np.atleast_2d(np.asarray(m, dtype=float)) for m in (sys.A, sys.B, sys.C, sys.D))
+    d = float(D[0, 0])
+    n = A.shape[0]
+    dt = sys.dt
+    if dt is True:
+        raise ParameterError("discrete system with unspecified period (dt=True): give its sample time",
+                             name="dt", value=dt)
+    discrete = bool(dt)
+    if 1.0 + d == 0.0:
+        stable = False
+    elif n == 0:
+        stable = True
+    else:
+        eig = np.linalg.eigvals(A - B @ C / (1.0 + d))
+        stable = bool(np.all(np.abs(eig) < 1.0 - STABILITY_TOLERANCE)) if discrete else \
+            bool(np.all(eig.real < -STABILITY_TOLERANCE * np.maximum(1.0, np.abs(eig))))
+    if n == 0:
+        num, den = np.array([d]), np.array([1.0])
+    else:
+        if discrete:
+            IA = np.eye(n) + A
+            Ac = np.linalg.solve(IA.T, (A - np.eye(n)).T).T          # (A - I)(I + A)^-1
+            M = np.linalg.solve(IA.T, C.T).T                           # C (I + A)^-1
+            A_, B_, C_, d_ = Ac, B, M @ (np.eye(n) - Ac), d - float((M @ B)[0, 0])
+        else:
+            A_, B_, C_, d_ = A, B, C, d
+        with np.errstate(all="ignore"):
+            import warnings
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", signal.BadCoefficients)
+                nn, dd = signal.ss2tf(A_, B_, C_, np.array([[d_]]))
+        num, den = poly.trim(np.asarray(nn[0], float)), poly.trim(np.asarray(dd, float))
+    k = max(len(num), len(den))
+    proxy = RationalTF((1.0,), (1.0,), dt=float(dt) if discrete else None, name=str(sys.name or "L"))
+    return proxy, poly.pad(num, k), poly.pad(den, k), stable
+
+
 def disk_margin(L: RationalTF, skew: float = 0.0, *, closed_loop_stable: bool | None = None,
                 sigma: float | None = None) -> DiskMargin:
     """Exact disk margin of a SISO loop (continuous, or discrete up to Nyquist).
@@ -447,8 +497,16 @@ def disk_margin(L: RationalTF, skew: float = 0.0, *, closed_loop_stable: bool | 
     >>> round(dm.alpha, 4), round(dm.gain_margin_db[1], 2), round(dm.phase_margin_deg, 1)
     (0.4581, 4.05, 25.8)
     """
-    L = as_loop(L)
     sigma = check_skew(resolve_skew(skew, sigma))
+    if type(L).__name__ == "StateSpace" and type(L).__module__.split(".")[0] == "control":
+        # analysed on its own realisation: stability from the closed-loop state matrix, the
+        # frequency response from the bilinear image of (A, B, C, D) (no z-polynomial roots)
+        proxy, num, den, ss_stable = _state_space_loop(L)
+        stable = ss_stable if closed_loop_stable is None else bool(closed_loop_stable)
+        if stable and (num[0] + den[0]) == 0.0:
+            stable = False
+        return disk_margin_from_polynomials(proxy, num, den, sigma, stable)
+    L = as_loop(L)
     num, den = continuous_equivalent(L)
     if closed_loop_stable is None:
         _, _, char = _char_poly(L)

@@ -14,7 +14,7 @@ from ..errors import ParameterError
 from . import _pyplot, save_figure
 from .style import cutoff_style, observer_colour, observer_label
 
-__all__ = ["figure_fig6", "plot_fig6", "plot_disk_margin_curve", "disk_upper_boundary"]
+__all__ = ["figure_fig6", "plot_fig6", "plot_disk_margin_curve", "disk_upper_boundary", "plot_loop_analysis"]
 
 
 def disk_upper_boundary(alpha: float, sigma: float = 0.0, n: int = 400) -> np.ndarray:
@@ -280,6 +280,110 @@ def plot_disk_margin_curve(curves: DiskMarginCurve | Mapping[str, DiskMarginCurv
         if title:
             ax_a.set_title(title)
         path = save_figure(fig, path, dpi=120)
+    finally:
+        plt.close(fig)
+    return path
+
+
+def plot_loop_analysis(analysis, path: str | Path) -> Path:
+    """The ``margins`` picture of one loop: disk margin over frequency, |S| and |T|, the Nyquist curve.
+
+    Parameters
+    ----------
+    analysis : LoopAnalysis
+        From :func:`forecast_design.analysis.analyse_loop` (it computes the response; this draws).
+    path : str or Path
+        Output PNG file.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    plt = _pyplot()
+    r = analysis.response()
+    f_hz = r.w_rad_s / (2.0 * math.pi)
+    dm = analysis.disk
+    fig, axes = plt.subplots(2, 2, figsize=(11.0, 7.5))
+    (ax_a, ax_n), (ax_s, ax_t) = axes
+    try:
+        ax_a.semilogx(f_hz, r.alpha, color="C0")
+        if dm.stable and math.isfinite(dm.frequency_rad_s):
+            fc = dm.frequency_rad_s / (2.0 * math.pi)
+            ax_a.plot(fc, dm.alpha, "o", color="C3")
+            ax_a.annotate(f"disk margin {dm.alpha:.3f}\nat {fc:.3g} Hz", (fc, dm.alpha), textcoords="offset points",
+                          xytext=(10, 12), fontsize="small", color="C3")
+        ax_a.set_ylabel("disk margin alpha(f) [-]")
+        ax_a.set_xlabel("frequency [Hz]")
+        ax_a.set_ylim(0.0, max(2.5, min(10.0, float(np.nanpercentile(r.alpha, 90)))))
+        ax_a.set_title("disk margin over frequency")
+        ax_s.semilogx(f_hz, 20 * np.log10(np.abs(r.S)), color="C1", label="|S| = |1/(1 + L)|")
+        ax_s.semilogx(f_hz, 20 * np.log10(np.abs(r.T)), color="C2", label="|T| = |L/(1 + L)|")
+        ax_s.axhline(0.0, color="0.5", lw=0.8)
+        i = int(np.argmax(np.abs(r.S)))
+        ax_s.plot(f_hz[i], 20 * np.log10(abs(r.S[i])), "o", color="C1")
+        ax_s.annotate(f"peak |S| {20 * np.log10(abs(r.S[i])):.2f} dB", (f_hz[i], 20 * np.log10(abs(r.S[i]))),
+                      textcoords="offset points", xytext=(8, 6), fontsize="small", color="C1")
+        ax_s.set_ylabel("magnitude [dB]")
+        ax_s.set_xlabel("frequency [Hz]")
+        ax_s.set_ylim(-60.0, 20.0)
+        ax_s.legend(loc="lower left", fontsize="small")
+        ax_s.set_title("sensitivity and complementary sensitivity")
+        # the Nyquist curve near the critical point, with the disk the margin keeps L away from
+        ax_n.plot(r.L.real, r.L.imag, color="C0", label="L(jw), w > 0")
+        ax_n.plot(r.L.real, -r.L.imag, color="C0", ls=":", label="L(-jw)")
+        ax_n.plot([-1.0], [0.0], "x", color="k", ms=9, label="-1")
+        if dm.stable and dm.alpha > 0:
+            th = np.linspace(0.0, 2.0 * math.pi, 200)
+            # L stays outside the disk of -1/f for every f in the disk of radius alpha
+            exclusion = -1.0 / (1.0 + (1.0 - dm.sigma) / 2.0 * dm.alpha * np.exp(1j * th)) * \
+                (1.0 - (1.0 + dm.sigma) / 2.0 * dm.alpha * np.exp(1j * th))
+            ax_n.fill(exclusion.real, exclusion.imag, color="C3", alpha=0.15, label=f"-1/f, f in disk({dm.alpha:.3g})")
+        ax_n.set_xlim(-4.0, 2.0)
+        ax_n.set_ylim(-3.0, 3.0)
+        ax_n.set_aspect("equal")
+        ax_n.axhline(0.0, color="0.6", lw=0.6)
+        ax_n.axvline(0.0, color="0.6", lw=0.6)
+        ax_n.set_xlabel("Re L [-]")
+        ax_n.set_ylabel("Im L [-]")
+        ax_n.legend(loc="upper left", fontsize="x-small", framealpha=0.9)
+        ax_n.set_title("Nyquist curve near -1")
+        # Bode of L with the classical crossovers
+        mag = 20 * np.log10(np.abs(r.L))
+        ax_t.semilogx(f_hz, mag, color="C0", label="|L| [dB]")
+        ax_t.axhline(0.0, color="0.5", lw=0.8)
+        ax_t.set_ylabel("|L| [dB]")
+        ax_t.set_xlabel("frequency [Hz]")
+        ax_t.set_ylim(max(-80.0, float(np.nanmin(mag)) - 5), min(80.0, float(np.nanmax(mag)) + 5))
+        ax_p = ax_t.twinx()
+        ax_p.semilogx(f_hz, np.degrees(np.unwrap(np.angle(r.L))), color="C4", lw=1.0, label="arg L [deg]")
+        ax_p.set_ylabel("arg L [deg]", color="C4")
+        cm_ = analysis.classical
+        for c in cm_.gain_crossovers:
+            fx = c.frequency_rad_s / (2 * math.pi)
+            ax_t.plot(fx, 0.0, "s", color="C2")
+            ax_t.annotate(f"PM {c.phase_margin_deg:.0f} deg", (fx, 0.0), textcoords="offset points", xytext=(5, 6),
+                          fontsize="x-small", color="C2")
+        for c in cm_.phase_crossovers:
+            fx = c.frequency_rad_s / (2 * math.pi)
+            if fx > 0:
+                ax_t.plot(fx, -c.gain_margin_db, "^", color="C3")
+                ax_t.annotate(f"GM {c.gain_margin_db:+.1f} dB", (fx, -c.gain_margin_db), textcoords="offset points",
+                              xytext=(5, -12), fontsize="x-small", color="C3")
+        ax_t.set_title("loop L: classical crossovers")
+        ax_t.grid(True, which="both", alpha=0.3)
+        for ax in (ax_a, ax_s):
+            ax.grid(True, which="both", alpha=0.3)
+        ax_n.grid(True, alpha=0.3)
+        cm = analysis.classical
+        gm, pm = cm.gain_margin, cm.phase_margin
+        summary = (f"disk margin {dm.alpha:.3f}" + (f"; GM {gm.gain_margin_db:+.1f} dB at {gm.frequency_rad_s / (2 * math.pi):.3g} Hz"
+                                                    if gm else "; GM inf")
+                   + (f"; PM {pm.phase_margin_deg:.1f} deg at {pm.frequency_rad_s / (2 * math.pi):.3g} Hz" if pm else ""))
+        fig.suptitle(f"{analysis.title()}\n{summary}" + ("" if dm.stable else "  -- UNSTABLE closed loop"),
+                     fontsize="medium")
+        fig.tight_layout()
+        path = save_figure(fig, path, dpi=110)
     finally:
         plt.close(fig)
     return path

@@ -84,7 +84,7 @@ def run_on_port(port: str, *, out: str | Path, reference: str | Reference = "squ
     LinkError
         Disconnect or silence mid-run (after saving what was received).
     """
-    from ..export.c import build_program
+    from ..export.c import program_for_export
     from ..params import resolve_design
 
     ref = parse_reference(reference) if isinstance(reference, str) else reference
@@ -93,7 +93,7 @@ def run_on_port(port: str, *, out: str | Path, reference: str | Reference = "squ
     env = resolve_environments(env, testbed=tb).single("run_on_port")[1]
     design = resolve_design(Design(testbed=tb, environment=env), controller=controller, compensator=compensator,
                             w_q_hz=w_q_hz)
-    program = build_program(design, sfm_params=sfm_params)
+    program = program_for_export(design.with_friction(sfm_params))
     with Board(port, baudrate=baudrate, timeout=timeout) as board:
         board.ping()
         board.upload(program)

@@ -182,7 +182,7 @@ class _Emulator:
         n_start = None
         try:
             if t == M.UPLOAD:
-                from ..export.c import ControllerProgram
+                from ..program import ControllerProgram
 
                 self.program = ControllerProgram.from_bytes(frame.payload)
             elif t == M.SET_REFERENCE:

@@ -305,7 +305,7 @@ def pil_session(board: Board, program, design: Design, reference: pr.Reference, 
 
 def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1",
             compensator: Any = "none", env: Any = "exp-soft", w_q_hz: float | None = 10.0,
-            rate_hz: float = 2000.0, method: str = "tustin", sfm_params: Mapping[str, float] | None = None,
+            rate_hz: float = 2000.0, sfm_params: Mapping[str, float] | None = None,
             reference: str | pr.Reference = "square:0.2:0.5", duration: float = 0.5,
             out: str | Path | None = None, work_dir: str | Path | None = None,
             options: FirmwareOptions | None = None, faults: PilFaults | None = None,
@@ -315,7 +315,7 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
 
     Parameters
     ----------
-    design, controller, compensator, env, w_q_hz, rate_hz, method, sfm_params, testbed
+    design, controller, compensator, env, w_q_hz, rate_hz, sfm_params, testbed
         The design, as :func:`forecast_design.export.firmware.export_firmware`.
     reference : str or Reference
         Force reference (``square:AMP:PERIOD`` ...).
@@ -360,7 +360,7 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     work = Path(work_dir) if work_dir else (Path(out).with_suffix("").with_name(Path(out).stem + "-firmware")
                                             if out else Path("pil-firmware"))
     fw = export_firmware(design, work, controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz,
-                         rate_hz=rate_hz, method=method, sfm_params=sfm_params, options=opt, testbed=testbed)
+                         rate_hz=rate_hz, sfm_params=sfm_params, options=opt, testbed=testbed)
     elf = build_firmware(work, "pil")
     n = int(round(duration * fw.program.rate_hz))
     with QemuBoard(elf, icount=icount) as qemu, Board(qemu.port, timeout=timeout) as board:

@@ -99,7 +99,7 @@ class MsgType(IntEnum):
     """Message types (host -> board below 0x80, board -> host from 0x80)."""
 
     PING = 0x01          #: host asks for INFO
-    UPLOAD = 0x10        #: controller coefficient blob (see export.c.ControllerProgram.to_bytes)
+    UPLOAD = 0x10        #: controller coefficient blob (see program.ControllerProgram.to_bytes)
     SET_REFERENCE = 0x11  #: reference generator settings
     START = 0x12         #: start a run of N samples
     STOP = 0x13          #: stop the run now

@@ -1,6 +1,5 @@
 """The virtual testbed: true plant with unmodelled effects, 2 kHz controllers, references, runs, scenarios."""
 
-from .controllers import DiscretePD, ObserverCompensator, SfmCompensator, pd_transfer_function
 from .plant import PlantModel, PlantStepper, build_plant, integrate_open_loop, stability_check
 from .references import (
     REFERENCE_KINDS,
@@ -28,10 +27,6 @@ __all__ = [
     "build_plant",
     "integrate_open_loop",
     "stability_check",
-    "DiscretePD",
-    "SfmCompensator",
-    "ObserverCompensator",
-    "pd_transfer_function",
     "Constant",
     "Step",
     "Square",

@@ -3,8 +3,8 @@
 :func:`simulate_batch` runs a list of :class:`BatchRun` (each its own design, effects, noise
 seed, initial angle and optionally reference) with shared options (duration, rate, substeps,
 encoders, ...). Every run is prepared exactly as :func:`~.run.simulate` prepares it (the same
-validation, plant packing :func:`~.plant.build_plant`, stability check and controllers of
-:mod:`.controllers`) and stepped by the same compiled closed loop ``run._loop`` (which steps
+validation, plant packing :func:`~.plant.build_plant`, stability check and controller program of
+:mod:`forecast_design.program`) and stepped by the same compiled closed loop ``run._loop`` (which steps
 the plant through :func:`~.plant.advance_period`), one run per thread of numba's pool
 (``prange``): run ``i`` of a batch equals ``simulate`` with the same arguments bit for bit
 (``tests/test_simulation_batch.py``).
@@ -39,9 +39,8 @@ from .scenario import Scenario
 __all__ = ["BatchRun", "BatchResult", "simulate_batch", "simulate_scenario", "scenario_runs"]
 
 #: Options of :func:`~.run.simulate` shared by every run of a batch.
-SHARED_OPTIONS = ("derivative_cutoff_hz", "velocity_cutoff_hz", "sfm_deadband", "torque_limit", "encoder_counts",
-                  "derivative_on",
-                  "process_noise_std", "include_nominal_viscous", "method", "sfm_params")
+SHARED_OPTIONS = ("velocity_cutoff_hz", "sfm_deadband", "torque_limit", "encoder_counts",
+                  "process_noise_std", "include_nominal_viscous", "sfm_params")
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,55 +127,52 @@ class BatchResult:
 MEASURED, TRUE = _MEAS, _TRUTH
 
 
-def _pad(arrays: Sequence[np.ndarray], axis: int) -> tuple[np.ndarray, np.ndarray]:
-    """Zero-padded stack of 2-D arrays whose length along ``axis`` varies, and those lengths."""
+def _pad(arrays: Sequence[np.ndarray], axis: int, dtype: Any = float) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-padded stack of arrays whose length along ``axis`` varies, and those lengths."""
     sizes = np.array([a.shape[axis] for a in arrays], dtype=np.int64)
     shape = list(arrays[0].shape)
-    shape[axis] = int(sizes.max())
-    out = np.zeros((len(arrays), *shape))
+    shape[axis] = int(max(sizes.max(), 1))
+    out = np.zeros((len(arrays), *shape), dtype=dtype)
     for i, a in enumerate(arrays):
-        out[i, :a.shape[0], :a.shape[1]] = a
+        out[(i, *(slice(0, d) for d in a.shape))] = a
     return out, sizes
 
 
 @njit
 def _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
-               PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH):
+               SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH):
     """Run ``i`` of the batch: ``run._loop`` on row ``i`` of every input (private copies, see the module notes)."""
     p = P[i].copy()
     harm = HARM[i, :, :nh[i]].copy()
-    pd = PD[i, :npd[i]].copy()
-    vel = VEL[i, :nvel[i]].copy()
-    gm = GM[i, :ngm[i]].copy()
-    gs = GS[i, :ngs[i]].copy()
-    gt = GT[i, :ngt[i]].copy()
-    sfm_harm = SFMH[i, :, :nsh[i]].copy()
+    sos = SOS[i, :nsos[i]].copy()
+    meta = META[i, :nmeta[i]].copy()
+    gains = GAINS[i, :nmeta[i]].copy()
+    ffh = FFH[i, :, :nffh[i]].copy()
     meas = np.empty((n, MEAS.shape[2]))
     truth = np.empty((n, TRUTH.shape[2]))
     _loop(n, nsub, dsub[i], p, harm, np.zeros(5), closed, REF[i].copy(), OL[i].copy(), torque_limit, enc_step,
-          NOISE[i].copy(), KNOM[i], pd, np.zeros((pd.shape[0], 2)), COMP[i], SFMC[i].copy(), sfm_harm,
-          vel, np.zeros((vel.shape[0], 2)), gm, np.zeros((gm.shape[0], 2)), gs, np.zeros((gs.shape[0], 2)),
-          gt, np.zeros((gt.shape[0], 2)), meas, truth, np.zeros(HL[i]))
+          NOISE[i].copy(), KNOM[i], sos, np.zeros((sos.shape[0], 2)), meta, gains, FLAGS[i].copy(), PAR[i].copy(),
+          FFC[i].copy(), ffh, np.zeros(5), meas, truth, np.zeros(HL[i]))
     MEAS[i] = meas
     TRUTH[i] = truth
 
 
 @njit(parallel=True)
 def _batch_loop(n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
-                PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH):
+                SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH):
     """The runs on numba's thread pool, one run per thread (:func:`_batch_run`)."""
     for i in prange(P.shape[0]):
         _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
-                   PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH)
+                   SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH)
 
 
 @njit
 def _batch_serial(n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
-                  PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH):
+                  SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH):
     """The runs one after the other in the calling thread, without numba's thread pool (``threads=1``)."""
     for i in range(P.shape[0]):
         _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM,
-                   PD, npd, COMP, SFMC, SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, HL, MEAS, TRUTH)
+                   SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH)
 
 
 def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: Any = None, rate_hz: float = 2000.0,
@@ -206,8 +202,8 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
         pool (workqueue) must not be entered by two threads at once. The results do not depend on it.
     **options
         The other options of :func:`~.run.simulate`, shared by every run:
-        ``derivative_cutoff_hz``, ``velocity_cutoff_hz``, ``sfm_deadband``, ``torque_limit``,
-        ``encoder_counts``, ``process_noise_std``, ``include_nominal_viscous``, ``method``.
+        ``velocity_cutoff_hz``, ``sfm_deadband``, ``torque_limit``,
+        ``encoder_counts``, ``process_noise_std``, ``include_nominal_viscous``, ``sfm_params``.
 
     Returns
     -------
@@ -249,21 +245,20 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
 
     P = np.stack(arr("p"))
     HARM, nh = _pad(arr("harm"), 1)            # harmonics: each run keeps its own count
-    SFMH, nsh = _pad(arr("sfm_harm"), 1)
-    PD, npd = _pad(arr("pd_sos"), 0)            # sections: each run keeps its own count
-    VEL, nvel = _pad(arr("vel_sos"), 0)
-    GM, ngm = _pad(arr("gm_sos"), 0)
-    GS, ngs = _pad(arr("gs_sos"), 0)
-    GT, ngt = _pad(arr("gt_sos"), 0)
+    programs = [p.program_arrays() for p in prepared]   # sos, meta, gains, flags, par, ff_coef, ff_harm
+    SOS, nsos = _pad([a[0] for a in programs], 0)       # sections and channels: each run keeps its own count
+    META, nmeta = _pad([a[1] for a in programs], 0, np.int64)
+    GAINS, _ = _pad([a[2][:, None] for a in programs], 0)
+    FFH, nffh = _pad([a[6] for a in programs], 1)
     dsub = np.array([int(p.plant.delay_substeps) for p in prepared], dtype=np.int64)
     hl = np.array([history_length(int(substeps), d) for d in dsub], dtype=np.int64)
     knom = np.array([p.k_nominal for p in prepared])
-    comp = np.array([p.comp_code for p in prepared], dtype=np.int64)
     meas = np.empty((len(runs), n, len(_MEAS)))
     truth = np.empty((len(runs), n, len(_TRUTH)))
     args = (n, int(substeps), dsub, P, HARM, nh, bool(closed_loop), np.stack(arr("ref")), np.stack(arr("ol")),
-            first.torque_limit, first.enc_step, np.stack(arr("noise")), knom, PD, npd, comp,
-            np.stack(arr("sfm_coef")), SFMH, nsh, VEL, nvel, GM, ngm, GS, ngs, GT, ngt, hl, meas, truth)
+            first.torque_limit, first.enc_step, np.stack(arr("noise")), knom, SOS, nsos, META, nmeta,
+            np.ascontiguousarray(GAINS[:, :, 0]), np.stack([a[3] for a in programs]),
+            np.stack([a[4] for a in programs]), np.stack([a[5] for a in programs]), FFH, nffh, hl, meas, truth)
     for kernel in (_batch_run, _batch_serial, _batch_loop):
         _check_kernel_cache(kernel)
     if threads is not None:

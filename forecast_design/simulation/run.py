@@ -6,11 +6,11 @@ embedded board and as the experiment format defines a row:
 1. sample the encoders: ``theta_m = Q(theta(t_n))``, ``q_m = Q(q(t_n))``
    (round to the nearest of ``encoder_counts`` per revolution);
    ``tau_s_m = k (theta_m - q_m)`` with the *nominal* k;
-2. compensator estimate ``tau_hat[n]`` (SFM from ``theta_m``; observers
-   from ``tau_m[n-1]``, ``tau_s_m``, ``theta_m``; see
-   :mod:`.controllers`);
-3. closed loop: ``u[n] = C_F(z) (tau_r[n] - tau_s_m)``,
-   ``tau_m[n] = sat(u[n] + tau_hat[n])``; open loop: ``tau_m[n] =
+2. the controller and compensator program (:mod:`forecast_design.program`, the one the C
+   export and the firmware run): ``u[n]`` from ``tau_r[n]`` and ``tau_s_m`` by the
+   controller's law, the estimate ``tau_hat[n]`` (friction feed-forward from ``theta_m``;
+   observers from ``tau_m[n-1]``, ``tau_s_m``, ``theta_m``);
+3. closed loop: ``tau_m[n] = sat(u[n] + tau_hat[n])``; open loop: ``tau_m[n] =
    sat(profile(t_n))`` (the estimate is computed and logged, not applied);
 4. the true plant integrates over [t_n, t_n+1) with ``substeps`` RK4 steps,
    the command held (zero-order hold), modified by the effects (delay,
@@ -37,18 +37,12 @@ import numpy as np
 from ..effects import effects_to_mappings
 from ..errors import ParameterError, SolverError
 from ..experiment_io import csv_chunks
-from ..discrete import njit as _njit, sos_step
-from ..params import Compensator, Design, Environment, PDController
+from ..discrete import check_kernel_cache, njit as _njit
+from ..compensators import DEFAULT_VELOCITY_CUTOFF_HZ
+from ..controllers import PAPER_PD
+from ..params import Compensator, Design, Environment
 from ..plausibility import SIGNAL_LIMITS, check_limit, check_physical, first_beyond
-from .controllers import (
-    DEFAULT_DERIVATIVE_CUTOFF_HZ,
-    DEFAULT_VELOCITY_CUTOFF_HZ,
-    DERIVATIVE_ON,
-    DiscretePD,
-    ObserverCompensator,
-    SfmCompensator,
-    sfm_eval,
-)
+from ..program import ControllerProgram, build_program, program_step
 from .plant import PlantModel, PlantStepper, advance_period, build_plant, history_length, stability_check
 
 __all__ = [
@@ -67,8 +61,6 @@ ENCODER_COUNTS = 2_000_000
 #: Default process torque noise (std of a per-period held torque) [N m].
 DEFAULT_PROCESS_NOISE_STD = 1e-3
 
-# Kernels whose on-disk cache has been checked against their inlined callees (once per process).
-_KERNEL_CHECKED: list = []
 
 # Columns of the kernel logs.
 _MEAS = ("theta", "q", "tau_s", "tau_m", "u", "tau_frc_hat")
@@ -77,11 +69,9 @@ _TRUTH = ("theta", "omega", "q", "v", "z", "tau_frc", "tau_s", "tau_m_applied")
 
 @_njit
 def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, noise, k_nom,
-          pd_sos, pd_st, comp, sfm_coef, sfm_harm, vel_sos, vel_st,
-          gm_sos, gm_st, gs_sos, gs_st, gt_sos, gt_st, meas, truth, hist):
+          sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, meas, truth, hist):
     out = np.zeros(2)
     H = hist.shape[0]
-    tau_prev = 0.0
     for k in range(n):
         th = x[0]
         qq = x[2]
@@ -89,68 +79,37 @@ def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, no
             th = math.floor(th / enc_step + 0.5) * enc_step
             qq = math.floor(qq / enc_step + 0.5) * enc_step
         tau_s = k_nom * (th - qq)
-        tau_hat = 0.0
-        if comp == 1:
-            v = sos_step(vel_sos, vel_st, th)
-            tau_hat = sfm_eval(sfm_coef, sfm_harm, th, v)
-        elif comp == 2:
-            tau_hat = sos_step(gm_sos, gm_st, tau_prev) + sos_step(gs_sos, gs_st, tau_s) \
-                + sos_step(gt_sos, gt_st, th)
         if closed:
-            u = sos_step(pd_sos, pd_st, ref[k] - tau_s)
-            cmd = u + tau_hat
+            cmd = program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, ref[k], tau_s, th)
+            u = mem[3]
         else:
+            # open loop: the program has no controller channels; its estimate is logged, not applied
+            program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, 0.0, tau_s, th)
             u = 0.0
             cmd = ol[k]
-        if cmd > torque_limit:
-            cmd = torque_limit
-        elif cmd < -torque_limit:
-            cmd = -torque_limit
+            if cmd > torque_limit:
+                cmd = torque_limit
+            elif cmd < -torque_limit:
+                cmd = -torque_limit
+            mem[2] = cmd          # the observers' G_m sees the command that was applied
         meas[k, 0] = th
         meas[k, 1] = qq
         meas[k, 2] = tau_s
         meas[k, 3] = cmd
         meas[k, 4] = u
-        meas[k, 5] = tau_hat
-        tau_prev = cmd
+        meas[k, 5] = mem[4]
         hist[k % H] = cmd
         advance_period(x, k, nsub, dsub, hist, p, harm, noise[k], out, truth[k])
 
 
-def _flush_stale_kernel_cache(kernel) -> None:
-    """Drop the on-disk numba cache of ``kernel`` when a module it inlines has changed.
-
-    numba keys a cached function by its *own* file only; ``_loop`` inlines
-    :func:`~forecast_design.discrete.sos_step`,
-    :func:`~.plant.rk4_substep`, :func:`~forecast_design.friction.laws.stribeck_level` and
-    :func:`~.controllers.sfm_eval`, so an
-    edit there (e.g. a new section recursion) would otherwise leave a stale
-    compiled loop running the old code. A hash of the five sources is kept
-    beside the cache; a mismatch flushes it (one recompilation).
-    """
-    import hashlib
+def _kernel_dependencies() -> list:
+    """The modules ``_loop`` (and the batch kernels) inline or call: their sources key its numba cache."""
     import importlib
 
     root = __package__.rsplit('.', 1)[0]
-    mods = [importlib.import_module(f"{root}.discrete"), importlib.import_module(f"{root}.friction.laws"),
-            importlib.import_module(f"{__package__}.plant"), importlib.import_module(f"{__package__}.controllers")]
-
-    cache = getattr(kernel, "_cache", None)
-    path = getattr(cache, "_cache_path", None)
-    if cache is None or path is None:
-        return
-    try:
-        digest = hashlib.sha256()
-        for mod in mods:
-            digest.update(Path(mod.__file__).read_bytes())
-        digest.update(Path(__file__).read_bytes())
-        stamp = Path(path) / f"{__name__.rsplit('.', 1)[-1]}.{kernel.__name__}.deps"
-        current = digest.hexdigest()
-        if not stamp.exists() or stamp.read_text() != current:
-            cache.flush()
-            stamp.write_text(current)
-    except OSError:  # read-only install: numba then caches elsewhere or not at all
-        pass
+    return [importlib.import_module(f"{root}.discrete.filters"), importlib.import_module(f"{root}.friction.laws"),
+            importlib.import_module(f"{__package__}.plant"), importlib.import_module(f"{root}.program"),
+            importlib.import_module(f"{root}.compensators.feedforward"), importlib.import_module(__name__)]
 
 
 def process_noise(seed: int, std: float, n: int) -> np.ndarray:
@@ -352,20 +311,21 @@ def _reference_samples(reference: Any, n: int, rate_hz: float, what: str) -> np.
 def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | Sequence[float] | np.ndarray,
              duration_s: float, effects: Sequence[Any] = (), rate_hz: float = 2000.0, substeps: int = 10,
              seed: int = 0, closed_loop: bool = True, sfm_params: Mapping[str, float] | None = None,
-             derivative_cutoff_hz: float = DEFAULT_DERIVATIVE_CUTOFF_HZ,
              velocity_cutoff_hz: float = DEFAULT_VELOCITY_CUTOFF_HZ, sfm_deadband: float = 0.0,
              torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
-             include_nominal_viscous: bool = True, method: str = "tustin",
-             derivative_on: str = "error", description: str = "") -> SimulationResult:
-    """Simulate the testbed: PD force control (+ compensator) or an open-loop torque profile.
+             include_nominal_viscous: bool = True, description: str = "") -> SimulationResult:
+    """Simulate the testbed: force control (+ compensator) or an open-loop torque profile.
 
     Parameters
     ----------
     design : Design
         Nominal testbed and environment; ``controller`` (default: the
-        paper's PD, P = 5, D = 0.1) and ``compensator`` (default none) are
-        used in closed loop. Observers are built on this nominal design.
+        paper's PD, :data:`~forecast_design.controllers.PAPER_PD`) and ``compensator``
+        (default none) are used in closed loop. The controller runs its own
+        :meth:`~forecast_design.controllers.Controller.discrete_law` (its discretisation,
+        derivative filter and placement, saturation); observers are built on this nominal
+        design and discretised with Tustin.
     reference : callable or array_like
         Closed loop: force reference tau_r(t) [N m]; open loop: torque
         command profile tau_m(t) [N m]. A callable of the sample times
@@ -387,8 +347,6 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         replaces the compensator's own ``friction`` (:meth:`Design.with_friction`): ``viscous`` [N m s/rad],
         ``coulomb`` [N m], optional ``offset``, ``sin<i>``, ``cos<i>``,
         ``coulomb_sin<i>``, ``coulomb_cos<i>`` [N m].
-    derivative_cutoff_hz : float
-        PD derivative filter [Hz].
     velocity_cutoff_hz : float
         SFM velocity filter [Hz].
     sfm_deadband : float
@@ -404,12 +362,6 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         the SFM harmonics [rad] (the controller's encoder is homed).
     include_nominal_viscous : bool
         Keep ``d_m omega`` in the true plant (False: friction = effects only).
-    method : str
-        Discretisation of controller and observers (default ``tustin``).
-    derivative_on : str
-        Where the PD takes its derivative (:data:`~.controllers.DERIVATIVE_ON`): ``error`` (the
-        format's u = P e + D de/dt, default) or ``measurement`` (u = P e - D d tau_s/dt, no kick
-        at a reference step; the run's ``tau_r`` is still the reference given).
     description : str
         Free text for the experiment.
 
@@ -421,8 +373,8 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
     Raises
     ------
     ParameterError
-        Invalid options, missing ``sfm_params``, or an RK4 step outside the
-        stability region of the plant.
+        Invalid options, missing ``sfm_params``, a controller without equations (``other``),
+        or an RK4 step outside the stability region of the plant.
 
     Examples
     --------
@@ -433,10 +385,10 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
     """
     prep = _prepare(design, reference=reference, duration_s=duration_s, effects=effects, rate_hz=rate_hz,
                     substeps=substeps, seed=seed, closed_loop=closed_loop, sfm_params=sfm_params,
-                    derivative_cutoff_hz=derivative_cutoff_hz, velocity_cutoff_hz=velocity_cutoff_hz,
+                    velocity_cutoff_hz=velocity_cutoff_hz,
                     sfm_deadband=sfm_deadband, torque_limit=torque_limit, encoder_counts=encoder_counts,
                     process_noise_std=process_noise_std, initial_angle=initial_angle,
-                    include_nominal_viscous=include_nominal_viscous, method=method, derivative_on=derivative_on,
+                    include_nominal_viscous=include_nominal_viscous,
                     description=description)
     meas = np.empty((prep.n, len(_MEAS)))
     truth = np.empty((prep.n, len(_TRUTH)))
@@ -446,10 +398,8 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
 
 
 def _check_kernel_cache(kernel) -> None:
-    """Flush a stale on-disk cache of ``kernel`` once per process (:func:`_flush_stale_kernel_cache`)."""
-    if kernel not in _KERNEL_CHECKED:
-        _flush_stale_kernel_cache(kernel)
-        _KERNEL_CHECKED.append(kernel)
+    """Flush a stale on-disk cache of ``kernel`` once per process (:func:`~forecast_design.discrete.check_kernel_cache`)."""
+    check_kernel_cache(kernel, _kernel_dependencies())
 
 
 @dataclass(frozen=True, slots=True)
@@ -470,7 +420,7 @@ class _Prepared:
     torque_limit: float
     enc_step: float
     k_nominal: float
-    comp_code: int
+    program: ControllerProgram
     arrays: Mapping[str, np.ndarray]
     ran: Design
     options: Mapping[str, Any]
@@ -484,14 +434,16 @@ class _Prepared:
         """Arguments of ``_loop`` writing into ``meas`` (n, 6) and ``truth`` (n, 8)."""
         a = self.arrays
 
-        def st(sos):
-            return np.zeros((sos.shape[0], 2))
-
+        sos, meta, gains, flags, par, ff_coef, ff_harm = self.program_arrays()
+        state, mem = self.program.pack().new_state()
         return (self.n, self.substeps, int(self.plant.delay_substeps), a["p"], a["harm"], np.zeros(5),
                 self.closed_loop, a["ref"], a["ol"], self.torque_limit, self.enc_step, a["noise"], self.k_nominal,
-                a["pd_sos"], st(a["pd_sos"]), self.comp_code, a["sfm_coef"], a["sfm_harm"], a["vel_sos"],
-                st(a["vel_sos"]), a["gm_sos"], st(a["gm_sos"]), a["gs_sos"], st(a["gs_sos"]), a["gt_sos"],
-                st(a["gt_sos"]), meas, truth, np.zeros(history_length(self.substeps, self.plant.delay_substeps)))
+                sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, meas, truth,
+                np.zeros(history_length(self.substeps, self.plant.delay_substeps)))
+
+    def program_arrays(self) -> tuple[np.ndarray, ...]:
+        """The program's packed arrays as the kernel takes them (writable float64 copies: one numba signature)."""
+        return tuple(np.array(arr, order="C") for arr in self.program.pack().arrays())
 
     def result(self, meas: np.ndarray, truth: np.ndarray) -> SimulationResult:
         """The run's :class:`SimulationResult` from the kernel's logs (columns copied, read-only)."""
@@ -518,16 +470,11 @@ class _Prepared:
 def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequence[Any] = (),
              rate_hz: float = 2000.0, substeps: int = 10, seed: int = 0, closed_loop: bool = True,
              sfm_params: Mapping[str, float] | None = None,
-             derivative_cutoff_hz: float = DEFAULT_DERIVATIVE_CUTOFF_HZ,
              velocity_cutoff_hz: float = DEFAULT_VELOCITY_CUTOFF_HZ, sfm_deadband: float = 0.0,
              torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
-             include_nominal_viscous: bool = True, method: str = "tustin", derivative_on: str = "error",
-             description: str = "") -> _Prepared:
+             include_nominal_viscous: bool = True, description: str = "") -> _Prepared:
     """Validate :func:`simulate`'s arguments and pack one run for the kernel (no simulation)."""
-    if derivative_on not in DERIVATIVE_ON:
-        raise ParameterError(f"derivative_on must be one of {', '.join(DERIVATIVE_ON)}, got {derivative_on!r}",
-                             name="derivative_on", value=derivative_on)
     if not isinstance(design, Design):
         raise ParameterError(f"simulate needs a Design (e.g. Design.nominal('exp-soft')), got {type(design).__name__}",
                              name="design", value=design)
@@ -559,26 +506,15 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
     ol = np.zeros(n) if closed_loop else values
 
     design = design.with_friction(sfm_params)   # the compensator carries its identified friction
-    controller = (design.controller or PDController()) if closed_loop else None
+    controller = (design.controller or PAPER_PD) if closed_loop else None
     comp = design.compensator if design.compensator is not None else Compensator(kind="none")
-    pd = DiscretePD(controller or PDController(), rate_hz, derivative_cutoff_hz=derivative_cutoff_hz,
-                    method=method)
-    # the kernel's PD acts on (r' - tau_s); r' = r unless the derivative is on the measurement
-    loop_ref = pd.measurement_reference(ref) if closed_loop and derivative_on == "measurement" else ref
-    zero_sos = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0]])
-    vel_sos, sfm_coef, sfm_harm = zero_sos, np.zeros(5), np.zeros((4, 1))
-    gm_sos = gs_sos = gt_sos = zero_sos
-    comp_code = 0
-    if comp.kind == "sfm":
-        sfm_params = comp.require_friction()
-        sfm = SfmCompensator(sfm_params, rate_hz, velocity_cutoff_hz=velocity_cutoff_hz, deadband=sfm_deadband,
-                             angle_offset=initial_angle)
-        vel_sos, sfm_coef, sfm_harm = sfm.velocity_sos, sfm.coefficients.coef, sfm.coefficients.harm
-        comp_code = 1
-    elif comp.is_observer:
-        obs = ObserverCompensator(comp, design, rate_hz, method=method)
-        gm_sos, gs_sos, gt_sos = obs.sos_m, obs.sos_s, obs.sos_theta
-        comp_code = 2
+    # open loop: the program runs the compensator alone (its estimate is logged, not applied)
+    program = build_program(dataclasses.replace(design, controller=controller or PAPER_PD, compensator=comp),
+                            rate_hz=rate_hz, tau_max=torque_limit, velocity_cutoff_hz=velocity_cutoff_hz,
+                            deadband=sfm_deadband, angle_offset=initial_angle)
+    if not closed_loop:
+        program = dataclasses.replace(program, channels=tuple(ch for ch in program.channels if ch.group == "hat"),
+                                      integrator=None)
 
     noise = process_noise(seed, process_noise_std, n)
     enc_step = 2.0 * math.pi / encoder_counts if encoder_counts else 0.0
@@ -587,27 +523,24 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
         # one numba signature for every call: writable, C-contiguous float64 copies
         return np.array(a, dtype=float, order="C")
 
-    pd_sos, vel_sos, gm_sos, gs_sos, gt_sos = (rw(a) for a in (pd.sos, vel_sos, gm_sos, gs_sos, gt_sos))
     ran = dataclasses.replace(design, controller=controller,
                               compensator=(design.compensator if closed_loop else None))
     options = {
         "duration_s": float(duration_s), "substeps": int(substeps), "seed": int(seed),
-        "closed_loop": bool(closed_loop), "derivative_cutoff_hz": float(derivative_cutoff_hz),
+        "closed_loop": bool(closed_loop), "controller": None if controller is None else controller.spelling(),
         "velocity_cutoff_hz": float(velocity_cutoff_hz), "sfm_deadband": float(sfm_deadband),
         "torque_limit": float(torque_limit), "encoder_counts": int(encoder_counts or 0),
-        "process_noise_std": float(process_noise_std), "method": method,
+        "process_noise_std": float(process_noise_std),
         "sfm_params": comp.friction_params,
         "compensator": comp.kind, "w_q_hz": comp.w_q_hz if comp.is_observer else None,
         "q_family": comp.q_family if comp.is_observer else None,
         "q_order": comp.q_order if comp.is_observer else None,
-        "delay_substeps": int(plant.delay_substeps), "derivative_on": derivative_on,
+        "delay_substeps": int(plant.delay_substeps),
     }
-    arrays = {"p": rw(plant.params), "harm": rw(plant.harmonics), "ref": rw(loop_ref), "ol": ol, "noise": noise,
-              "pd_sos": pd_sos, "sfm_coef": rw(sfm_coef), "sfm_harm": rw(sfm_harm), "vel_sos": vel_sos,
-              "gm_sos": gm_sos, "gs_sos": gs_sos, "gt_sos": gt_sos}
+    arrays = {"p": rw(plant.params), "harm": rw(plant.harmonics), "ref": rw(ref), "ol": ol, "noise": noise}
     return _Prepared(n=n, substeps=int(substeps), plant=plant, stability=stability, closed_loop=bool(closed_loop),
                      ref=ref, torque_limit=float(torque_limit), enc_step=float(enc_step),
-                     k_nominal=float(design.testbed.k), comp_code=comp_code, arrays=arrays, ran=ran,
+                     k_nominal=float(design.testbed.k), program=program, arrays=arrays, ran=ran,
                      options=options, effects=tuple(effects), initial_angle=float(initial_angle),
                      include_nominal_viscous=include_nominal_viscous, rate_hz=float(rate_hz),
                      description=description)

@@ -22,12 +22,12 @@ sections, plus the hidden truth, the reference and the simulation options::
     d_l = 0.35
     locked = false
 
-    [controller]                     # optional: present = closed-loop force control
-    kind = "pd"
-    P = 5.0
+    [controller]                     # optional: present = closed-loop force control; any kind of
+    kind = "pd"                      # the experiment format (pd, pid, tf, discrete), with its keys:
+    P = 5.0                          # T_f, derivative_on, discretization, feedforward, u_min, u_max...
     D = 0.1
 
-    [compensator]                    # optional; q_family/q_order allowed here (not in experiments)
+    [compensator]                    # optional; as in the experiment format (q_family, q_order, q_damping)
     kind = "ea-fob"
     w_q_hz = 10.0
 
@@ -67,11 +67,12 @@ sections, plus the hidden truth, the reference and the simulation options::
     encoder_counts = 2000000         # 0: exact angles
     process_noise_std = 0.001        # [N m]
     torque_limit = 10.0              # [N m]; omit for none
-    derivative_cutoff_hz = 200.0     # PD derivative filter [Hz]
     velocity_cutoff_hz = 50.0        # SFM velocity filter [Hz]
     sfm_deadband = 0.0               # [rad/s]
-    method = "tustin"                # controller/observer discretisation
-    derivative_on = "error"          # PD derivative on the error (kick) or the measurement
+
+The controller's discretisation, derivative filter and derivative placement are keys of its
+``[controller]`` table (``discretization``, ``T_f``, ``derivative_on``), as in a log: what the
+scenario says is what runs and what the simulated log records.
 
 Unknown keys are errors; a missing required key names the key and the file.
 Omitted optional keys take the defaults of :func:`~.run.simulate`.
@@ -92,7 +93,9 @@ import numpy as np
 from ..effects import Backlash, PositionFriction, Stiction, effect_from_mapping, effects_to_mappings
 from ..environments import resolve_environments
 from ..errors import ExperimentFormatError, ParameterError
-from ..params import Compensator, Design, Environment, PDController, Testbed
+from ..compensators import friction_feedforward
+from ..controllers import PAPER_PD, controller_from_mapping
+from ..params import Compensator, Design, Environment, Testbed
 from ..plausibility import check_limit, check_physical
 from .references import reference_from_mapping
 from .run import SimulationResult, save_simulation, simulate
@@ -106,9 +109,11 @@ _TOP = ("format", "description", "sampling", "testbed", "environment", "controll
         "truth", "variability", "reference", "simulation")
 _SIM_KEYS = {
     "duration_s": float, "substeps": int, "seed": int, "encoder_counts": int, "process_noise_std": float,
-    "torque_limit": float, "derivative_cutoff_hz": float, "velocity_cutoff_hz": float, "sfm_deadband": float,
-    "method": str, "derivative_on": str,
+    "torque_limit": float, "velocity_cutoff_hz": float, "sfm_deadband": float,
 }
+#: Former [simulation] keys that now belong to the controller: where they went.
+_MOVED = {"derivative_cutoff_hz": "T_f (the derivative filter's time constant [s])",
+          "derivative_on": "derivative_on", "method": "discretization"}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -358,9 +363,7 @@ class Scenario:
             raise ParameterError(f"identified friction drives an 'sfm' compensator, but the scenario's compensator is "
                                  f"{comp.kind!r}; set [compensator] kind = \"sfm\" (or none) to use it",
                                  name="friction", value=comp.kind)
-        from .controllers import SfmCompensator
-
-        SfmCompensator(friction, self.rate_hz)             # names and values, as for a [sfm] table
+        friction_feedforward(friction, self.rate_hz)       # names and values, as for a [sfm] table
         base = comp if comp is not None else Compensator(kind="sfm")
         new = Compensator(kind="sfm", w_q_hz=base.w_q_hz, q_family=base.q_family, q_order=base.q_order,
                           friction=dict(friction))
@@ -376,11 +379,10 @@ class Scenario:
         out["testbed"] = self.design.testbed.to_mapping()
         out["environment"] = self.design.environment.to_mapping()
         if self.closed_loop:
-            out["controller"] = (self.design.controller or PDController()).to_mapping()
+            out["controller"] = (self.design.controller or PAPER_PD).to_mapping()
         comp = self.design.compensator
         if comp is not None:
-            out["compensator"] = {"kind": comp.kind, "w_q_hz": comp.w_q_hz, "q_family": comp.q_family,
-                                  "q_order": comp.q_order}
+            out["compensator"] = {k: v for k, v in comp.to_mapping().items() if k != "friction"}   # friction: [sfm]
         opts = dict(self.options)
         sfm = opts.pop("sfm_params", None)
         if sfm is None and comp is not None and comp.friction:
@@ -507,21 +509,11 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
     testbed = Testbed.from_mapping(_table(doc, "testbed", prefix, source, required=True), source=source)
     environment, notes = _environment(doc, testbed, prefix, source)
     ctrl_table = _table(doc, "controller", prefix, source, required=False)
-    controller = None if ctrl_table is None else PDController.from_mapping(ctrl_table, source=source)
+    controller = None if ctrl_table is None else controller_from_mapping(ctrl_table, source=source, rate_hz=rate)
     comp_table = _table(doc, "compensator", prefix, source, required=False)
     compensator = None
     if comp_table is not None:
-        allowed = ("kind", "w_q_hz", "q_family", "q_order")
-        for key in comp_table:
-            if key not in allowed:
-                raise ExperimentFormatError(f"{prefix}[compensator] unknown key '{key}'; allowed: "
-                                            f"{', '.join(allowed)}", path=source, key=f"compensator.{key}")
-        try:
-            compensator = Compensator(**dict(comp_table))
-        except ParameterError as exc:
-            message = str(exc).removeprefix("[compensator] ")   # the dataclass names its section already
-            raise ExperimentFormatError(f"{prefix}[compensator] {message}", path=source,
-                                        key=f"compensator.{exc.name}") from None
+        compensator = Compensator.from_mapping(comp_table, source=source)
     options: dict[str, Any] = {}
     sfm = _table(doc, "sfm", prefix, source, required=False)
     kind = compensator.kind if compensator is not None else "none"
@@ -532,10 +524,8 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
         if kind != "sfm":
             raise ExperimentFormatError(f"{prefix}[sfm] given but the compensator kind is {kind!r}", path=source,
                                         key="sfm")
-        from .controllers import SfmCompensator
-
         try:
-            SfmCompensator(sfm, float(rate))
+            friction_feedforward(sfm, float(rate))
         except ParameterError as exc:
             raise ExperimentFormatError(f"{prefix}[sfm] {exc}", path=source, key=f"sfm.{exc.name}") from None
         options["sfm_params"] = {k: float(v) for k, v in sfm.items()}
@@ -578,6 +568,9 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
     reference = reference_from_mapping(_table(doc, "reference", prefix, source, required=True), source=source)
     sim = _table(doc, "simulation", prefix, source, required=True)
     for key, value in sim.items():
+        if key in _MOVED:
+            raise ExperimentFormatError(f"{prefix}[simulation] {key} belongs to the controller now: set "
+                                        f"{_MOVED[key]} in [controller]", path=source, key=f"simulation.{key}")
         if key not in _SIM_KEYS:
             raise ExperimentFormatError(f"{prefix}[simulation] unknown key '{key}'; allowed: {', '.join(_SIM_KEYS)}",
                                         path=source, key=f"simulation.{key}")
@@ -598,14 +591,10 @@ def _check_simulation(options: Mapping[str, Any], rate: float, prefix: str, sour
     def fail(key: str, message: str) -> ExperimentFormatError:
         return ExperimentFormatError(f"{prefix}[simulation] {key} {message}", path=source, key=f"simulation.{key}")
 
-    from .controllers import DERIVATIVE_ON
-
-    if "derivative_on" in options and options["derivative_on"] not in DERIVATIVE_ON:
-        raise fail("derivative_on", f"must be one of {', '.join(DERIVATIVE_ON)}, got {options['derivative_on']!r}")
     nyquist = rate / 2.0
     bounds = {"duration_s": (0.0, None, False), "process_noise_std": (0.0, 100.0, True),
               "torque_limit": (0.0, None, False), "sfm_deadband": (0.0, None, True),
-              "derivative_cutoff_hz": (0.0, nyquist, False), "velocity_cutoff_hz": (0.0, nyquist, False)}
+              "velocity_cutoff_hz": (0.0, nyquist, False)}
     for key, (lo, hi, closed) in bounds.items():
         v = options.get(key)
         if v is None or (key == "torque_limit" and v == math.inf):

@@ -16,7 +16,8 @@ from ..margins import disk_margin, disk_margins
 from ..errors import ParameterError
 from ..plausibility import check_limit, check_physical
 from ..environments import resolve_environments, resolve_testbed
-from ..params import Compensator, Design, Environment, PDController
+from ..params import Compensator, Design, Environment
+from ..controllers import PAPER_PD, Controller, resolve_controller
 
 
 _GRID_POINTS = 700
@@ -32,7 +33,7 @@ _FIRST_BATCH = 8                          # plants in the first batch of an earl
 class _Setting:
     """What every loop of one tuning shares."""
 
-    controller: PDController
+    controller: Controller
     break_at: str
     sigma: float
     sampled: bool = False
@@ -40,6 +41,10 @@ class _Setting:
     delay_samples: int = 1
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "controller", resolve_controller(self.controller))
+        if not self.sampled and not self.controller.is_continuous:
+            raise ParameterError(f"controller {self.controller.spelling()} is discrete: tune the sampled loop "
+                                 "(--sampled, at its rate)", name="controller", value=self.controller.kind)
         check_physical("tuning", "rate_hz", self.rate_hz)
         delay = self.delay_samples   # given as passed (an integral float is accepted, inf or 1.5 are not)
         if isinstance(delay, float) and delay.is_integer():
@@ -223,7 +228,7 @@ def _exact_ratios(plants: Sequence[_Plant], compensator: Compensator, setting: _
 
 
 def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("soft", "stiff"), *,
-                     uncertainty: float = 0.0, controller: PDController = PDController(),
+                     uncertainty: float = 0.0, controller: Controller = PAPER_PD,
                      break_at: str = "controller", sigma: float = 0.0, sampled: bool = False,
                      rate_hz: float = 2000.0, delay_samples: int = 1, seed: int = 0,
                      testbed: Any = None) -> tuple[float, str]:
@@ -237,8 +242,8 @@ def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("sof
         See :func:`environment_set`.
     uncertainty : float
         Relative uncertainty of the true J, d, k_e [-].
-    controller : PDController
-        C_F = P + D s.
+    controller : Controller, str or python-control system
+        The force controller (continuous: C(s); sampled: its difference equation).
     break_at : str
         Loop-break point (``'controller'`` or ``'plant-input'``).
     sigma : float
@@ -306,8 +311,9 @@ def _plants(compensator: Compensator, envs, uncertainty: float, setting: _Settin
     if executor is not None:
         items = [(label, dataclasses.replace(base, environment=true), dataclasses.replace(base, environment=bel),
                   compensator, setting) for label, true, bel in pairs]
-        return executor.map_batched(_plant_of, items, batch_size=_batch_size(executor, len(items)),
-                                    progress=progress)
+        return _require_stable_plants(executor.map_batched(_plant_of, items, batch_size=_batch_size(executor,
+                                                                                                    len(items)),
+                                                           progress=progress), setting)
     designs = [(label, dataclasses.replace(base, environment=true), dataclasses.replace(base, environment=bel))
                for label, true, bel in pairs]
     unique = list(dict.fromkeys(true_design for _, true_design, _ in designs))
@@ -318,7 +324,20 @@ def _plants(compensator: Compensator, envs, uncertainty: float, setting: _Settin
         out.append(_Plant(label, true_design, believed, alone[true_design], w, W, CP, M, dm))
         if progress:
             progress(n + 1, len(pairs))
-    return out
+    return _require_stable_plants(out, setting)
+
+
+def _require_stable_plants(plants: list, setting: _Setting) -> list:
+    """The plants, or a one-line refusal when the loop without observer is unstable in one of them:
+    a margin ratio to an unstable loop (margin 0) means nothing."""
+    bad = [p.label for p in plants if not p.alpha_plant > 0.0]
+    if bad:
+        raise ParameterError(
+            f"the force loop with controller {setting.controller.spelling()} and no observer is unstable in "
+            f"{len(bad)} of {len(plants)} environments (first: {bad[0]}): no cutoff has a margin ratio to an unstable "
+            "loop; choose a controller that stabilises every environment of the set (check it with "
+            "forecast-design margins --controller ... --env ...)", name="controller", value=bad[0])
+    return plants
 
 
 def _with_frequency(plant: _Plant, compensator: Compensator, setting: _Setting, w_new: float) -> _Plant:

@@ -41,7 +41,8 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..loops.response import loop_response, sensitivity
-from ..params import OBSERVER_KINDS, Compensator, Design, PDController
+from ..params import OBSERVER_KINDS, Compensator, Design
+from ..controllers import PAPER_PD, Controller, resolve_controller
 from .plants import _exact_ratios, _plants, _q_polynomial, _Setting
 from .tune import TuningResult
 
@@ -117,7 +118,7 @@ class CutoffTradeoff:
 
 
 def friction_rejection(true_design: Design, compensator: Compensator, w_rad_s: np.ndarray, *,
-                       controller: PDController = PDController(), believed: Design | None = None) -> np.ndarray:
+                       controller: Controller = PAPER_PD, believed: Design | None = None) -> np.ndarray:
     """Friction-rejection ratio R(jw): friction reaching tau_s with the observer over without it.
 
     Parameters
@@ -128,7 +129,7 @@ def friction_rejection(true_design: Design, compensator: Compensator, w_rad_s: n
         Observer with its cutoff [Hz].
     w_rad_s : ndarray
         Frequencies [rad/s].
-    controller : PDController
+    controller : Controller, str or python-control system
         Force controller C_F.
     believed : Design, optional
         What the observer believes (default: the truth).
@@ -140,7 +141,7 @@ def friction_rejection(true_design: Design, compensator: Compensator, w_rad_s: n
     """
     w = np.asarray(w_rad_s, dtype=float)
     parts = loop_response(true_design, believed if believed is not None else true_design, compensator,
-                          controller, w)
+                          resolve_controller(controller), w)
     dq = np.polyval(_q_polynomial(compensator)[::-1], 1j * w / (2.0 * math.pi * compensator.w_q_hz))
     return sensitivity(parts, dq, "plant-input") * (1.0 + parts.CP)
 
@@ -181,7 +182,7 @@ def cutoff_tradeoff(observer: str = "ea-fob", envs: Any = ("soft", "stiff"), *,
                     band_hz: tuple[float, float] = (0.5, 30.0), points: int = 48, min_ratio: float = 0.9,
                     chosen: TuningResult | float | None = None, uncertainty: float = 0.0,
                     q_family: str = "butterworth", q_order: int = 2, q_damping: float | None = None,
-                    controller: PDController = PDController(), break_at: str = "controller",
+                    controller: Controller = PAPER_PD, break_at: str = "controller",
                     sigma: float = 0.0, sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1,
                     seed: int = 0) -> CutoffTradeoff:
     """The tuner's trade-off for one observer: worst-case margin ratio and rejection bandwidth.

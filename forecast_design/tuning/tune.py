@@ -12,7 +12,8 @@ import numpy as np
 from ..executor import Executor
 from ..errors import ParameterError, SolverError
 from ..plausibility import check_physical
-from ..params import Compensator, PDController
+from ..params import Compensator
+from ..controllers import PAPER_PD, Controller, resolve_controller
 from .nlp import _casadi_abs2_G, _ipopt, _solve_max_cutoff
 from .plants import (_ACTIVE_PER_PLANT, _FEAS_RTOL, _MAX_CUTS, _Setting, _exact_ratios, _grid_ratios,
     _plants, _q_polynomial, _sensitivity_offset, _with_frequency)
@@ -90,7 +91,7 @@ class TuningResult:
 
 def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff"), *,
            uncertainty: float = 0.0, min_ratio: float = 0.9, band_hz: tuple[float, float] = (0.5, 30.0),
-           q_family: str = "butterworth", q_order: int = 2, controller: PDController = PDController(),
+           q_family: str = "butterworth", q_order: int = 2, controller: Controller = PAPER_PD,
            break_at: str = "controller", sigma: float = 0.0, scan_points: int = 80, seed: int = 0,
            sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1, scan: str = "bounded",
            progress: Callable[[int, int], None] | None = None, testbed: Any = None,
@@ -111,8 +112,9 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
         Search band of the cutoff [Hz].
     q_family, q_order : str, int
         Q-filter family and order.
-    controller : PDController
-        C_F = P + D s (sampled: with the simulator's 200 Hz derivative filter).
+    controller : Controller, str or python-control system
+        The force controller the cutoff is tuned for (continuous: C(s); sampled: its difference
+        equation at ``rate_hz``, its own discretisation).
     break_at : str
         ``'controller'`` (paper) or ``'plant-input'``.
     sigma : float
@@ -305,7 +307,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
 
 def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff"), *,
                  w_q_hz: float = 10.0, uncertainty: float = 0.0, damping_range: tuple[float, float] = (0.3, 2.0),
-                 controller: PDController = PDController(), break_at: str = "controller",
+                 controller: Controller = PAPER_PD, break_at: str = "controller",
                  sigma: float = 0.0, seed: int = 0, sampled: bool = False, rate_hz: float = 2000.0,
                  delay_samples: int = 1, testbed: Any = None, executor: Executor | None = None) -> TuningResult:
     """Maximise the worst-case margin ratio at a fixed Q bandwidth over the Q damping.
@@ -323,7 +325,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
     damping_range : (float, float)
         Bounds of the damping ratio zeta of Q = w_q^2 / (s^2 + 2 zeta w_q s + w_q^2) [-]
         (Butterworth: zeta = 1/sqrt(2); binomial: zeta = 1).
-    controller : PDController
+    controller : Controller, str or python-control system
         C_F = P + D s.
     break_at : str
         Loop-break point.
