@@ -377,7 +377,9 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
               f"beyond it (widen {option} to find out)", file=sys.stderr)
     if not result.feasible:
         print(f"forecast-design: warning: no cutoff in the band meets min-ratio {result.min_ratio:g} in every "
-              f"environment", file=sys.stderr)
+              f"environment: the best of the band, {result.w_q_hz:.4g} Hz, keeps {result.worst_ratio:.3f} "
+              f"({result.worst_environment})", file=sys.stderr)
+        return 1
     return 0
 
 

@@ -28,7 +28,8 @@ class TuningResult:
     observer : str
         Compensator kind.
     w_q_hz : float
-        Chosen cutoff [Hz] (nan if infeasible).
+        Chosen cutoff [Hz]; when no cutoff of the band meets ``min_ratio`` (``feasible`` False), the
+        band's cutoff with the highest worst ratio (an answer that is a failure: the CLI exits 1).
     worst_ratio : float
         min over the set of alpha_observer / alpha_plant at the answer [-] (exact margins).
     worst_environment : str
@@ -289,16 +290,19 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
             x = min(x, log_hi)
     if math.isnan(answer) and feasible_scan:
         answer = scan_best   # the NLP could not improve on the verified scan point
-    if not math.isnan(answer):
-        ratios, _ = exact(answer)
-    else:
-        ratios = np.array([0.0])
+    if math.isnan(answer):
+        # infeasible: the answer is the cutoff of the band whose worst ratio comes closest (the grid
+        # ranks the scan, the exact margins of the three best decide), reported as infeasible
+        ranked = _grid_ratios(plants, coeffs, scan_hz, break_at, sigma).min(axis=1)
+        best = max((float(scan_hz[k]) for k in np.argsort(ranked)[::-1][:3]), key=lambda f: exact(f)[0].min())
+        answer = best
+    ratios, _ = exact(answer)
     worst = int(np.argmin(ratios))
-    feasible = bool(ratios.min() >= threshold) and not math.isnan(answer)
+    feasible = bool(ratios.min() >= threshold)
     agrees = feasible and (math.isnan(scan_best) or answer >= scan_best * 0.98)
     return TuningResult(
         observer=observer, w_q_hz=answer, worst_ratio=float(ratios.min()),
-        worst_environment=plants[worst].label if not math.isnan(answer) else "",
+        worst_environment=plants[worst].label,
         feasible=feasible, evaluations=evaluations, scan_w_q_hz=scan_best, agrees_with_scan=agrees,
         min_ratio=min_ratio, band_hz=(float(band_hz[0]), float(band_hz[1])), plants=len(plants), solver=info,
         at_bound=_at_bound(answer, band_hz, "band", "Hz") if feasible else None,
