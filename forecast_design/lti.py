@@ -14,10 +14,6 @@ from .errors import ParameterError
 __all__ = ["RationalTF"]
 
 
-def _trim(coeffs: Sequence[float]) -> tuple[float, ...]:
-    return tuple(float(c) for c in poly.trim(coeffs))
-
-
 @dataclass(frozen=True, slots=True)
 class RationalTF:
     """A rational transfer function with real coefficients.
@@ -57,10 +53,14 @@ class RationalTF:
         for label in ("num", "den"):
             value = getattr(self, label)
             try:
-                coeffs = _trim(np.atleast_1d(np.asarray(value, dtype=float)))
+                arr = np.atleast_1d(np.asarray(value, dtype=float))
+                nz = np.flatnonzero(arr)
+                arr = arr[nz[0]:] if nz.size else arr[-1:]
+                ok = arr.ndim == 1 and arr.size > 0 and bool(np.isfinite(arr).all())
+                coeffs = tuple(arr.tolist()) if ok else ()
             except (TypeError, ValueError):
                 coeffs = ()
-            if not coeffs or not all(map(math.isfinite, coeffs)) or isinstance(value, (str, bytes)):
+            if not coeffs or isinstance(value, (str, bytes)):
                 raise ParameterError(f"RationalTF {self.name!r}: {label} must be a non-empty sequence of finite "
                                      f"real numbers, got {value!r:.80}", name=label, value=value)
             object.__setattr__(self, label, coeffs)

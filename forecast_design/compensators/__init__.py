@@ -33,22 +33,34 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from ..discrete import DiscreteTF, discretize
 from ..errors import ParameterError
 from ..lti import RationalTF
 from ..params import Compensator, Design
 from ..symbolic.observers import ObserverFilters, observer_filters
-from .feedforward import (
-    DEFAULT_VELOCITY_CUTOFF_HZ,
-    FEEDFORWARD_PARAMETERS,
-    FrictionFeedforward,
-    feedforward_eval,
-    friction_feedforward,
-)
+from .sfm_params import FEEDFORWARD_PARAMETERS, viscous_slope
+
+if TYPE_CHECKING:   # the discrete filters and the compiled feed-forward load on first use (numba)
+    from ..discrete import DiscreteTF
+    from .feedforward import FrictionFeedforward
+
+#: Default velocity filter of the friction feed-forward [Hz].
+DEFAULT_VELOCITY_CUTOFF_HZ = 50.0
+_LAZY = {"FrictionFeedforward": "feedforward", "feedforward_eval": "feedforward", "friction_feedforward": "feedforward"}
+
+
+def __getattr__(name: str) -> Any:
+    """The compiled feed-forward on first use (PEP 562): the loop analysis needs none of it."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "CompensatorStrategy",
@@ -79,11 +91,11 @@ class DiscreteFilters:
         command (a one-sample delay, ``z^-1 G_m``).
     """
 
-    from_tau_m: DiscreteTF | None
-    from_tau_s: DiscreteTF | None
-    from_theta: DiscreteTF | None
+    from_tau_m: "DiscreteTF | None"
+    from_tau_s: "DiscreteTF | None"
+    from_theta: "DiscreteTF | None"
 
-    def paths(self) -> tuple[tuple[str, DiscreteTF], ...]:
+    def paths(self) -> "tuple[tuple[str, DiscreteTF], ...]":
         """The present filters with their source signal (``tau_m_prev``, ``tau_s``, ``theta``)."""
         out = []
         for source, tf in (("tau_m_prev", self.from_tau_m), ("tau_s", self.from_tau_s), ("theta", self.from_theta)):
@@ -140,7 +152,7 @@ class CompensatorStrategy(ABC):
 
     def feedforward(self, compensator: Compensator, rate_hz: float, *,
                     velocity_cutoff_hz: float = DEFAULT_VELOCITY_CUTOFF_HZ, deadband: float = 0.0,
-                    angle_offset: float = 0.0) -> FrictionFeedforward | None:
+                    angle_offset: float = 0.0) -> "FrictionFeedforward | None":
         """The static nonlinear part at ``rate_hz`` [Hz], or None.
 
         Parameters
@@ -192,7 +204,7 @@ class _Sfm(CompensatorStrategy):
         params = compensator.friction_params
         if not params:
             return _zero_filters("sfm")
-        slope = _feedforward(compensator, 1000.0).viscous_slope   # the slope does not depend on the rate
+        slope = viscous_slope(params)
         if slope == 0.0:
             return _zero_filters("sfm")
         wv = 2.0 * np.pi * DEFAULT_VELOCITY_CUTOFF_HZ
@@ -203,12 +215,14 @@ class _Sfm(CompensatorStrategy):
     def discrete_filters(self, compensator: Compensator, believed: Design, rate_hz: float) -> DiscreteFilters:
         if not compensator.friction_params:
             return DiscreteFilters(None, None, None)
-        ff = _feedforward(compensator, rate_hz)
+        ff = self.feedforward(compensator, rate_hz)
         return DiscreteFilters(None, None, ff.linear_filter() if ff.viscous_slope else None)
 
     def feedforward(self, compensator: Compensator, rate_hz: float, *,
                     velocity_cutoff_hz: float = DEFAULT_VELOCITY_CUTOFF_HZ, deadband: float = 0.0,
-                    angle_offset: float = 0.0) -> FrictionFeedforward | None:
+                    angle_offset: float = 0.0) -> "FrictionFeedforward | None":
+        from .feedforward import friction_feedforward
+
         return friction_feedforward(compensator.require_friction(), rate_hz, velocity_cutoff_hz=velocity_cutoff_hz,
                                     deadband=deadband, angle_offset=angle_offset)
 
@@ -216,13 +230,9 @@ class _Sfm(CompensatorStrategy):
         params = compensator.friction_params
         if not params:
             return "sfm without identified friction: nothing linear to analyse"
-        slope = _feedforward(compensator, 1000.0).viscous_slope
+        slope = viscous_slope(params)
         return (f"sfm: its viscous part {slope:.4g} N m s/rad x v_hat ({DEFAULT_VELOCITY_CUTOFF_HZ:g} Hz velocity "
                 "filter) is in the loop; Coulomb, Stribeck, offset and angle terms are not linear and are not")
-
-
-def _feedforward(compensator: Compensator, rate_hz: float) -> FrictionFeedforward:
-    return friction_feedforward(compensator.require_friction(), rate_hz)
 
 
 class _Observer(CompensatorStrategy):
@@ -235,6 +245,8 @@ class _Observer(CompensatorStrategy):
         return observer_filters(compensator, believed)
 
     def discrete_filters(self, compensator: Compensator, believed: Design, rate_hz: float) -> DiscreteFilters:
+        from ..discrete import discretize
+
         filters = observer_filters(compensator, believed)
         tfs = []
         for tf in (filters.from_tau_m, filters.from_tau_s, filters.from_theta):

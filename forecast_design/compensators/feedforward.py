@@ -24,7 +24,6 @@ sees (:meth:`FrictionFeedforward.linear_filter`): a motor-angle filter ``G_theta
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
 from typing import Mapping
 
@@ -33,6 +32,8 @@ import numpy as np
 from ..discrete import DiscreteTF, discretize, njit
 from ..errors import ParameterError
 from ..lti import RationalTF
+from . import DEFAULT_VELOCITY_CUTOFF_HZ
+from .sfm_params import FEEDFORWARD_PARAMETERS, feedforward_coefficients
 
 __all__ = [
     "DEFAULT_VELOCITY_CUTOFF_HZ",
@@ -41,20 +42,6 @@ __all__ = [
     "feedforward_eval",
     "friction_feedforward",
 ]
-
-#: Default velocity filter of the feed-forward [Hz].
-DEFAULT_VELOCITY_CUTOFF_HZ = 50.0
-
-_KEY = re.compile(r"^(viscous|viscous_pos|viscous_neg|coulomb|coulomb_pos|coulomb_neg|static|stribeck_velocity"
-                  r"|offset|(coulomb_)?(sin|cos)([1-9][0-9]*))$")
-#: Friction parameter names a feed-forward takes (``<i>`` a harmonic 1, 2, ...).
-FEEDFORWARD_PARAMETERS = ("viscous", "coulomb", "offset", "sin<i>", "cos<i>", "coulomb_sin<i>", "coulomb_cos<i>",
-                          "viscous_pos", "viscous_neg", "coulomb_pos", "coulomb_neg", "static", "stribeck_velocity")
-_REFUSED = {
-    "sigma0": "LuGre's bristle dynamics cannot be fed forward statically: fit the stribeck model for its static curve",
-    "sigma1": "LuGre's bristle dynamics cannot be fed forward statically: fit the stribeck model for its static curve",
-    "inertia": "an inertia is not friction: identify without --estimate-inertia for a compensator",
-}
 
 # coef layout: [viscous_pos, viscous_neg, coulomb_pos, coulomb_neg, static_excess, stribeck_velocity,
 #               offset, deadband, angle_offset, 1]
@@ -113,57 +100,6 @@ def feedforward_eval(coef, harm, theta, v):
         c = np.cos(k * th)
         out = out + (harm[0, i] * s + harm[1, i] * c) + sgn * (harm[2, i] * s + harm[3, i] * c)
     return out
-
-
-def _parse(params: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
-    """(coef without dead band and angle offset, harm) from friction parameters by name."""
-    if not isinstance(params, Mapping):
-        raise ParameterError(f"friction parameters must map names to numbers, got {params!r:.60}",
-                             name="friction", value=params)
-    values: dict[str, float] = {}
-    harmonics: list[tuple[int, int, float]] = []
-    for key, value in params.items():
-        key = str(key)
-        if key in _REFUSED:
-            raise ParameterError(f"friction parameter '{key}': {_REFUSED[key]}", name=key, value=value)
-        m = _KEY.match(key)
-        if m is None:
-            raise ParameterError(f"friction parameter '{key}' unknown to the feed-forward; allowed: "
-                                 f"{', '.join(FEEDFORWARD_PARAMETERS)}", name=key, value=value)
-        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not math.isfinite(value):
-            raise ParameterError(f"friction parameter '{key}' must be a finite number, got {value!r}",
-                                 name=key, value=value)
-        if m.group(4):
-            row = (2 if m.group(2) else 0) + (0 if m.group(3) == "sin" else 1)
-            harmonics.append((row, int(m.group(4)), float(value)))
-        else:
-            values[key] = float(value)
-    for a, b in (("viscous", "viscous_pos"), ("viscous", "viscous_neg"), ("coulomb", "coulomb_pos"),
-                 ("coulomb", "coulomb_neg")):
-        if a in values and b in values:
-            raise ParameterError(f"friction parameters '{a}' and '{b}' both given: a model is symmetric or "
-                                 "asymmetric", name=b, value=values[b])
-    if ("static" in values) != ("stribeck_velocity" in values):
-        raise ParameterError("friction parameters 'static' and 'stribeck_velocity' come together (the Stribeck "
-                             "model)", name="static", value=values.get("static"))
-    if "static" in values and ("coulomb_pos" in values or "coulomb_neg" in values):
-        raise ParameterError("a Stribeck curve needs the symmetric 'coulomb' level, not coulomb_pos/coulomb_neg",
-                             name="static", value=values["static"])
-    v_s = values.get("stribeck_velocity", 1.0)
-    if not v_s > 0.0:
-        raise ParameterError(f"friction parameter 'stribeck_velocity' must be > 0 [rad/s], got {v_s!r}",
-                             name="stribeck_velocity", value=v_s)
-    coulomb = values.get("coulomb", 0.0)
-    coef = np.array([values.get("viscous", values.get("viscous_pos", 0.0)),
-                     values.get("viscous", values.get("viscous_neg", 0.0)),
-                     values.get("coulomb", values.get("coulomb_pos", 0.0)),
-                     values.get("coulomb", values.get("coulomb_neg", 0.0)),
-                     values.get("static", coulomb) - coulomb, v_s, values.get("offset", 0.0), 0.0, 0.0, 1.0])
-    n = max((i for _, i, _ in harmonics), default=1)
-    harm = np.zeros((4, n))
-    for row, i, value in harmonics:
-        harm[row, i - 1] = value
-    return coef, harm
 
 
 @dataclass(frozen=True, slots=True)
@@ -259,7 +195,7 @@ def friction_feedforward(params: Mapping[str, float], rate_hz: float, *,
         Unknown or refused parameter names (LuGre's bristles, an inertia), non-finite values,
         a velocity cutoff at or above Nyquist, a negative dead band.
     """
-    coef, harm = _parse(params)
+    coef, harm = feedforward_coefficients(params)
     if not (isinstance(rate_hz, (int, float)) and rate_hz > 0.0 and math.isfinite(rate_hz)):
         raise ParameterError(f"feed-forward rate_hz must be > 0 [Hz], got {rate_hz!r}", name="rate_hz", value=rate_hz)
     if not (velocity_cutoff_hz > 0.0 and velocity_cutoff_hz < rate_hz / 2.0):

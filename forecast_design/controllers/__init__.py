@@ -25,6 +25,7 @@ Command-line spelling: ``KIND:positional...[:key=value...]``::
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 from typing import Any, Mapping
@@ -70,6 +71,8 @@ __all__ = [
     "parse_controller",
     "resolve_controller",
     "with_derivative_on",
+    "controller_tf",
+    "controller_law",
     "from_control",
     "format_number",
     "parse_number",
@@ -322,3 +325,39 @@ def with_derivative_on(controller: Controller, derivative_on: str) -> Controller
     if isinstance(controller, PD):
         return dataclasses.replace(controller, derivative_on=derivative_on)
     return controller
+
+
+@functools.lru_cache(maxsize=256)
+def controller_tf(controller: Controller):
+    """``controller.feedback_tf()``, computed once per controller value (the loops ask for it per plant).
+
+    Parameters
+    ----------
+    controller : Controller
+        A hashable controller value.
+
+    Returns
+    -------
+    RationalTF
+        Its continuous ``C(s)``.
+    """
+    return controller.feedback_tf()
+
+
+@functools.lru_cache(maxsize=256)
+def controller_law(controller: Controller, rate_hz: float) -> DiscreteLaw:
+    """``controller.discrete_law(rate_hz)``, computed once per controller and rate.
+
+    Parameters
+    ----------
+    controller : Controller
+        A hashable controller value.
+    rate_hz : float
+        Control rate [Hz].
+
+    Returns
+    -------
+    DiscreteLaw
+        Its difference equation at the rate.
+    """
+    return controller.discrete_law(rate_hz)

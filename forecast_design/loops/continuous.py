@@ -26,7 +26,7 @@ from .. import polynomials as poly
 from ..lti import RationalTF
 from ..margins import STABILITY_TOLERANCE
 from ..compensators import compensator_strategy
-from ..controllers import PAPER_PD, Controller, resolve_controller
+from ..controllers import PAPER_PD, Controller, controller_tf, resolve_controller
 from ..params import Compensator, Design
 from ..symbolic.numeric import catalogue_polynomials
 from ..symbolic.observers import ObserverFilters
@@ -154,7 +154,7 @@ def force_loop(
             name="break_at", value=break_at,
         )
     controller = resolve_controller(controller)
-    C = controller.feedback_tf()
+    C = controller_tf(controller)
     if not isinstance(true_design, Design):
         raise ParameterError(f"true_design must be a Design (Design.nominal('soft')), got {type(true_design).__name__}",
                              name="true_design", value=true_design)

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ..controllers import Controller
+from ..controllers import Controller, controller_law, controller_tf
 from ..params import Compensator, Design
 
 __all__ = ["LoopResponse", "loop_response", "observer_responses", "sensitivity", "sensitivity_terms", "q_argument"]
@@ -128,7 +128,7 @@ def loop_response(true_design: Design, believed: Design, compensator: Compensato
         zp = zoh_plant(true_design, rate_hz)
         P = np.polyval(zp.Ns_w, s) / np.polyval(zp.D_w, s)
         P_theta = np.polyval(zp.Nt_w, s) / np.polyval(zp.D_w, s)
-        C = law_in_w(controller.discrete_law(rate_hz))(s)
+        C = law_in_w(controller_law(controller, rate_hz))(s)
         dm = np.exp(-1j * w * T)
         dp = dm ** delay_samples
     else:
@@ -138,7 +138,7 @@ def loop_response(true_design: Design, believed: Design, compensator: Compensato
         s = 1j * w
         P = force_plant_tf(true_design)(s)
         P_theta = motor_angle_tf(true_design)(s)
-        C = controller.feedback_tf()(s)
+        C = controller_tf(controller)(s)
         dm = np.ones_like(s)
         dp = dm
     A, B = observer if observer is not None else observer_responses(compensator, believed, s)

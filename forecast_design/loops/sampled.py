@@ -20,7 +20,7 @@ from ..errors import ParameterError
 from ..lti import RationalTF
 from ..margins import STABILITY_TOLERANCE, DiskMargin, check_skew, disk_margin_from_polynomials
 from ..compensators import compensator_strategy
-from ..controllers import PAPER_PD, Controller, DiscreteLaw, resolve_controller
+from ..controllers import PAPER_PD, Controller, DiscreteLaw, controller_law, resolve_controller
 from ..params import Compensator, Design
 from ..plausibility import check_limit, check_physical
 from .closing import BREAK_POINTS, ObservedPlant, close_loop
@@ -376,7 +376,7 @@ def sampled_force_loop(
     a = 0.5 * T
     d = delay_samples
     rho, ell = np.array([a, 1.0]), np.array([-a, 1.0])
-    law = controller.discrete_law(rate_hz)
+    law = controller_law(controller, rate_hz)
     C_w = law_in_w(law)
     plant = zoh_plant(true_design, rate_hz)
     Ns, Nt, D = plant.Ns_w, plant.Nt_w, plant.D_w
