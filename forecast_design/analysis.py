@@ -121,21 +121,41 @@ def loop_margins(
         alpha [-], disk-based gain [dB] and phase [deg] margins, critical frequency [rad/s]
         and delay margin [s]; ``stable`` from the full characteristic polynomial.
     """
-    design = _as_design(design, testbed, "loop_margins")
-    if believed is not None:
-        believed = _as_design(believed, design.testbed, "loop_margins(believed=...)")
-    if isinstance(compensator, str):
-        compensator = None if compensator == "none" else Compensator(kind=compensator)
     sigma = check_skew(skew if sigma is None else sigma)
-    comp = compensator if compensator is not None else design.compensator
-    ctrl = resolve_controller(controller if controller is not None else design.controller, default=PAPER_PD)
-    if sampled:
-        return sampled_force_loop(design, comp, controller=ctrl, believed=believed, rate_hz=rate_hz,
-                                  break_at=break_at, delay_samples=delay_samples).disk_margin(sigma)
+    loop, *_ = _build_loop(design, compensator, testbed, believed, controller, break_at, sampled, rate_hz,
+                           delay_samples, "loop_margins")
+    if isinstance(loop, SampledForceLoop):
+        return loop.disk_margin(sigma)
+    return disk_margin(loop.L, sigma, closed_loop_stable=bool(loop.stable))
+
+
+def _build_loop(design: Any, compensator: Any, testbed: Any, believed: Any, controller: Any, break_at: str,
+                sampled: bool, rate_hz: float, delay_samples: int, what: str) -> tuple:
+    """The one loop of :func:`loop_margins` and :func:`analyse_loop`: (loop, design, believed,
+    compensator, controller, rate_hz, notes); a discrete controller is analysed sampled at its rate."""
     from .loops import force_loop
 
-    loop = force_loop(design, comp, controller=ctrl, believed=believed, break_at=break_at)
-    return disk_margin(loop.L, sigma, closed_loop_stable=bool(loop.stable))
+    design = _as_design(design, testbed, what)
+    if believed is not None:
+        believed = _as_design(believed, design.testbed, f"{what}(believed=...)")
+    if isinstance(compensator, str):
+        compensator = None if compensator == "none" else Compensator(kind=compensator)
+    comp = compensator if compensator is not None else design.compensator
+    ctrl = resolve_controller(controller if controller is not None else design.controller, default=PAPER_PD)
+    if not ctrl.has_equations:
+        raise ctrl.no_equations("margins")
+    notes = []
+    if not sampled and not ctrl.is_continuous:
+        sampled = True
+        if ctrl.rate_hz is not None:
+            rate_hz = ctrl.rate_hz
+        notes.append(f"controller {ctrl.spelling()} is discrete: the sampled loop at {rate_hz:g} Hz is analysed")
+    if sampled:
+        loop = sampled_force_loop(design, comp, controller=ctrl, believed=believed, rate_hz=rate_hz,
+                                  break_at=break_at, delay_samples=delay_samples)
+    else:
+        loop = force_loop(design, comp, controller=ctrl, believed=believed, break_at=break_at)
+    return loop, design, believed, comp, ctrl, float(rate_hz), tuple(notes)
 
 
 @dataclass(frozen=True, slots=True)
@@ -265,31 +285,15 @@ def analyse_loop(
     """
     from .compensators import compensator_strategy
     from .environments import resolve_environments as _resolve
-    from .loops import force_loop
 
-    design = _as_design(design, testbed, "analyse_loop")
-    if believed is not None:
-        believed = _as_design(believed, design.testbed, "analyse_loop(believed=...)")
-    if isinstance(compensator, str):
-        compensator = None if compensator == "none" else Compensator(kind=compensator)
     sigma = check_skew(skew)
-    comp = compensator if compensator is not None else design.compensator
-    ctrl = resolve_controller(controller if controller is not None else design.controller, default=PAPER_PD)
-    notes = []
-    if not ctrl.has_equations:
-        raise ctrl.no_equations("margins")
-    if not sampled and not ctrl.is_continuous:
-        sampled = True
-        if ctrl.rate_hz is not None:
-            rate_hz = ctrl.rate_hz
-        notes.append(f"controller {ctrl.spelling()} is discrete: the sampled loop at {rate_hz:g} Hz is analysed")
+    loop, design, believed, comp, ctrl, rate_hz, notes = _build_loop(
+        design, compensator, testbed, believed, controller, break_at, sampled, rate_hz, delay_samples, "analyse_loop")
+    sampled = isinstance(loop, SampledForceLoop)
     if sampled:
-        loop = sampled_force_loop(design, comp, controller=ctrl, believed=believed, rate_hz=rate_hz,
-                                  break_at=break_at, delay_samples=delay_samples)
         dm = loop.disk_margin(sigma)
         cm = classical_margins(loop.L_w, stable=loop.stable, rate_hz=rate_hz)
     else:
-        loop = force_loop(design, comp, controller=ctrl, believed=believed, break_at=break_at)
         dm = disk_margin(loop.L, sigma, closed_loop_stable=bool(loop.stable))
         cm = classical_margins(loop.L, stable=loop.stable)
     comp_value = comp or Compensator()
@@ -312,4 +316,4 @@ def analyse_loop(
         "conventions": "negative feedback 1 + L = 0; disk margin of Seiler, Packard and Gahinet (2020); "
                        "classical margins at every crossover (MATLAB allmargin); frequencies in rad/s and Hz",
     }
-    return LoopAnalysis(dm, cm, loop, assumptions, tuple(notes))
+    return LoopAnalysis(dm, cm, loop, assumptions, notes)

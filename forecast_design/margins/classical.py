@@ -153,20 +153,16 @@ def _bisect(f, a: float, b: float) -> float:
 
 
 def _roots_of(f, candidates: list[float], grid: np.ndarray) -> list[float]:
-    """Sign changes of ``f`` refined by bisection: brackets around the candidates and on the grid."""
-    points = np.unique(np.concatenate([grid, [c * (1 - 1e-6) for c in candidates],
-                                       [c * (1 + 1e-6) for c in candidates]]))
+    """Sign changes of ``f`` (vectorised over an array of frequencies) refined by bisection: brackets
+    around the candidates and on the grid."""
+    points = np.unique(np.concatenate([grid, np.asarray(candidates) * (1 - 1e-6), np.asarray(candidates) * (1 + 1e-6)]))
     points = points[points > 0.0]
-    values = np.array([f(w) for w in points])
-    roots = []
-    for i in range(len(points) - 1):
-        a, b = values[i], values[i + 1]
-        if not (math.isfinite(a) and math.isfinite(b)):
-            continue
-        if a == 0.0:
-            roots.append(float(points[i]))
-        elif (a > 0.0) != (b > 0.0):
-            roots.append(_bisect(f, float(points[i]), float(points[i + 1])))
+    values = f(points)
+    finite = np.isfinite(values[:-1]) & np.isfinite(values[1:])
+    change = finite & ((values[:-1] > 0.0) != (values[1:] > 0.0))
+    roots = [float(points[i]) for i in np.flatnonzero(finite & (values[:-1] == 0.0))]
+    scalar = lambda w: float(f(np.array([w]))[0])  # noqa: E731
+    roots += [_bisect(scalar, float(points[i]), float(points[i + 1])) for i in np.flatnonzero(change & (values[:-1] != 0.0))]
     roots.sort()
     merged: list[float] = []
     for r in roots:
@@ -207,9 +203,12 @@ def classical_margins(L: Any, *, stable: bool, rate_hz: float | None = None) -> 
     T = None if rate_hz is None else 1.0 / float(rate_hz)
     w_max = math.inf if T is None else math.inf   # W spans [0, inf) below Nyquist either way
 
+    def L_of(w: np.ndarray) -> np.ndarray:
+        s = 1j * np.asarray(w, dtype=float)
+        return np.polyval(num, s) / np.polyval(den, s)
+
     def L_at(w: float) -> complex:
-        s = 1j * w
-        return complex(np.polyval(num, s) / np.polyval(den, s))
+        return complex(L_of(np.array([w]))[0])
 
     def physical(W: float) -> float:
         return W if T is None else (2.0 / T) * math.atan(W * T / 2.0)
@@ -219,8 +218,8 @@ def classical_margins(L: Any, *, stable: bool, rate_hz: float | None = None) -> 
     im = np.imag(np.convolve(Nj, np.conj(Dj)))
     grid = np.geomspace(1e-6, 1e9, 3000)
     with np.errstate(all="ignore"):
-        gains = _roots_of(lambda w: abs(L_at(w)) - 1.0, _positive_real_roots(mag, w_max), grid)
-        phases = _roots_of(lambda w: L_at(w).imag, _positive_real_roots(im, w_max), grid)
+        gains = _roots_of(lambda w: np.abs(L_of(w)) - 1.0, _positive_real_roots(mag, w_max), grid)
+        phases = _roots_of(lambda w: L_of(w).imag, _positive_real_roots(im, w_max), grid)
     gain_x = []
     for W in gains:
         w = physical(W)
