@@ -145,6 +145,9 @@ def _build_loop(design: Any, compensator: Any, testbed: Any, believed: Any, cont
     if not ctrl.has_equations:
         raise ctrl.no_equations("margins")
     notes = []
+    if ctrl.is_code:
+        notes.append(f"controller {ctrl.label} is code: the linearisation its transfer_function() gives is "
+                     "analysed, not its nonlinear parts (schedules, limits, switching)")
     if not sampled and not ctrl.is_continuous:
         sampled = True
         if ctrl.rate_hz is not None:
@@ -300,7 +303,8 @@ def analyse_loop(
     name = environment_name or next((n for n in ("soft", "stiff", "fig7", "exp-soft", "locked", "link-only")
                                      if _resolve(n).single("x")[1] == design.environment), "custom")
     assumptions = {
-        "controller": {"label": ctrl.label, "spelling": ctrl.spelling(), "table": ctrl.to_mapping()},
+        "controller": {"label": ctrl.label, "spelling": ctrl.spelling(), "table": ctrl.to_mapping(),
+                       "model": ctrl.model if ctrl.is_code else "linear (its equations)"},
         "compensator": {"label": comp_value.label, "table": comp_value.to_mapping(),
                         "w_q_hz": comp_value.w_q_hz if comp_value.is_observer else None,
                         "linear_analysis": compensator_strategy(comp_value).analysis_note(comp_value)},

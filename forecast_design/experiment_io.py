@@ -218,7 +218,7 @@ def parse_toml(doc: Mapping[str, Any], label: str) -> tuple[Design, float, str, 
     environment = Environment.from_mapping(_require_table(doc, "environment", label, required=True),
                                            source=label)
     table = _require_table(doc, "controller", label, required=False)
-    controller = None if table is None else controller_from_mapping(table, source=label, rate_hz=rate)
+    controller = None if table is None else controller_from_mapping(table, source=label, rate_hz=rate, code=False)
     table = _require_table(doc, "compensator", label, required=False)
     compensator = None if table is None else Compensator.from_mapping(table, source=label)
     design = Design(testbed=testbed, environment=environment, controller=controller,

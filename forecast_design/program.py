@@ -10,6 +10,7 @@ inputs ``tau_r``, ``tau_s``, ``theta`` and the previous command ``tau_m_prev``::
 
     e     = tau_r - tau_s
     u_lin = sum of the controller's channels (group u), in order     (cascades of delta sections)
+            or, for a controller written as code (``external``), the code's output
     x     = x + b0 e + b1 e_prev                                     (PID integrator, if any)
     u     = sat(u_lin + x, u_min, u_max), then the anti-windup (controllers/base.py)
     hat   = sum of the compensator's channels (group hat) + the friction feed-forward (if any)
@@ -54,7 +55,7 @@ SOURCES = ("error", "tau_s", "theta", "tau_m_prev", "tau_r")
 #: Anti-windup schemes as the kernel, the blob and the C number them.
 ANTI_WINDUP_CODES = {"none": 0, "clamping": 1, "back-calculation": 2}
 
-_BLOB_MAGIC = b"FDC3"
+_BLOB_MAGIC = b"FDC4"
 
 
 def _check_sos(owner: str, sos: Any) -> np.ndarray:
@@ -193,9 +194,10 @@ class PackedProgram:
         Per channel: source index, group (0 u, 1 hat), first section, section count.
     gains : ndarray, shape (n_channels,)
         Channel gains.
-    flags : ndarray of int64, shape (6,)
+    flags : ndarray of int64, shape (7,)
         Channel count, integrator present, anti-windup code, feed-forward present, first
-        velocity section, velocity section count.
+        velocity section, velocity section count, external controller (its output is read
+        from ``mem[3]``).
     par : ndarray, shape (9,)
         ``u_min, u_max, tau_max, b0, b1, back_gain, 0, 1, 0`` (the typed constants 0 and 1).
     ff_coef : ndarray, shape (10,)
@@ -232,6 +234,7 @@ def program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, tau
     mem : ndarray, shape (5,)
         ``[x, e_prev, tau_m_prev, u, hat]``: integrator, previous error, previous command
         [N m] (updated), and this period's controller output and friction estimate [N m] (written).
+        An external controller's output for this period is put in ``mem[3]`` before the call.
     tau_r, tau_s, theta : float
         Reference [N m], spring torque [N m], motor angle [rad].
 
@@ -242,6 +245,8 @@ def program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, tau
     """
     e = tau_r - tau_s
     u = par[6]
+    if flags[6] != 0:
+        u = mem[3]          # a controller written as code: its output, computed by the caller
     hat = par[6]
     for c in range(flags[0]):
         src = meta[c, 0]
@@ -340,7 +345,7 @@ class ProgramStep:
         """The last step's friction estimate [N m] (``fd_state.hat``)."""
         return float(self._mem[4])
 
-    def step(self, tau_r: float, tau_s: float, theta: float) -> float:
+    def step(self, tau_r: float, tau_s: float, theta: float, u_external: float = 0.0) -> float:
         """One period, as ``fd_step``: measurements in, motor torque command out [N m].
 
         Parameters
@@ -351,6 +356,8 @@ class ProgramStep:
             Measured spring torque [N m].
         theta : float
             Motor angle [rad].
+        u_external : float
+            An external controller's output this period [N m] (programs with ``external``).
 
         Returns
         -------
@@ -359,6 +366,8 @@ class ProgramStep:
         """
         sos, meta, gains, flags, par, ff_coef, ff_harm = self._args
         f = self._f
+        if flags[6]:
+            self._mem[3] = f(u_external)
         return float(program_step(sos, self._state, meta, gains, flags, par, ff_coef, ff_harm, self._mem,
                                   f(tau_r), f(tau_s), f(theta)))
 
@@ -390,6 +399,10 @@ class ControllerProgram:
         Saturation of the controller output [N m] (-inf/inf: none).
     tau_max : float
         Command saturation |tau_m| <= tau_max [N m]; ``inf`` for none.
+    external : str
+        ``""`` for a controller the program computes; otherwise the identity of a controller
+        written as code whose output the caller supplies each period (``c`` and the SHA-256 of
+        its file, ``python module:Class``): the channels then hold the compensator only.
     """
 
     rate_hz: float
@@ -401,6 +414,7 @@ class ControllerProgram:
     u_min: float = -math.inf
     u_max: float = math.inf
     tau_max: float = math.inf
+    external: str = ""
     _packed: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -413,6 +427,13 @@ class ControllerProgram:
         if not self.u_min < self.u_max:
             raise ParameterError(f"u_min = {self.u_min} must be below u_max = {self.u_max} [N m]", name="u_min",
                                  value=self.u_min)
+        if self.external:
+            if not isinstance(self.external, str) or len(self.external.encode("utf-8")) > 200:
+                raise ParameterError(f"external controller identity must be a string of <= 200 bytes, got "
+                                     f"{self.external!r:.60}", name="external", value=self.external)
+            if any(ch.group == "u" for ch in self.channels) or self.integrator is not None:
+                raise ParameterError("a program with an external controller (code) holds the compensator only: no "
+                                     "controller channels or integrator", name="external", value=self.external)
 
     @property
     def n_sections(self) -> int:
@@ -449,7 +470,7 @@ class ControllerProgram:
         integ = self.integrator
         flags = np.array([len(self.channels), integ is not None,
                           ANTI_WINDUP_CODES[integ.anti_windup] if integ else 0, ff is not None, vel_start,
-                          0 if ff is None else ff.velocity_sos.shape[0]], dtype=np.int64)
+                          0 if ff is None else ff.velocity_sos.shape[0], bool(self.external)], dtype=np.int64)
         with np.errstate(over="ignore"):
             par = np.array([self.u_min, self.u_max, self.tau_max, integ.b0 if integ else 0.0,
                             integ.b1 if integ else 0.0, integ.back_gain if integ else 0.0, 0.0, 1.0, 0.0],
@@ -475,12 +496,13 @@ class ControllerProgram:
         Returns
         -------
         bytes
-            ``b"FDC3"``, float32 rate [Hz], float32 tau_max [N m], float32 u_min and u_max
+            ``b"FDC4"``, float32 rate [Hz], float32 tau_max [N m], float32 u_min and u_max
             [N m], uint8 channel count; per channel uint8 source, uint8 group, uint8 sections,
             float32 gain, 5 float32 per section (b0 b1 b2 a1 a2); uint8 integrator flag and, if
             set, uint8 anti-windup code and float32 b0, b1, back_gain; uint8 feed-forward flag
             and, if set, uint8 sections, the sections, 9 float32 coef, uint8 harmonics, 4 x n
-            float32 harmonics (row-major).
+            float32 harmonics (row-major); uint8 length and the UTF-8 identity of an external
+            controller (0: none).
         """
         out = bytearray(_BLOB_MAGIC)
         out += struct.pack("<ffffB", self.rate_hz, self.tau_max, self.u_min, self.u_max, len(self.channels))
@@ -504,6 +526,8 @@ class ControllerProgram:
             out += struct.pack("<BB", 1, ff.velocity_sos.shape[0]) + sections(ff.velocity_sos)
             out += struct.pack("<9fB", *ff.coef, ff.harm.shape[1])
             out += np.asarray(ff.harm, dtype="<f4").tobytes()
+        ident = self.external.encode("utf-8")
+        out += struct.pack("<B", len(ident)) + ident
         return bytes(out)
 
     @classmethod
@@ -569,6 +593,11 @@ class ControllerProgram:
                 *coef, nh = take("<9fB")
                 harm = np.array(take(f"<{4 * nh}f"), dtype=float).reshape(4, nh)
                 ff = FeedforwardBlock(vsos, tuple(coef), harm)
+            (n_ident,) = take("<B")
+            try:
+                external = bytes(take(f"<{n_ident}s")[0]).decode("utf-8")
+            except UnicodeDecodeError:
+                raise bad("external controller identity is not UTF-8") from None
         except struct.error:
             raise bad("truncated") from None
         if pos != len(blob):
@@ -576,7 +605,7 @@ class ControllerProgram:
         if not (rate_hz > 0.0 and math.isfinite(rate_hz)) or not tau_max > 0.0 or not u_min < u_max:
             raise bad(f"rate_hz {rate_hz}, tau_max {tau_max}, u_min {u_min} < u_max {u_max} required")
         return cls(float(rate_hz), method, tuple(channels), integrator=integ, feedforward=ff, u_min=float(u_min),
-                   u_max=float(u_max), tau_max=float(tau_max))
+                   u_max=float(u_max), tau_max=float(tau_max), external=external)
 
 
 def _law_channels(law: DiscreteLaw) -> list[Channel]:
@@ -617,17 +646,24 @@ def build_program(design: Design, *, rate_hz: float = 2000.0, tau_max: float = m
     ------
     ParameterError
         No controller, a controller without equations (``other``), an SFM without friction, or a
-        rate the discretisation rejects.
+        rate the discretisation rejects. A controller written as code
+        (:mod:`forecast_design.controllers.code`) makes an ``external`` program: the compensator's
+        channels only, the controller's output supplied by the caller each period.
     """
     from .compensators import DEFAULT_VELOCITY_CUTOFF_HZ
 
     controller = design.controller
     if not isinstance(controller, Controller):
         raise ParameterError("a program needs a controller (e.g. pd:5:0.1)", name="controller", value=None)
-    law = controller.discrete_law(rate_hz)
-    channels = _law_channels(law)
-    integ = None if law.integrator is None else IntegratorBlock(law.integrator.b0, law.integrator.b1,
-                                                                law.integrator.anti_windup, law.integrator.back_gain)
+    if controller.is_code:
+        # written as code: it runs as written, its output supplied each period (program_step's mem[3])
+        channels, integ, u_min, u_max, external = [], None, -math.inf, math.inf, controller.identity()
+    else:
+        law = controller.discrete_law(rate_hz)
+        channels = _law_channels(law)
+        integ = None if law.integrator is None else IntegratorBlock(
+            law.integrator.b0, law.integrator.b1, law.integrator.anti_windup, law.integrator.back_gain)
+        u_min, u_max, external = law.u_min, law.u_max, ""
     comp = design.compensator or Compensator()
     strategy = compensator_strategy(comp)
     ff = None
@@ -640,4 +676,4 @@ def build_program(design: Design, *, rate_hz: float = 2000.0, tau_max: float = m
         for source, tf in strategy.discrete_filters(comp, design, rate_hz).paths():
             channels.append(Channel(names[source], source, tf.to_delta_sos(), "hat"))
     return ControllerProgram(float(rate_hz), "tustin", tuple(channels), tuple(info), integ, ff,
-                             law.u_min, law.u_max, float(tau_max))
+                             u_min, u_max, float(tau_max), external)

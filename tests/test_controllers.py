@@ -65,7 +65,8 @@ ENVIRONMENTS = ("exp-soft", "stiff", "locked")
 
 
 def test_every_registered_kind_is_under_test():
-    kinds = {c.kind for c in CONTROLLERS_UNDER_TEST.values()} | {"other"}
+    # 'other' has no equations (tests below); 'python' and 'c' are code (test_code_controllers.py)
+    kinds = {c.kind for c in CONTROLLERS_UNDER_TEST.values()} | {"other", "python", "c"}
     assert kinds == set(CONTROLLER_KINDS) == set(CONTROLLERS)
 
 

@@ -35,10 +35,10 @@ def _harness(out_dir, override_prev):
     text = resources.files("forecast_design.export").joinpath("templates", "fd_harness.c.in").read_text()
     io = "    FILE *fin = stdin;\n    FILE *fout = stdout;"
     body = string.Template(text).substitute(version="test", io_note="", open_io=io, close_io="")
-    if override_prev:  # the 4th input is the logged previous command: breaks the observer's loop
-        body = body.replace("float in[3];", "float in[4];").replace("fread(in, sizeof(float), 3, fin) == 3",
-                                                                    "fread(in, sizeof(float), 4, fin) == 4")
-        body = body.replace("out = fd_step(", "state.tau_m_prev = in[3];\n        out = fd_step(")
+    if override_prev:  # a 5th input is the logged previous command: breaks the observer's loop
+        body = body.replace("float in[4];", "float in[5];").replace("fread(in, sizeof(float), 4, fin) == 4",
+                                                                    "fread(in, sizeof(float), 5, fin) == 5")
+        body = body.replace("out = fd_step(", "state.tau_m_prev = in[4];\n        out = fd_step(")
     (out_dir / "harness.c").write_text(body)
     exe = out_dir / "harness"
     subprocess.run([TOOLS.cc, *toolchain.HOST_CFLAGS, "-o", str(exe), str(out_dir / "harness.c"),
@@ -92,7 +92,7 @@ def test_c_matches_an_independent_float64_implementation(kind, tmp_path, closed_
     exe = _harness(tmp_path, override_prev=True)
     log = closed_loop_log[kind].astype(np.float32).astype(float)
     prev = np.concatenate([[0.0], log[:-1, 3]])
-    raw = np.column_stack([log[:, :3], prev]).astype("<f4").tobytes()
+    raw = np.column_stack([log[:, :3], np.zeros(len(prev)), prev]).astype("<f4").tobytes()
     y_c = np.frombuffer(subprocess.run([str(exe)], input=raw, capture_output=True, check=True).stdout,
                         dtype="<f4").astype(float)
     C = res.design.controller.discrete_law(2000.0).feedback_tf()

@@ -214,6 +214,14 @@ def disk_margin_of(design: Design, compensator: Compensator, rate_hz: float = 20
         viscous feed-forward when it carries its identified friction).
     rate_hz : float
         Control rate [Hz].
+
+    Returns
+    -------
+    float
+        The margin; NaN for a controller written as code without a linearisation (a Python
+        controller's ``transfer_function()`` is analysed when it has one).
     """
+    if design.controller is not None and not design.controller.has_equations:
+        return math.nan     # code without a linearisation: no loop to analyse (the spec says so)
     comp = compensator if compensator.is_observer or compensator.friction else Compensator(kind="none")
     return float(loop_margins(design, comp, sampled=True, rate_hz=rate_hz, delay_samples=0).alpha)

@@ -69,6 +69,9 @@ def markdown_report(rows: Sequence[Mapping[str, Any]], spec: Mapping[str, Any], 
              "compensator); rise time 10-90 % of the run's final value; overshoot; 2 % settling time; "
              "steady-state error = reference - final value; tracking bandwidth = -3 dB of tau_s/tau_r from a "
              "chirp; disk margin of the loop (balanced, broken at the controller output).", "",
+             *([" ".join(f"Controller `{label}` is {model}." for label, model in spec["controller_models"].items()
+                         if model.startswith("code")), ""]
+               if any(m.startswith("code") for m in spec.get("controller_models", {}).values()) else []),
              "Statistics: mean over the repetitions (per environment) or over the environments' means (set); "
              "se = that mean's standard error over the draw of initial angles (std/sqrt(n) of the runs, the "
              "jackknife for the repeatability; over the set sqrt(sum se^2)/n); best and worst.", "",

@@ -204,11 +204,21 @@ def run_cell(task: tuple) -> CellResult:
         else:
             sm = step_metrics(t, r.tau_s, amplitude=cell.reference.amplitude, t0=cell.reference.t0)
             m.update({k: sm[k] for k in _STEP_KEYS})
+        # a controller written as code that failed stopped its run (zero torque from then on), or the
+        # expected response's: nothing of the run is scored, the fault is kept
+        fault = r.fault or expected.fault
+        if fault is not None:
+            m.update({k: math.nan for k in m if k not in ("diverged_at_s", "disk_margin", "expected_diverged_at_s")})
+            m["controller_fault_at_s"] = fault["t_s"]
+            row["controller_fault"] = ("expected response: " if r.fault is None else "") + fault["reason"]
         row.update(m)
         rows.append(row)
     dec = _decimate(t.size)
+    clean = [i for i, r in enumerate(runs) if r.fault is None]   # a faulted run's zero torque is no repetition
+    repeatability = pairwise_xcorr(tau) if len(clean) == len(runs) else (
+        pairwise_xcorr(tau[clean]) if len(clean) >= 2 else math.nan)
     return CellResult(key=key, labels=cell.labels, environment=cell.environment.to_mapping(), runs=tuple(rows),
-                      repeatability=pairwise_xcorr(tau), disk_margin=margin, t=np.array(t[dec]),
+                      repeatability=repeatability, disk_margin=margin, t=np.array(t[dec]),
                       tau_s=np.array(tau[:, dec]), expected=np.array(expected.tau_s[dec]),
                       tau_r=np.array(runs[0].tau_r[dec]))
 

@@ -48,8 +48,9 @@ def _number(text: str, what: str, form: str) -> float:
 
 
 def controller_label(c: Controller) -> str:
-    """The controller's command-line spelling (``pd:5:0.1``; read back by :func:`parse_controller`)."""
-    return c.spelling()
+    """The controller's command-line spelling (``pd:5:0.1``; read back by :func:`parse_controller`), or a
+    code controller's label (``c file.c``, ``python file.py:Class``: its file's name)."""
+    return c.label if c.is_code else c.spelling()
 
 
 def parse_compensators(text: str | Sequence[str]) -> tuple[Compensator, ...]:
@@ -219,9 +220,9 @@ class BenchmarkSpec:
             if not isinstance(c, Controller):
                 raise ParameterError(f"benchmark controllers must be Controller values, got {type(c).__name__}",
                                      name="controllers", value=c)
-            if not c.has_equations:
+            if not c.has_equations and not c.is_code:
                 raise c.no_equations("a simulated benchmark")
-        spellings = [c.spelling() for c in self.controllers]
+        spellings = [controller_label(c) for c in self.controllers]
         if len(set(spellings)) != len(spellings):
             raise ParameterError(f"controllers repeated: {', '.join(sorted({x for x in spellings if spellings.count(x) > 1}))}",
                                  name="controllers", value=spellings)
@@ -250,13 +251,16 @@ class BenchmarkSpec:
         doc = {"cell": cell.labels, "controller": cell.controller.to_mapping(),
                "compensator": cell.compensator.to_mapping(), "environment": cell.environment.to_mapping(),
                "reference": cell.reference.to_mapping(), "duration_s": cell.duration_s, "hardware": self.hardware(),
-               "sfm": sfm_params if cell.compensator.kind == "sfm" else None, "version": 2}
+               "sfm": sfm_params if cell.compensator.kind == "sfm" else None, "version": 3,
+               "code": cell.controller.content_digest() if cell.controller.is_code else None}
         text = json.dumps(doc, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:20]
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON provenance."""
         return {"controllers": [controller_label(c) for c in self.controllers],
+                "controller_models": {controller_label(c): c.model if c.is_code else "linear (its equations)"
+                                      for c in self.controllers},
                 "compensators": [compensator_label(c) for c in self.compensators],
                 "environments": {n: e.to_mapping() for n, e in self.environments},
                 "references": [reference_label(r, d) for r, d in self.references], **self.hardware()}

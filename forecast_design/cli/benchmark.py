@@ -90,6 +90,9 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             references=tuple(parse_reference(r, duration_s=args.duration) for r in (args.reference or ["step:0.2"])),
             repetitions=10 if args.repetitions is None else args.repetitions, seed=args.seed,
             viscous_drift=args.viscous_drift, testbed=testbed)
+        for label, model in spec.to_mapping()["controller_models"].items():
+            if model.startswith("code"):
+                print(f"note: controller {label} is {model}", file=sys.stderr)
         with make_executor(args.scheduler, args.workers) as executor, \
                 _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
             cells, info = run_benchmark(spec, out=args.out, executor=executor, progress=progress)
@@ -137,4 +140,10 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             unstable += 1
             print(f"warning: {where}: repetitions {', '.join(map(str, bad))} diverged (unstable closed loop): "
                   "not scored", file=sys.stderr)
+        faulted = [r for r in runs if r.get("controller_fault")]
+        if faulted:
+            unstable += 1
+            print(f"warning: {where}: the controller stopped with a fault in repetitions "
+                  f"{', '.join(str(r['repetition']) for r in faulted)} ({faulted[0]['controller_fault']}): zero "
+                  "torque from then on, not scored", file=sys.stderr)
     return 1 if unstable else 0

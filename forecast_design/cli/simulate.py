@@ -49,11 +49,28 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, {**{key: str(value) for key, value in paths.items()},
                                 **_compensator_keys(result.design.compensator),
+                                "controller": _controller_label(result.design.controller),
+                                "controller_fault": result.fault,
                                 "statistics": result.to_mapping()["statistics"]})
     if args.json != "-":
         for key, value in paths.items():
             print(f"{key}: {value}")
-    return 0
+    return _report_faults([result])
+
+
+def _controller_label(controller) -> str | None:
+    return None if controller is None else controller.label
+
+
+def _report_faults(results) -> int:
+    """A controller written as code that stopped: one line each on stderr, exit 1 (the logs are written)."""
+    import sys
+
+    faulted = [r for r in results if r.fault is not None]
+    for r in faulted:
+        print(f"forecast-design: controller fault at t = {r.fault['t_s']:.4g} s (period {r.fault['period']}): "
+              f"{r.fault['reason']}; the command is zero from then on", file=sys.stderr)
+    return 1 if faulted else 0
 
 
 def _run_files(out) -> list:
@@ -119,10 +136,12 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
         plot_simulation({f"repetition {i}": result for i, result in enumerate(results)}, args.plot)
     if args.json:
         _write_json(args.json, {**_compensator_keys(scenario.design.compensator),
+                                "controller": _controller_label(scenario.design.controller),
                                 "repetitions": [{"repetition": i, **{k: str(v) for k, v in paths.items()},
+                                                 "controller_fault": result.fault,
                                                  "statistics": result.to_mapping()["statistics"]}
                                                 for i, (paths, result) in enumerate(zip(written, results))]})
     if args.json != "-":
         for i, paths in enumerate(written):
             print(f"repetition {i}: {paths['experiment']}")
-    return 0
+    return _report_faults(results)

@@ -44,6 +44,8 @@ from .base import (
     format_number,
     parse_number,
 )
+from .code import (CController, CodeController, PythonController, code_controller_from_spelling, code_table_with_paths,
+                   load_python_class, python_linearisation)
 from .linear import DiscreteController, TFController
 from .other import OtherController
 from .pid import PD, PID
@@ -56,6 +58,12 @@ __all__ = [
     "TFController",
     "DiscreteController",
     "OtherController",
+    "CodeController",
+    "PythonController",
+    "CController",
+    "load_python_class",
+    "python_linearisation",
+    "code_table_with_paths",
     "DiscreteLaw",
     "LawChannel",
     "IntegratorLaw",
@@ -102,10 +110,10 @@ def register_controller(cls: type) -> type:
     return cls
 
 
-for _cls in (PD, PID, TFController, DiscreteController, OtherController):
+for _cls in (PD, PID, TFController, DiscreteController, OtherController, PythonController, CController):
     register_controller(_cls)
 
-#: The format's controller kinds.
+#: Every registered kind: the format's and code (``python``, ``c``: scenarios and the command line).
 CONTROLLER_KINDS = tuple(CONTROLLERS)
 
 #: The paper's force controller (Sections 6-7): P = 5, D = 0.1, as the format reads ``pd`` with
@@ -114,7 +122,8 @@ PAPER_PD = PD(P=5.0, D=0.1)
 
 
 def controller_from_mapping(mapping: Mapping[str, Any], *, source: str | None = None,
-                            rate_hz: float | None = None) -> Controller:
+                            rate_hz: float | None = None, code: bool = True,
+                            base: Path | None = None) -> Controller:
     """A ``[controller]`` table as a controller of its ``kind`` (default ``pd``).
 
     Parameters
@@ -125,6 +134,11 @@ def controller_from_mapping(mapping: Mapping[str, Any], *, source: str | None = 
         The file, for one-line errors naming it.
     rate_hz : float, optional
         The run's rate [Hz]: binds a ``discrete`` controller to it.
+    code : bool
+        Whether the code kinds (``python``, ``c``) are allowed: a scenario may run code; an
+        experiment's TOML records it as ``other`` with a name.
+    base : Path, optional
+        Folder a code controller's relative ``source`` starts from (a scenario's).
 
     Returns
     -------
@@ -136,10 +150,14 @@ def controller_from_mapping(mapping: Mapping[str, Any], *, source: str | None = 
         raise ExperimentFormatError(f"{where}[controller] must be a table, got {type(mapping).__name__}",
                                     path=source, key="controller")
     kind = mapping.get("kind", "pd")
-    if kind not in CONTROLLERS:
-        raise ExperimentFormatError(f"{where}[controller] kind must be one of {', '.join(CONTROLLER_KINDS)}, "
+    allowed = [k for k, cls in CONTROLLERS.items() if code or not cls.is_code]
+    if kind not in allowed:
+        raise ExperimentFormatError(f"{where}[controller] kind must be one of {', '.join(allowed)}, "
                                     f"got {kind!r:.40}", path=source, key="controller.kind")
-    controller = CONTROLLERS[kind].from_mapping(mapping, source=source)
+    cls = CONTROLLERS[kind]
+    if getattr(cls, "is_code", False):
+        mapping = code_table_with_paths(mapping, base)
+    controller = cls.from_mapping(mapping, source=source)
     if rate_hz is not None and isinstance(controller, DiscreteController):
         controller = controller.at_rate(rate_hz)
     return controller
@@ -259,7 +277,7 @@ def _from_file(path: Path) -> Controller:
     rate = doc.get("sampling", {}).get("rate_hz") if isinstance(doc.get("sampling"), Mapping) else None
     rate = rate if isinstance(rate, (int, float)) and not isinstance(rate, bool) and math.isfinite(rate) \
         and rate > 0 else None
-    return controller_from_mapping(table, source=str(path), rate_hz=rate)
+    return controller_from_mapping(table, source=str(path), rate_hz=rate, base=path.parent)
 
 
 def resolve_controller(spec: Any, *, default: Controller | None = None) -> Controller:
@@ -268,8 +286,9 @@ def resolve_controller(spec: Any, *, default: Controller | None = None) -> Contr
     Parameters
     ----------
     spec : Controller, str, Mapping, control.TransferFunction, control.StateSpace or None
-        A controller; a spelling (``pd:5:0.1``...) or the path of a TOML file with a
-        ``[controller]`` table; a ``[controller]`` table; a python-control system.
+        A controller; a spelling (``pd:5:0.1``...), the path of a TOML file with a
+        ``[controller]`` table, a C file (``FILE.c``) or a Python class (``FILE.py:Class``,
+        ``module:Class``); a ``[controller]`` table; a python-control system.
     default : Controller, optional
         Returned for ``None`` (default: :data:`PAPER_PD`).
 
@@ -291,8 +310,11 @@ def resolve_controller(spec: Any, *, default: Controller | None = None) -> Contr
         return controller_from_mapping(spec)
     if isinstance(spec, (str, Path)):
         text = str(spec).strip()
-        if text.lower().endswith(".toml") or isinstance(spec, Path):
+        if text.lower().endswith(".toml") or (isinstance(spec, Path) and text.lower().endswith(".toml")):
             return _from_file(Path(text))
+        code = code_controller_from_spelling(text, kinds=tuple(CONTROLLERS))
+        if code is not None:
+            return code
         return parse_controller(text)
     module = type(spec).__module__ or ""
     if module.startswith("control"):

@@ -215,6 +215,8 @@ class Controller(ABC):
     required: ClassVar[tuple[str, ...]] = ()
     #: True when the format gives the controller's equations (not ``other``).
     has_equations: ClassVar[bool] = True
+    #: True for a controller given as code (it runs as written: :mod:`forecast_design.controllers.code`).
+    is_code: ClassVar[bool] = False
     #: Command-line positional fields: (required keys, optional keys), e.g. (("P", "D"), ("T_f",)).
     positional: ClassVar[tuple[tuple[str, ...], tuple[str, ...]]] = ((), ())
     #: Keys whose values are words, not numbers (the rest parse as numbers).

@@ -25,6 +25,7 @@ from ..environments import resolve_environments, resolve_testbed
 from ..errors import ExportError, ParameterError
 from ..fileio import atomic_write_set
 from ..params import Compensator, Design, require_design, resolve_design
+from ..controllers import CController
 from ..program import ControllerProgram, build_program
 
 __all__ = [
@@ -50,7 +51,9 @@ class ExportResult:
     design : Design
         Testbed, environment, controller and compensator exported.
     digest : str
-        SHA-256 of the emitted header and source [hex].
+        SHA-256 of the emitted header and source (and the user's C) [hex].
+    user_source : pathlib.Path or None
+        ``fd_user.c``, the copy of a C controller's file (written as code), or None.
     """
 
     header: Path
@@ -58,11 +61,14 @@ class ExportResult:
     program: ControllerProgram
     design: Design
     digest: str
+    user_source: Path | None = None
 
     def to_mapping(self) -> dict[str, Any]:
         """Summary for ``--json``: files, rate, method, sections, coefficient count, digest."""
         return {
             "header": str(self.header), "source": str(self.source),
+            "user_source": None if self.user_source is None else str(self.user_source),
+            "external_controller": self.program.external or None,
             "rate_hz": self.program.rate_hz, "compensator_method": self.program.method,
             "controller_label": None if self.design.controller is None else self.design.controller.label,
             "channels": [{"name": ch.name, "source": ch.source, "sections": int(ch.sos.shape[0]),
@@ -166,7 +172,8 @@ def _render(template: str, **values: str) -> str:
         raise ExportError(f"template {template}: {exc}") from None
 
 
-def emit_c(program: ControllerProgram, out_dir: str | Path) -> tuple[Path, Path]:
+def emit_c(program: ControllerProgram, out_dir: str | Path, *, user_source: str | Path | None = None
+           ) -> tuple[Path, Path]:
     """Write ``fd_controller.h`` and ``fd_controller.c`` for ``program``.
 
     Parameters
@@ -175,6 +182,10 @@ def emit_c(program: ControllerProgram, out_dir: str | Path) -> tuple[Path, Path]
         What the C code computes.
     out_dir : str or Path
         Folder (created if needed).
+    user_source : str or Path, optional
+        The C file of an ``external`` program's controller (written as code): copied to
+        ``fd_user.c`` beside the generated files, its content checked against the program's
+        identity; ``fd_step`` calls its ``fd_user_step``.
 
     Returns
     -------
@@ -210,6 +221,10 @@ def emit_c(program: ControllerProgram, out_dir: str | Path) -> tuple[Path, Path]
             body.append(f"{indent}if ({var} < {lit(lo)}) {{\n{indent}    {var} = {lit(lo)};\n{indent}}}")
 
     sources = {"error": "error", "tau_s": "tau_s", "theta": "theta", "tau_m_prev": "tau_m_prev", "tau_r": "tau_r"}
+    external = _external_source(program, user_source)
+    if external is not None:
+        body.append("    /* the force controller: the user's C (fd_user.c) */")
+        body.append("    u = fd_user_step(tau_r, tau_s, theta, q);")
     for ch in program.channels:
         n = ch.sos.shape[0]
         table(ch.name, ch.sos, f"{ch.name}: {ch.source} -> {ch.group}, {n} section(s), gain {ch.gain!r}")
@@ -292,12 +307,52 @@ def emit_c(program: ControllerProgram, out_dir: str | Path) -> tuple[Path, Path]
         "includes": (f"#include <math.h> /* {', '.join(libm)}: float versions only */\n" if libm else ""),
         "tau_max_c": lit(program.tau_max) if math.isfinite(program.tau_max) else "0.0f",
         "has_tau_max": "1" if math.isfinite(program.tau_max) else "0",
+        "user_init": "    fd_user_init(FD_RATE_HZ);\n" if external is not None else "",
+        "user_decl": _USER_DECL if external is not None else "",
     }
     header = _render("fd_controller.h.in", **values)
     source = _render("fd_controller.c.in", **values)
     h_path, c_path = out / "fd_controller.h", out / "fd_controller.c"
-    atomic_write_set({h_path: header, c_path: source})
+    files: dict[Path, str | bytes] = {h_path: header, c_path: source}
+    if external is not None:
+        files[out / USER_SOURCE_NAME] = external
+    else:
+        stale = out / USER_SOURCE_NAME
+        if stale.is_file() and stale.read_bytes().startswith(_USER_BANNER.encode()):
+            stale.unlink()     # a previous export's copy of a C controller: this program has none
+    atomic_write_set(files)
     return h_path, c_path
+
+
+#: Name of the user's C controller in an export folder (compiled beside fd_controller.c).
+USER_SOURCE_NAME = "fd_user.c"
+_USER_BANNER = "/* fd_user.c: copied by forecast-design from "
+_USER_DECL = """
+/* The force controller is the user's C (fd_user.c; docs/controllers-as-code.md), its state in
+ * its own static variables: fd_init() calls fd_user_init(FD_RATE_HZ), fd_step() calls
+ * fd_user_step() once per period and adds the compensator's estimate. */
+void fd_user_init(float rate_hz);
+float fd_user_step(float tau_r, float tau_s, float theta, float q);
+"""
+
+
+def _external_source(program: ControllerProgram, user_source: Any) -> bytes | None:
+    """The user's C of an external program, checked against the identity the program (and its blob) records."""
+    if not program.external:
+        if user_source is not None:
+            raise ExportError("a C controller's source was given for a program that computes its own controller")
+        return None
+    if not program.external.startswith("c sha256:"):
+        raise ExportError(f"controller {program.external} runs in Python only: export a C controller (FILE.c) or "
+                          "a linear kind for the board")
+    if user_source is None:
+        raise ExportError(f"the program's controller is C code ({program.external}): give its source file")
+    text = Path(user_source).read_bytes()
+    if "c sha256:" + hashlib.sha256(text).hexdigest()[:16] != program.external:
+        raise ExportError(f"{user_source}: its content is not the C controller the program was built with "
+                          f"({program.external}); it changed since")
+    return _USER_BANNER.encode() + Path(user_source).name.encode("utf-8", "replace").replace(b"*/", b"* /") + \
+        b" (SHA-256 " + hashlib.sha256(text).hexdigest().encode() + b"); do not edit here. */\n" + text
 
 
 def export_controller(design: Design | None = None, out_dir: str | Path = ".", *,
@@ -357,6 +412,8 @@ def export_controller(design: Design | None = None, out_dir: str | Path = ".", *
     design = resolve_design(design, controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz)
     design = design.with_friction(sfm_params)
     program = program_for_export(design, rate_hz=rate_hz, tau_max=tau_max)
-    h, c = emit_c(program, out_dir)
-    digest = hashlib.sha256(h.read_bytes() + c.read_bytes()).hexdigest()
-    return ExportResult(h, c, program, design, digest)
+    user = design.controller.source if isinstance(design.controller, CController) else None
+    h, c = emit_c(program, out_dir, user_source=user)
+    parts = [h, c] + ([Path(out_dir) / USER_SOURCE_NAME] if user is not None else [])
+    digest = hashlib.sha256(b"".join(p.read_bytes() for p in parts)).hexdigest()
+    return ExportResult(h, c, program, design, digest, parts[2] if user is not None else None)

@@ -36,11 +36,14 @@ from typing import Any
 
 import numpy as np
 
+from ..controllers.code import C_CONTROLLER_FLAGS
 from ..errors import ExportError
 
 __all__ = [
     "HOST_CFLAGS",
     "ARM_CFLAGS",
+    "USER_HOST_CFLAGS",
+    "USER_ARM_CFLAGS",
     "M4_CLOCK_HZ",
     "M4_CPI_BOUND",
     "ToolPaths",
@@ -62,6 +65,10 @@ HOST_CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic", "-
 #: Nucleo F446RE (Cortex-M4F, single-precision FPU) flags, as the issue states, plus no FMA contraction.
 ARM_CFLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", "-O2", "-Wall",
               "-Wextra", "-Werror", "-std=c99", "-ffp-contract=off")
+#: A user's C controller (fd_user.c) is compiled with the export's flags but without -Werror and
+#: -pedantic: its warnings are reported by the compiler, not turned into a refusal.
+USER_HOST_CFLAGS = C_CONTROLLER_FLAGS
+USER_ARM_CFLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", *C_CONTROLLER_FLAGS)
 #: Core clock of the F446RE in the paper's set-up [Hz].
 M4_CLOCK_HZ = 168e6
 #: Cycles per instruction assumed for the estimate [-]: the Cortex-M4 issues most integer and
@@ -125,18 +132,18 @@ def _run(cmd: list[str], what: str, **kw: Any) -> subprocess.CompletedProcess:
 
 # --- host ----------------------------------------------------------------------------------
 
-_HOST_HARNESS = r"""/* host harness: float32 triples (tau_r, tau_s, theta) on stdin -> float32 tau_m on stdout */
+_HOST_HARNESS = r"""/* host harness: float32 rows (tau_r, tau_s, theta, q) on stdin -> float32 tau_m on stdout */
 #include <stdio.h>
 #include "fd_controller.h"
 
 int main(void)
 {
     static fd_state state;
-    float in[3];
+    float in[4];
     float out;
     fd_init(&state);
-    while (fread(in, sizeof(float), 3, stdin) == 3) {
-        out = fd_step(&state, in[0], in[1], in[2]);
+    while (fread(in, sizeof(float), 4, stdin) == 4) {
+        out = fd_step(&state, in[0], in[1], in[2], in[3]);
         if (fwrite(&out, sizeof(float), 1, stdout) != 1) {
             return 1;
         }
@@ -173,26 +180,44 @@ def build_host(export_dir: str | Path, *, shared: bool = False, cc: str | None =
     cc = cc or find_tools().cc
     if cc is None:
         raise ExportError("no host C compiler (cc/gcc) on PATH")
+    pic = ["-fPIC"] if shared else []
+    objs = []
+    user = d / "fd_user.c"
+    if user.is_file():
+        # the user's C controller: the export's flags without -Werror/-pedantic (its warnings are its own)
+        objs.append(d / "fd_user.host.o")
+        _run([cc, *USER_HOST_CFLAGS, *pic, "-I", str(d), "-c", "-o", str(objs[-1]), str(user)], "host compile (fd_user.c)")
     if shared:
         out = d / "libfd_controller.so"
-        cmd = [cc, *HOST_CFLAGS, "-fPIC", "-shared", "-o", str(out), str(d / "fd_controller.c"), "-lm"]
+        cmd = [cc, *HOST_CFLAGS, *pic, "-shared", "-o", str(out), str(d / "fd_controller.c"), *map(str, objs), "-lm"]
     else:
         (d / "fd_host_harness.c").write_text(_HOST_HARNESS)
         out = d / "fd_host"
-        cmd = [cc, *HOST_CFLAGS, "-o", str(out), str(d / "fd_host_harness.c"), str(d / "fd_controller.c"), "-lm"]
+        cmd = [cc, *HOST_CFLAGS, "-o", str(out), str(d / "fd_host_harness.c"), str(d / "fd_controller.c"),
+               *map(str, objs), "-lm"]
     _run(cmd, "host compile")
     return out
 
 
+def _with_q(inputs: np.ndarray) -> np.ndarray:
+    """Inputs (n, 3) or (n, 4) as float32 rows (tau_r, tau_s, theta, q): q = 0 when not given."""
+    x = np.asarray(inputs, dtype=np.float32)
+    if x.ndim != 2 or x.shape[1] not in (3, 4) or x.shape[0] < 1:
+        raise ExportError(f"controller inputs must have shape (n >= 1, 3 or 4): tau_r, tau_s, theta[, q], got {x.shape}")
+    if x.shape[1] == 3:
+        x = np.column_stack([x, np.zeros(x.shape[0], dtype=np.float32)])
+    return np.ascontiguousarray(x)
+
+
 def run_host(exe: str | Path, inputs: np.ndarray) -> np.ndarray:
-    """Run a :func:`build_host` executable on ``inputs`` (n, 3): tau_r [N m], tau_s [N m], theta [rad].
+    """Run a :func:`build_host` executable on ``inputs`` (n, 3 or 4): tau_r [N m], tau_s [N m], theta [rad][, q [rad]].
 
     Returns
     -------
     ndarray, shape (n,)
         tau_m [N m] (float32 values as float64).
     """
-    raw = np.ascontiguousarray(inputs, dtype="<f4").tobytes()
+    raw = _with_q(inputs).astype("<f4").tobytes()
     out = _run([str(exe)], "host run", input=raw).stdout
     return np.frombuffer(out, dtype="<f4").astype(float)
 
@@ -212,8 +237,9 @@ class HostController:
         self._lib = ctypes.CDLL(str(library))
         self._lib.fd_init.argtypes = [ctypes.c_void_p]
         self._lib.fd_init.restype = None
-        self._lib.fd_step.argtypes = [ctypes.c_void_p, ctypes.c_float, ctypes.c_float, ctypes.c_float]
+        self._lib.fd_step.argtypes = [ctypes.c_void_p, ctypes.c_float, ctypes.c_float, ctypes.c_float, ctypes.c_float]
         self._lib.fd_step.restype = ctypes.c_float
+        self._n_sections = max(int(n_sections), 1)
         # struct { float z[n][2]; float tau_m_prev, u, hat, xi, e_prev; }: all floats, no padding
         self._state = (ctypes.c_float * (2 * max(int(n_sections), 1) + 5))()
         self.reset()
@@ -222,9 +248,19 @@ class HostController:
         """``fd_init``."""
         self._lib.fd_init(ctypes.byref(self._state))
 
-    def step(self, tau_r: float, tau_s: float, theta: float) -> float:
-        """``fd_step``: motor torque command [N m]."""
-        return float(self._lib.fd_step(ctypes.byref(self._state), tau_r, tau_s, theta))
+    def step(self, tau_r: float, tau_s: float, theta: float, q: float = 0.0) -> float:
+        """``fd_step``: motor torque command [N m] (``q`` the environment angle [rad])."""
+        return float(self._lib.fd_step(ctypes.byref(self._state), tau_r, tau_s, theta, q))
+
+    @property
+    def u(self) -> float:
+        """The last step's controller output ``fd_state.u`` [N m]."""
+        return float(self._state[2 * self._n_sections + 1])
+
+    @property
+    def hat(self) -> float:
+        """The last step's friction estimate ``fd_state.hat`` [N m]."""
+        return float(self._state[2 * self._n_sections + 2])
 
 
 # --- Cortex-M4 under qemu ----------------------------------------------------------------
@@ -347,7 +383,7 @@ int main(void)
     syst[0] = 5u;           /* CSR: enable, core clock, no interrupt */
     t0 = syst[2];
     for (i = 0u; i < FD_N_INPUTS; ++i) {
-        fd_out[i] = fd_step(&state, fd_inputs[i][0], fd_inputs[i][1], fd_inputs[i][2]);
+        fd_out[i] = fd_step(&state, fd_inputs[i][0], fd_inputs[i][1], fd_inputs[i][2], fd_inputs[i][3]);
     }
     t1 = syst[2];
     syst[0] = 0u;
@@ -364,15 +400,13 @@ int main(void)
 
 
 def _inputs_header(inputs: np.ndarray) -> str:
-    x = np.asarray(inputs, dtype=np.float32)
-    if x.ndim != 2 or x.shape[1] != 3 or x.shape[0] < 1:
-        raise ExportError(f"harness inputs must have shape (n >= 1, 3), got {x.shape}")
+    x = _with_q(inputs)
     # SysTick is 24 bits at 40 instructions per tick: ~6.7e8 instructions per run at most
     if x.shape[0] > 200_000:
         raise ExportError(f"harness inputs: at most 200000 steps, got {x.shape[0]}")
     rows = ",\n".join("    {" + ", ".join(float(v).hex() + "f" for v in row) + "}" for row in x)
-    return (f"/* {x.shape[0]} input samples (tau_r, tau_s, theta), float32 exact (hex literals) */\n"
-            f"#define FD_N_INPUTS {x.shape[0]}u\nstatic const float fd_inputs[{x.shape[0]}][3] = {{\n{rows}\n}};\n")
+    return (f"/* {x.shape[0]} input samples (tau_r, tau_s, theta, q), float32 exact (hex literals) */\n"
+            f"#define FD_N_INPUTS {x.shape[0]}u\nstatic const float fd_inputs[{x.shape[0]}][4] = {{\n{rows}\n}};\n")
 
 
 def build_arm(export_dir: str | Path, inputs: np.ndarray, *, tools: ToolPaths | None = None) -> Path:
@@ -382,8 +416,9 @@ def build_arm(export_dir: str | Path, inputs: np.ndarray, *, tools: ToolPaths | 
     ----------
     export_dir : str or Path
         Folder with ``fd_controller.h``/``.c``; build products go to ``export_dir/arm``.
-    inputs : ndarray, shape (n, 3)
-        tau_r [N m], tau_s [N m], theta [rad] per step (rounded to float32, embedded as const).
+    inputs : ndarray, shape (n, 3) or (n, 4)
+        tau_r [N m], tau_s [N m], theta [rad][, q [rad], 0 when absent] per step (rounded to
+        float32, embedded as const).
     tools : ToolPaths, optional
         Default :func:`find_tools`.
 
@@ -409,12 +444,16 @@ def build_arm(export_dir: str | Path, inputs: np.ndarray, *, tools: ToolPaths | 
     inc = ["-I", str(d), "-I", str(b)]
     _run([tools.arm_gcc, *ARM_CFLAGS, *inc, "-c", "-o", str(b / "fd_controller.o"), str(d / "fd_controller.c")],
          "arm compile (controller)")
+    user = []
+    if (d / "fd_user.c").is_file():
+        user = [str(b / "fd_user.o")]
+        _run([tools.arm_gcc, *USER_ARM_CFLAGS, *inc, "-c", "-o", user[0], str(d / "fd_user.c")], "arm compile (fd_user.c)")
     # -fno-tree-loop-distribute-patterns: the start-up copy loops must not become memcpy calls
     _run([tools.arm_gcc, *ARM_CFLAGS, "-fno-tree-loop-distribute-patterns", *inc, "-c", "-o",
           str(b / "fd_harness.o"), str(b / "fd_harness.c")], "arm compile (harness)")
     elf = b / "fd_qemu.elf"
     _run([tools.arm_gcc, *ARM_CFLAGS, "-nostartfiles", "--specs=nosys.specs", "-T", str(b / "mps2_an386.ld"),
-          "-Wl,--gc-sections", "-o", str(elf), str(b / "fd_harness.o"), str(b / "fd_controller.o"), "-lm"],
+          "-Wl,--gc-sections", "-o", str(elf), str(b / "fd_harness.o"), str(b / "fd_controller.o"), *user, "-lm"],
          "arm link")
     return elf
 
@@ -578,7 +617,7 @@ def budget_cycles(rate_hz: float = 2000.0, clock_hz: float = M4_CLOCK_HZ) -> flo
     return clock_hz / rate_hz
 
 
-def test_sequence(n_steps: int = 20_000, *, rate_hz: float = 2000.0, seed: int = 7) -> np.ndarray:
+def test_sequence(n_steps: int = 20_000, *, rate_hz: float = 2000.0, seed: int = 7, with_q: bool = False) -> np.ndarray:
     """A reproducible closed-loop-like input sequence for equivalence checks.
 
     Parameters
@@ -590,18 +629,22 @@ def test_sequence(n_steps: int = 20_000, *, rate_hz: float = 2000.0, seed: int =
     seed : int
         Noise seed.
 
+    with_q : bool
+        Add the environment angle q [rad] (theta minus a spring deflection tau_s / 4 N m/rad).
+
     Returns
     -------
-    ndarray, shape (n_steps, 3), float32
+    ndarray, shape (n_steps, 3) or (n_steps, 4), float32
         Columns tau_r [N m] (0.2 N m square wave, 1 s period), tau_s [N m] (first-order
-        response with noise), theta [rad] (slow sine plus a random walk).
+        response with noise), theta [rad] (slow sine plus a random walk)[, q [rad]].
     """
     rng = np.random.default_rng(seed)
     t = np.arange(n_steps) / rate_hz
     tau_r = np.where((t % 1.0) < 0.5, 0.2, -0.2)
     tau_s = tau_r * (1 - np.exp(-(t % 0.5) / 0.05)) + 1e-3 * rng.normal(size=n_steps)
     theta = 0.3 + 2.0 * np.sin(2 * np.pi * 0.3 * t) + np.cumsum(rng.normal(size=n_steps)) * 1e-4
-    return np.column_stack([tau_r, tau_s, theta]).astype(np.float32)
+    cols = [tau_r, tau_s, theta] + ([theta - tau_s / 4.0] if with_q else [])
+    return np.column_stack(cols).astype(np.float32)
 
 
 def check_on_cortex_m4(export_dir: str | Path, *, n_steps: int = 20_000) -> dict[str, Any]:
@@ -625,7 +668,7 @@ def check_on_cortex_m4(export_dir: str | Path, *, n_steps: int = 20_000) -> dict
     ExportError
         Missing toolchain or a failed build or run.
     """
-    inputs = test_sequence(n_steps)
+    inputs = test_sequence(n_steps, with_q=(Path(export_dir) / "fd_user.c").is_file())
     elf = build_arm(export_dir, inputs)
     run = run_qemu(elf, n_steps)
     host = run_host(build_host(export_dir), inputs.astype(float))

@@ -33,14 +33,14 @@ from ..discrete import njit, prange
 from ..errors import ParameterError
 from ..params import Design
 from .plant import history_length
-from .run import _MEAS, _TRUTH, SimulationResult, _check_kernel_cache, _loop, _prepare, _Prepared
+from .run import _MEAS, _TRUTH, SimulationResult, _check_kernel_cache, _loop, _prepare, _Prepared, run_code
 from .scenario import Scenario
 
 __all__ = ["BatchRun", "BatchResult", "simulate_batch", "simulate_scenario", "scenario_runs"]
 
 #: Options of :func:`~.run.simulate` shared by every run of a batch.
 SHARED_OPTIONS = ("velocity_cutoff_hz", "sfm_deadband", "torque_limit", "encoder_counts",
-                  "process_noise_std", "include_nominal_viscous", "sfm_params")
+                  "process_noise_std", "include_nominal_viscous", "sfm_params", "step_timeout_s")
 
 
 @dataclass(frozen=True, slots=True)
@@ -87,12 +87,16 @@ class BatchResult:
     true : ndarray, shape (runs, n, 8)
         Columns ``theta`` [rad], ``omega`` [rad/s], ``q`` [rad], ``v`` [rad/s], ``z`` [rad],
         ``tau_frc`` [N m], ``tau_s`` [N m], ``tau_m_applied`` [N m] (:data:`TRUE`).
+    faults : tuple
+        Per run, the fault of a controller written as code that stopped (:attr:`~.run.SimulationResult.fault`)
+        or None.
     """
 
     t: np.ndarray
     measured: np.ndarray
     true: np.ndarray
     _prepared: tuple = ()
+    faults: tuple = ()
 
     def __len__(self) -> int:
         return self.measured.shape[0]
@@ -116,7 +120,8 @@ class BatchResult:
         if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < len(self):
             raise ParameterError(f"run index must be in 0..{len(self) - 1}, got {index!r}", name="index",
                                  value=index)
-        return self._prepared[index].result(self.measured[index], self.true[index])
+        fault = self.faults[index] if self.faults else None
+        return self._prepared[index].result(self.measured[index], self.true[index], fault)
 
     def results(self) -> Iterator[SimulationResult]:
         """Every run as a :class:`~.run.SimulationResult`, in order."""
@@ -224,6 +229,12 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
         if key not in SHARED_OPTIONS:
             raise ParameterError(f"unknown batch option {key!r}; allowed: {', '.join(SHARED_OPTIONS)}", name=key,
                                  value=options[key])
+    if threads is not None:
+        import numba
+
+        if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
+            raise ParameterError(f"threads must be an integer in 1..{numba.config.NUMBA_NUM_THREADS}, got {threads!r}",
+                                 name="threads", value=threads)
     prepared: list[_Prepared] = []
     for i, run in enumerate(runs):
         if not isinstance(run, BatchRun):
@@ -237,8 +248,30 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
                                      initial_angle=run.initial_angle, description=run.description, **options))
         except ParameterError as exc:
             raise ParameterError(f"run {i}: {exc}", name=exc.name, value=exc.value) from None
+    n = prepared[0].n
+    meas = np.empty((len(runs), n, len(_MEAS)))
+    truth = np.empty((len(runs), n, len(_TRUTH)))
+    faults: list = [None] * len(runs)
+    # controllers written as code run their own period loop, one run at a time (.code); the rest
+    # go through the compiled kernel together
+    for i, p in enumerate(prepared):
+        if p.is_code:
+            faults[i] = run_code(p, meas[i], truth[i])
+    compiled = [i for i, p in enumerate(prepared) if not p.is_code]
+    if compiled:
+        _compiled_batch([prepared[i] for i in compiled], meas, truth, compiled, substeps=substeps, threads=threads,
+                        closed_loop=closed_loop)
+    t = np.arange(n) / float(rate_hz)
+    t.flags.writeable = False
+    return BatchResult(t=t, measured=meas, true=truth, _prepared=tuple(prepared), faults=tuple(faults))
+
+
+def _compiled_batch(prepared: list[_Prepared], meas_all: np.ndarray, truth_all: np.ndarray, where: list[int], *,
+                    substeps: int, threads: int | None, closed_loop: bool) -> None:
+    """The runs ``prepared`` through the compiled batch kernel, written into rows ``where`` of the logs."""
     first = prepared[0]
     n = first.n
+    whole = len(where) == meas_all.shape[0]
 
     def arr(key: str) -> list[np.ndarray]:
         return [p.arrays[key] for p in prepared]
@@ -253,21 +286,15 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
     dsub = np.array([int(p.plant.delay_substeps) for p in prepared], dtype=np.int64)
     hl = np.array([history_length(int(substeps), d) for d in dsub], dtype=np.int64)
     knom = np.array([p.k_nominal for p in prepared])
-    meas = np.empty((len(runs), n, len(_MEAS)))
-    truth = np.empty((len(runs), n, len(_TRUTH)))
+    meas = meas_all if whole else np.empty((len(prepared), n, len(_MEAS)))
+    truth = truth_all if whole else np.empty((len(prepared), n, len(_TRUTH)))
     args = (n, int(substeps), dsub, P, HARM, nh, bool(closed_loop), np.stack(arr("ref")), np.stack(arr("ol")),
             first.torque_limit, first.enc_step, np.stack(arr("noise")), knom, SOS, nsos, META, nmeta,
             np.ascontiguousarray(GAINS[:, :, 0]), np.stack([a[3] for a in programs]),
             np.stack([a[4] for a in programs]), np.stack([a[5] for a in programs]), FFH, nffh, hl, meas, truth)
     for kernel in (_batch_run, _batch_serial, _batch_loop):
         _check_kernel_cache(kernel)
-    if threads is not None:
-        import numba
-
-        if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= numba.config.NUMBA_NUM_THREADS:
-            raise ParameterError(f"threads must be an integer in 1..{numba.config.NUMBA_NUM_THREADS}, got {threads!r}",
-                                 name="threads", value=threads)
-    if threads == 1 or len(runs) == 1 or threading.current_thread() is not threading.main_thread():
+    if threads == 1 or len(prepared) == 1 or threading.current_thread() is not threading.main_thread():
         # numba's fallback thread pool (workqueue) must not be entered by two threads at once
         _batch_serial(*args)
     elif threads is None:
@@ -281,9 +308,9 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
             _batch_loop(*args)
         finally:
             numba.set_num_threads(previous)
-    t = np.arange(n) / float(rate_hz)
-    t.flags.writeable = False
-    return BatchResult(t=t, measured=meas, true=truth, _prepared=tuple(prepared))
+    if not whole:
+        meas_all[where] = meas
+        truth_all[where] = truth
 
 
 def scenario_runs(scenario: Scenario, repetitions: Sequence[int] | None = None) -> list[BatchRun]:

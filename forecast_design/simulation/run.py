@@ -218,6 +218,10 @@ class SimulationResult:
         :func:`~forecast_design.simulation.plant.stability_check` of the step.
     description : str
         Free text.
+    fault : dict or None
+        A controller written as code that failed (raised, returned NaN or infinity, or did not
+        return in time): ``period``, ``t_s`` [s] and ``reason``; the command is zero from that
+        period on, as the firmware's safe stop. None otherwise.
     """
 
     design: Design
@@ -234,6 +238,7 @@ class SimulationResult:
     options: Mapping[str, Any] = field(default_factory=dict)
     stability: Mapping[str, float] = field(default_factory=dict)
     description: str = ""
+    fault: Mapping[str, Any] | None = None
 
     @property
     def diverged_at_s(self) -> float | None:
@@ -260,10 +265,14 @@ class SimulationResult:
             raise SolverError(f"the simulation diverged at t = {at:.4g} s (|theta| > 1e6 rad or |tau| > 1e6 N m): "
                               "the closed loop is unstable on this plant; check it with `forecast-design margins`")
 
+        description = self.description
+        if self.fault is not None:
+            description = (f"{description} " if description else "") + (
+                f"[controller fault at t = {self.fault['t_s']:.6g} s: {self.fault['reason']}; zero torque from then on]")
         return experiment_from_arrays(self.design, self.rate_hz, self.t, self.tau_m, self.theta, self.q,
                                       tau_s=self.tau_s, tau_r=self.tau_r,
                                       extra={"u": self.u, "tau_frc_hat": self.tau_frc_hat},
-                                      description=self.description)
+                                      description=description)
 
     def to_mapping(self) -> dict[str, Any]:
         """Summary for JSON: options, truth metadata, stability and a few scalar statistics."""
@@ -280,6 +289,7 @@ class SimulationResult:
                       if key in stats})
         return {"design": _design_mapping(self.design), "rate_hz": self.rate_hz, "options": dict(self.options),
                 "truth": self.truth.metadata(), "stability": dict(self.stability), "statistics": stats,
+                "controller_fault": None if self.fault is None else dict(self.fault),
                 "description": self.description}
 
 
@@ -314,7 +324,8 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
              velocity_cutoff_hz: float = DEFAULT_VELOCITY_CUTOFF_HZ, sfm_deadband: float = 0.0,
              torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
-             include_nominal_viscous: bool = True, description: str = "") -> SimulationResult:
+             include_nominal_viscous: bool = True, description: str = "",
+             step_timeout_s: float | None = None) -> SimulationResult:
     """Simulate the testbed: force control (+ compensator) or an open-loop torque profile.
 
     Parameters
@@ -364,11 +375,15 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         Keep ``d_m omega`` in the true plant (False: friction = effects only).
     description : str
         Free text for the experiment.
+    step_timeout_s : float, optional
+        A controller written as code (:mod:`.code`): longest one step may take before the run
+        stops with a fault [s] (default :data:`.code.DEFAULT_STEP_TIMEOUT_S`).
 
     Returns
     -------
     SimulationResult
-        Measured signals and the truth.
+        Measured signals and the truth; a code controller that failed stops safely (zero torque
+        from then on) and :attr:`SimulationResult.fault` says where and why.
 
     Raises
     ------
@@ -389,12 +404,21 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
                     sfm_deadband=sfm_deadband, torque_limit=torque_limit, encoder_counts=encoder_counts,
                     process_noise_std=process_noise_std, initial_angle=initial_angle,
                     include_nominal_viscous=include_nominal_viscous,
-                    description=description)
+                    description=description, step_timeout_s=step_timeout_s)
     meas = np.empty((prep.n, len(_MEAS)))
     truth = np.empty((prep.n, len(_TRUTH)))
+    if prep.is_code:
+        return prep.result(meas, truth, run_code(prep, meas, truth))
     _check_kernel_cache(_loop)
     _loop(*prep.kernel_args(meas, truth))
     return prep.result(meas, truth)
+
+
+def run_code(prep: "_Prepared", meas: np.ndarray, truth: np.ndarray) -> dict[str, Any] | None:
+    """One prepared run whose controller is code (:mod:`.code`): its period loop; the fault or None."""
+    from .code import code_runner, run_code_loop
+
+    return run_code_loop(prep, code_runner(prep.ran.controller), meas, truth, step_timeout_s=prep.step_timeout_s)
 
 
 def _check_kernel_cache(kernel) -> None:
@@ -429,6 +453,12 @@ class _Prepared:
     include_nominal_viscous: bool
     rate_hz: float
     description: str
+    step_timeout_s: float = math.inf
+
+    @property
+    def is_code(self) -> bool:
+        """True when the controller is code (its output comes from :mod:`.code`, not the kernel)."""
+        return bool(self.program.external)
 
     def kernel_args(self, meas: np.ndarray, truth: np.ndarray) -> tuple:
         """Arguments of ``_loop`` writing into ``meas`` (n, 6) and ``truth`` (n, 8)."""
@@ -445,7 +475,7 @@ class _Prepared:
         """The program's packed arrays as the kernel takes them (writable float64 copies: one numba signature)."""
         return tuple(np.array(arr, order="C") for arr in self.program.pack().arrays())
 
-    def result(self, meas: np.ndarray, truth: np.ndarray) -> SimulationResult:
+    def result(self, meas: np.ndarray, truth: np.ndarray, fault: Mapping[str, Any] | None = None) -> SimulationResult:
         """The run's :class:`SimulationResult` from the kernel's logs (columns copied, read-only)."""
         n, ref, closed_loop = self.n, self.ref, self.closed_loop
         cols = {name: np.ascontiguousarray(meas[:, i]) for i, name in enumerate(_MEAS)}
@@ -464,6 +494,7 @@ class _Prepared:
                                   initial_angle=float(self.initial_angle),
                                   include_nominal_viscous=self.include_nominal_viscous, **tr),
             options=dict(self.options), stability=self.stability, description=self.description,
+            fault=None if fault is None else dict(fault),
         )
 
 
@@ -473,7 +504,8 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
              velocity_cutoff_hz: float = DEFAULT_VELOCITY_CUTOFF_HZ, sfm_deadband: float = 0.0,
              torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
-             include_nominal_viscous: bool = True, description: str = "") -> _Prepared:
+             include_nominal_viscous: bool = True, description: str = "",
+             step_timeout_s: float | None = None) -> _Prepared:
     """Validate :func:`simulate`'s arguments and pack one run for the kernel (no simulation)."""
     if not isinstance(design, Design):
         raise ParameterError(f"simulate needs a Design (e.g. Design.nominal('exp-soft')), got {type(design).__name__}",
@@ -486,6 +518,13 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
     if not (torque_limit > 0):
         raise ParameterError(f"torque_limit must be > 0 [N m], got {torque_limit!r}", name="torque_limit",
                              value=torque_limit)
+    if step_timeout_s is None:
+        from .code import DEFAULT_STEP_TIMEOUT_S
+
+        step_timeout_s = DEFAULT_STEP_TIMEOUT_S
+    if not (isinstance(step_timeout_s, (int, float)) and step_timeout_s > 0 and math.isfinite(step_timeout_s)):
+        raise ParameterError(f"step_timeout_s must be > 0 [s], got {step_timeout_s!r}", name="step_timeout_s",
+                             value=step_timeout_s)
     if not (process_noise_std >= 0 and math.isfinite(process_noise_std)):
         raise ParameterError(f"process_noise_std must be >= 0 [N m], got {process_noise_std!r}",
                              name="process_noise_std", value=process_noise_std)
@@ -543,7 +582,7 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
                      k_nominal=float(design.testbed.k), program=program, arrays=arrays, ran=ran,
                      options=options, effects=tuple(effects), initial_angle=float(initial_angle),
                      include_nominal_viscous=include_nominal_viscous, rate_hz=float(rate_hz),
-                     description=description)
+                     description=description, step_timeout_s=float(step_timeout_s))
 
 
 def save_simulation(result: SimulationResult, path: str | os.PathLike[str]) -> dict[str, Path]:

@@ -379,7 +379,8 @@ class Scenario:
         out["testbed"] = self.design.testbed.to_mapping()
         out["environment"] = self.design.environment.to_mapping()
         if self.closed_loop:
-            out["controller"] = (self.design.controller or PAPER_PD).to_mapping()
+            ctrl = self.design.controller or PAPER_PD
+            out["controller"] = ctrl.scenario_mapping() if ctrl.is_code else ctrl.to_mapping()
         comp = self.design.compensator
         if comp is not None:
             out["compensator"] = {k: v for k, v in comp.to_mapping().items() if k != "friction"}   # friction: [sfm]
@@ -509,7 +510,8 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
     testbed = Testbed.from_mapping(_table(doc, "testbed", prefix, source, required=True), source=source)
     environment, notes = _environment(doc, testbed, prefix, source)
     ctrl_table = _table(doc, "controller", prefix, source, required=False)
-    controller = None if ctrl_table is None else controller_from_mapping(ctrl_table, source=source, rate_hz=rate)
+    controller = None if ctrl_table is None else controller_from_mapping(
+        ctrl_table, source=source, rate_hz=rate, base=Path(source).parent if source else None)
     comp_table = _table(doc, "compensator", prefix, source, required=False)
     compensator = None
     if comp_table is not None:

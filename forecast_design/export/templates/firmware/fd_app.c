@@ -5,7 +5,7 @@
  *
  * Safety: the torque is zero and the ESCON disabled until START; any fault (host silent for the
  * link timeout, garbage beyond resynchronisation, a dropped SENSOR frame, a period overrun, an
- * implausible encoder jump) zeroes the torque, disables the driver and reports FAULT, STATS and
+ * implausible encoder jump, a controller output that is NaN or infinite) zeroes the torque, disables the driver and reports FAULT, STATS and
  * DONE (reason 2). The independent watchdog resets a hung board; the next START reports it. */
 #include <stdint.h>
 #include "fd_config.h"
@@ -169,13 +169,15 @@ static void fd_period(uint32_t raw_m, uint32_t raw_e)
     tau_s = (float)(fd_enc_m.count - fd_enc_e.count) * FD_K_RAD_PER_COUNT;   /* k (theta - q) [N m] */
 #endif
     tau_r = fd_reference_value(&fd_ref, k);
-    tau_m = fd_step(&fd_ctrl, tau_r, tau_s, theta);
+    tau_m = fd_step(&fd_ctrl, tau_r, tau_s, theta, q);
+    if (!(tau_m - tau_m == 0.0f)) {              /* NaN or infinite: the controller failed */
+        fd_fault(FD_FAULT_CONTROLLER);
+        return;
+    }
     if (tau_m > fd_tau_limit) {                  /* torque limit (fd_step saturates at FD_TAU_LIMIT too) */
         tau_m = fd_tau_limit;
     } else if (tau_m < -fd_tau_limit) {
         tau_m = -fd_tau_limit;
-    } else if (!(tau_m == tau_m)) {
-        tau_m = 0.0f;
     }
     fd_output(tau_m);
     fd_put_u32(p, k);
