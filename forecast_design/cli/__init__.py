@@ -562,6 +562,10 @@ def _configure_emulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", metavar="SCENARIO.toml",
                    help="the virtual hardware of a simulation scenario: its testbed, environment and [truth] "
                         "effects (friction, cogging, ...; docs/scenario.md)")
+    p.add_argument("--controller", default=None, metavar="FILE.c|FILE.py:Class",
+                   help="a controller written as code that the emulated board was built with (as export --firmware "
+                        "--controller FILE.c links it): the host's upload of it is accepted and it runs each period; "
+                        "linear controllers need no option (the host uploads them)")
     _add_environment_options(p, default="exp-soft", many=False)
 
 
@@ -571,7 +575,19 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
     from ..errors import ParameterError
     from ..runtime import emulate, parse_fault
 
+    import dataclasses
+
     faults = parse_fault(args.fault)
+    code = None
+    if args.controller is not None:
+        code = _controller_from_args(args)
+        if not code.is_code:
+            raise ParameterError(f"emulate --controller takes a controller written as code (FILE.c, FILE.py:Class); "
+                                 f"{code.spelling()} is uploaded by the host (run --controller)", name="controller",
+                                 value=args.controller)
+        from ..simulation.code import code_runner
+
+        code_runner(code)   # compiled and loaded now: a bad file is one line before the pty is served
     if args.scenario:
         from ..simulation.scenario import load_scenario
 
@@ -580,8 +596,11 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
                                  "the testbed and the environment)", name="scenario")
         scenario = load_scenario(args.scenario)
         _note(scenario.notes)
-        return emulate(faults=faults, design=scenario.design, effects=scenario.effects, realtime=args.realtime)
-    return emulate(faults=faults, design=_design_from_args(args), realtime=args.realtime)
+        design = scenario.design if code is None else dataclasses.replace(scenario.design, controller=code)
+        return emulate(faults=faults, design=design, effects=scenario.effects, realtime=args.realtime)
+    design = _design_from_args(args)
+    return emulate(faults=faults, design=design if code is None else dataclasses.replace(design, controller=code),
+                   realtime=args.realtime)
 
 
 def _configure_run(p: argparse.ArgumentParser) -> None:

@@ -51,4 +51,23 @@ def _cmd_export_firmware(args: argparse.Namespace, env, comp) -> int:
     if args.json != "-":
         print(f"wrote the {result.options.board} firmware project to {result.out_dir} ({len(result.files)} files, "
               f"sha256 {result.digest[:12]}); build it with: make -C {result.out_dir}")
+    _report_cycles(result.cycles)
     return 0
+
+
+def _report_cycles(cycles) -> None:
+    """A C controller's measured cost, on stderr: against the period's budget, a warning above half of it."""
+    import sys
+
+    if cycles is None:
+        return
+    if not cycles.get("measured"):
+        print(f"forecast-design: note: the C controller's cycle budget was not measured: {cycles['why']}",
+              file=sys.stderr)
+        return
+    line = (f"C controller on the Cortex-M4 (qemu, {cycles['steps']} steps): longest step <= "
+            f"{cycles['max_cycles_per_step_bound']:.0f} cycles, mean <= {cycles['cycles_per_step_bound']:.0f}, of "
+            f"{cycles['budget_cycles']:.0f} per period ({100 * cycles['max_budget_fraction']:.1f} %); "
+            f"max |M4 - host| {cycles['max_abs_diff_vs_host']:.3g} N m")
+    prefix = "warning" if cycles["verdict"] != "ok" else "note"
+    print(f"forecast-design: {prefix}: {line}", file=sys.stderr)

@@ -24,7 +24,8 @@ def _float_range(text: str) -> float:
 CONTROLLER_FORMS = ("pd:P:D[:T_f], pid:P:I:D[:T_f], tf:NUM/DEN or discrete:NUM/DEN (comma-separated "
                     "coefficients, descending powers), other:NAME, with :key=value for the kind's other keys "
                     "(e.g. pd:5:0.1:0.0008:discretization=tustin, pid:8:160:0:u_min=-2:u_max=2:anti_windup=clamping), "
-                    "or a TOML file with a [controller] table")
+                    "a TOML file with a [controller] table, or a controller written as code: FILE.c, FILE.py:Class "
+                    "or module:Class (docs/controllers-as-code.md)")
 
 
 def _add_controller_option(p: argparse.ArgumentParser, *, default: str = "pd:5:0.1") -> None:

@@ -39,8 +39,10 @@ def _cmd_pil(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, summary)
     if args.json != "-":
-        ips = summary["instructions_per_step"]
-        cost = f"; {ips:.0f} instructions/step of 84000 cycles" if ips is not None else ""
+        ips, worst = summary["instructions_per_step"], summary["max_instructions_per_step"]
+        cost = (f"; {ips:.0f} instructions per period (longest {worst:.0f}; x CPI 2 against 84000 cycles: "
+                f"{100 * summary['max_budget_fraction_at_cpi_2']:.1f} %)" if ips is not None and worst is not None
+                else "")
         fault = f"; firmware fault {result.fault}" if result.fault else ""
         print(f"{args.out}: {result.samples} of {result.expected} periods with the firmware in the loop{cost}{fault}")
     return 2 if result.fault else 0

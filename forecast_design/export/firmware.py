@@ -25,10 +25,10 @@ from ..fileio import atomic_write_set
 from ..params import BOARDS, OUTPUT_STAGES, Compensator, Design
 from ..program import ControllerProgram
 from .c import c_float_literal, export_controller
-from .toolchain import ARM_CFLAGS, M4_CLOCK_HZ
+from .toolchain import ARM_CFLAGS, M4_CLOCK_HZ, USER_ARM_CFLAGS
 
 __all__ = ["BOARDS", "OUTPUT_STAGES", "FirmwareOptions", "FirmwareResult", "export_firmware", "build_firmware",
-           "sensor_counts", "firmware_measurements", "TEMPLATE_FILES"]
+           "sensor_counts", "firmware_measurements", "TEMPLATE_FILES", "code_cycle_check", "CYCLE_WARNING_FRACTION"]
 
 #: Static sources copied verbatim from ``templates/firmware``.
 TEMPLATE_FILES = ("Makefile", "stm32f446re.ld", "startup.c", "fd_app.c", "fd_drivers.c", "fd_drivers.h",
@@ -135,6 +135,8 @@ class FirmwareResult:
         SHA-256 over every file written [hex].
     files : tuple of str
         File names written, sorted.
+    cycles : dict or None
+        A C controller's measured cost (:func:`code_cycle_check`); None otherwise.
     """
 
     out_dir: Path
@@ -143,10 +145,13 @@ class FirmwareResult:
     options: FirmwareOptions
     digest: str
     files: tuple[str, ...]
+    cycles: Mapping[str, Any] | None = None
 
     def to_mapping(self) -> dict[str, Any]:
         """Summary for ``--json``."""
         return {"out_dir": str(self.out_dir), "board": self.options.board, "options": self.options.to_mapping(),
+                "external_controller": self.program.external or None,
+                "controller_cycles": None if self.cycles is None else dict(self.cycles),
                 "files": list(self.files), "sha256": self.digest, "rate_hz": self.program.rate_hz,
                 "n_sections": self.program.n_sections, "tau_max_N_m": self.program.tau_max,
                 "controller": None if self.design.controller is None else self.design.controller.to_mapping(),
@@ -198,11 +203,68 @@ def _blob_source(program: ControllerProgram) -> str:
             f'#include "fd_config.h"\n\nconst uint8_t fd_blob[FD_BLOB_SIZE] = {{\n{rows}\n}};\n')
 
 
+#: A C controller whose longest measured step needs more than this share of the period is exported
+#: with a warning (above the whole period it is refused) [-].
+CYCLE_WARNING_FRACTION = 0.5
+
+
+def code_cycle_check(design: Design | None = None, *, controller: Any = None, compensator: Any = None,
+                     env: Any = None, w_q_hz: float | None = None, rate_hz: float = 2000.0,
+                     sfm_params: Mapping[str, float] | None = None, tau_max: float = math.inf,
+                     testbed: Any = None, n_steps: int = 4000) -> dict[str, Any]:
+    """The cost of a C controller's ``fd_step`` on the Cortex-M4 against the period's cycle budget.
+
+    The export (generated compensator and the user's ``fd_user.c``) is cross-compiled with the
+    board's flags in a scratch folder and run on qemu (mps2-an386, ``-icount``) over
+    :func:`~.toolchain.test_sequence` (with ``q``): the mean and the longest step are measured in
+    instructions and bounded in cycles at :data:`~.toolchain.M4_CPI_BOUND` cycles per instruction;
+    the outputs are compared with the same C built for the host (software in the loop).
+
+    Parameters
+    ----------
+    design, controller, compensator, env, w_q_hz, rate_hz, sfm_params, tau_max, testbed
+        As :func:`~forecast_design.export.c.export_controller`.
+    n_steps : int
+        Length of the input sequence [periods].
+
+    Returns
+    -------
+    dict
+        :meth:`~.toolchain.ArmRun.to_mapping` plus ``max_abs_diff_vs_host`` [N m], ``budget_cycles``
+        at ``rate_hz``, ``verdict`` (``ok``, ``warning``: the longest step above
+        :data:`CYCLE_WARNING_FRACTION` of the period, ``over``: above the period) and
+        ``inputs`` (what the cost was measured on); or ``{"measured": False, "why": ...}``
+        without the cross toolchain and qemu.
+    """
+    import shutil
+
+    from .toolchain import budget_cycles, check_on_cortex_m4, find_tools, scratch_dir
+
+    tools = find_tools()
+    if not tools.arm_ready:
+        return {"measured": False, "why": "no arm-none-eabi toolchain and qemu-system-arm on PATH "
+                                          "(tools/setup.sh --test installs them)"}
+    tmp = scratch_dir()
+    try:
+        export_controller(design, tmp, controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz,
+                          rate_hz=rate_hz, sfm_params=sfm_params, tau_max=tau_max, testbed=testbed)
+        m = check_on_cortex_m4(tmp, n_steps=n_steps)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    budget = budget_cycles(rate_hz)
+    worst = m["max_cycles_per_step_bound"]
+    verdict = "over" if worst > budget else ("warning" if worst > CYCLE_WARNING_FRACTION * budget else "ok")
+    return {"measured": True, **m, "budget_cycles": budget, "verdict": verdict,
+            "inputs": f"test_sequence({n_steps}): 0.2 N m square reference, first-order tau_s with noise, "
+                      "slow theta; a data-dependent controller may take longer on other inputs"}
+
+
 def export_firmware(design: Design | None = None, out_dir: str | Path = ".", *,
                     controller: Any = None, compensator: Compensator | str | None = None,
                     env: Any = None, w_q_hz: float | None = None, rate_hz: float = 2000.0,
                     sfm_params: Mapping[str, float] | None = None,
-                    options: FirmwareOptions | None = None, testbed: Any = None) -> FirmwareResult:
+                    options: FirmwareOptions | None = None, testbed: Any = None,
+                    check_cycles: bool = True) -> FirmwareResult:
     """Write the bare-metal firmware project for the Nucleo F446RE.
 
     Parameters
@@ -215,19 +277,38 @@ def export_firmware(design: Design | None = None, out_dir: str | Path = ".", *,
         As :func:`forecast_design.export.c.export_controller`.
     options : FirmwareOptions, optional
         Board settings (output stage, torque limit and scaling, link timeout...).
+    check_cycles : bool
+        For a controller written in C (``FILE.c``, linked as ``fd_user.c``): measure its cost
+        first (:func:`code_cycle_check`) and refuse a step longer than the period.
 
     Returns
     -------
     FirmwareResult
-        Folder, program, design, options and a digest of the files.
+        Folder, program, design, options, a digest of the files and, for a C controller, its
+        measured cost.
 
     Raises
     ------
     ParameterError
-        Bad design options; ExportError for a rate the SysTick cannot divide.
+        Bad design options; ExportError for a rate the SysTick cannot divide, or a C controller
+        whose longest measured step exceeds the period's cycle budget.
     """
+    from ..controllers import CController, resolve_controller
+
     opt = options or FirmwareOptions()
     out = Path(out_dir)
+    cycles = None
+    code = resolve_controller(controller) if controller is not None else (design.controller if design else None)
+    if check_cycles and isinstance(code, CController):
+        cycles = code_cycle_check(design, controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz,
+                                  rate_hz=rate_hz, sfm_params=sfm_params, tau_max=opt.tau_limit_N_m,
+                                  testbed=testbed)
+        if cycles.get("verdict") == "over":
+            raise ExportError(f"controller {code.source}: its longest step takes up to "
+                              f"{cycles['max_cycles_per_step_bound']:.0f} cycles "
+                              f"({cycles['max_instructions_per_step']:.0f} instructions x CPI "
+                              f"{cycles['cpi_bound']:g}) of the {cycles['budget_cycles']:.0f} in a {rate_hz:g} Hz "
+                              "period: it would overrun on the board (fault OVERRUN); make it cheaper or lower the rate")
     res = export_controller(design, out, controller=controller, compensator=compensator, env=env,
                             w_q_hz=w_q_hz, rate_hz=rate_hz, sfm_params=sfm_params,
                             tau_max=opt.tau_limit_N_m, testbed=testbed)
@@ -238,11 +319,13 @@ def export_firmware(design: Design | None = None, out_dir: str | Path = ".", *,
     texts["fd_config.h"] = _config_header(res.program, res.design, opt)
     texts["fd_blob.c"] = _blob_source(res.program)
     texts["config.mk"] = ("# generated by forecast-design: the export's Cortex-M4F flags "
-                          "(forecast_design.export.toolchain.ARM_CFLAGS)\nCFLAGS = " + " ".join(ARM_CFLAGS) + "\n")
+                          "(forecast_design.export.toolchain.ARM_CFLAGS; USER_ARM_CFLAGS for a C controller)\n"
+                          "CFLAGS = " + " ".join(ARM_CFLAGS) + "\nUSER_CFLAGS = " + " ".join(USER_ARM_CFLAGS) + "\n")
     atomic_write_set({out / name: text for name, text in texts.items()})
-    names = sorted([*texts, res.header.name, res.source.name])
+    names = sorted([*texts, res.header.name, res.source.name]
+                   + ([res.user_source.name] if res.user_source is not None else []))
     digest = hashlib.sha256(b"".join((out / n).read_bytes() for n in names)).hexdigest()
-    return FirmwareResult(out, res.program, res.design, opt, digest, tuple(names))
+    return FirmwareResult(out, res.program, res.design, opt, digest, tuple(names), cycles)
 
 
 def build_firmware(out_dir: str | Path, target: str = "board", *, timeout: float = 300.0) -> Path:

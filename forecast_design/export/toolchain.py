@@ -375,7 +375,7 @@ int main(void)
 {
     static fd_state state;
     volatile uint32_t *const syst = (volatile uint32_t *)0xE000E010u;
-    uint32_t t0, t1, i;
+    uint32_t t0, t1, i, worst = 0u;
     union { float f; uint32_t u; } bits;
     fd_init(&state);
     syst[1] = 0x00FFFFFFu;  /* RVR */
@@ -386,11 +386,25 @@ int main(void)
         fd_out[i] = fd_step(&state, fd_inputs[i][0], fd_inputs[i][1], fd_inputs[i][2], fd_inputs[i][3]);
     }
     t1 = syst[2];
+    /* second pass, each step timed alone: the longest step (a data-dependent controller's worst) */
+    fd_init(&state);
+    for (i = 0u; i < FD_N_INPUTS; ++i) {
+        uint32_t a, b;
+        syst[2] = 0u;
+        a = syst[2];
+        (void)fd_step(&state, fd_inputs[i][0], fd_inputs[i][1], fd_inputs[i][2], fd_inputs[i][3]);
+        b = syst[2];
+        if (((a - b) & 0x00FFFFFFu) > worst) {
+            worst = (a - b) & 0x00FFFFFFu;
+        }
+    }
     syst[0] = 0u;
     for (i = 0u; i < FD_N_INPUTS; ++i) {
         bits.f = fd_out[i];
         fd_put_hex(bits.u);
     }
+    fd_buf[fd_len++] = 'M';
+    fd_put_hex(worst);
     fd_buf[fd_len++] = 'T';
     fd_put_hex((t0 - t1) & 0x00FFFFFFu);
     fd_flush();
@@ -469,22 +483,34 @@ class ArmRun:
     instructions_per_step : float
         Executed instructions per ``fd_step`` call incl. the call and loop [-]
         (SysTick ticks x 40 under ``-icount shift=0``; resolution 40 / n).
+    max_instructions_per_step : float
+        The longest single step of the sequence, timed alone, rounded up to the SysTick tick
+        (40 instructions) [-]: an upper bound of that step (with the two SysTick reads around it).
     """
 
     outputs: np.ndarray
     instructions_per_step: float
+    max_instructions_per_step: float = math.nan
 
     @property
     def cycles_per_step_bound(self) -> float:
         """instructions_per_step x :data:`M4_CPI_BOUND` [cycles]."""
         return self.instructions_per_step * M4_CPI_BOUND
 
+    @property
+    def max_cycles_per_step_bound(self) -> float:
+        """max_instructions_per_step x :data:`M4_CPI_BOUND` [cycles]: against the period's budget."""
+        return self.max_instructions_per_step * M4_CPI_BOUND
+
     def to_mapping(self) -> dict[str, Any]:
         """Steps, instructions and the cycle estimate against the 2 kHz budget at 168 MHz."""
         budget = M4_CLOCK_HZ / 2000.0
         return {"steps": int(self.outputs.size), "instructions_per_step": self.instructions_per_step,
+                "max_instructions_per_step": self.max_instructions_per_step,
                 "cpi_bound": M4_CPI_BOUND, "cycles_per_step_bound": self.cycles_per_step_bound,
-                "budget_cycles_2khz_168mhz": budget, "budget_fraction": self.cycles_per_step_bound / budget}
+                "max_cycles_per_step_bound": self.max_cycles_per_step_bound,
+                "budget_cycles_2khz_168mhz": budget, "budget_fraction": self.cycles_per_step_bound / budget,
+                "max_budget_fraction": self.max_cycles_per_step_bound / budget}
 
 
 def run_qemu(elf: str | Path, n_steps: int, *, qemu: str | None = None, timeout: float = 120.0) -> ArmRun:
@@ -526,11 +552,15 @@ def run_qemu(elf: str | Path, n_steps: int, *, qemu: str | None = None, timeout:
     if not lines or not lines[-1].startswith("T"):
         raise ExportError(f"qemu run: no timing line in the output (last: {lines[-1:]!r})")
     ticks = int(lines[-1][1:], 16)
-    words = np.array([int(w, 16) for w in lines[:-1]], dtype=np.uint32)
+    if len(lines) < 2 or not lines[-2].startswith("M"):
+        raise ExportError(f"qemu run: no longest-step line in the output (got {lines[-2:-1]!r})")
+    worst = int(lines[-2][1:], 16)
+    words = np.array([int(w, 16) for w in lines[:-2]], dtype=np.uint32)
     if words.size != n_steps:
         raise ExportError(f"qemu run: {words.size} outputs for {n_steps} inputs")
-    per_step = ticks * (1e9 / _SYSTICK_HZ) / n_steps  # 1 instruction = 1 ns of virtual time
-    return ArmRun(words.view(np.float32).astype(float), per_step)
+    ns = 1e9 / _SYSTICK_HZ   # 1 instruction = 1 ns of virtual time
+    # a step timed alone reads whole ticks of 40 instructions: one more tick bounds it from above
+    return ArmRun(words.view(np.float32).astype(float), ticks * ns / n_steps, (worst + 1) * ns)
 
 
 def text_size(path: str | Path, *, size_tool: str | None = None) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import signal
@@ -184,7 +185,13 @@ class _Emulator:
             if t == M.UPLOAD:
                 from ..program import ControllerProgram
 
-                self.program = ControllerProgram.from_bytes(frame.payload)
+                program = ControllerProgram.from_bytes(frame.payload)
+                own = self.design.controller
+                if program.external and not (own is not None and own.is_code and own.identity() == program.external):
+                    # a board runs the code it was built with only (emulate --controller FILE.c)
+                    status = pr.Ack.BAD_PAYLOAD
+                else:
+                    self.program = program
             elif t == M.SET_REFERENCE:
                 self.reference = pr.decode_reference(frame.payload)
             elif t == M.START:
@@ -211,7 +218,13 @@ class _Emulator:
 
         bed = plant_stepper(self.design, self.effects, n=n, rate_hz=self.rate_hz, seed=self.runs,
                             process_noise_std=self.noise_std)
-        ctrl = self.program.make_step()
+        runner = None
+        if self.program.external:   # a controller written as code: float32 around it, as on the board
+            from ..simulation.code import code_runner
+
+            runner = code_runner(self.design.controller)
+            runner.reset(self.rate_hz, self.design.testbed, self.design.environment)
+        ctrl = self.program.make_step(np.float32 if runner is not None else np.float64)
         dt = 1.0 / self.rate_hz
         t0 = time.monotonic()
         sent, reason = 0, 0
@@ -226,7 +239,18 @@ class _Emulator:
             th, q, tau_s = bed.measure()
             t = i * dt
             tau_r = references[i]
-            tau_m = ctrl.step(tau_r, tau_s, th)
+            u_code = 0.0
+            if runner is not None:
+                try:
+                    u_code = runner.step(t, tau_r, tau_s, th, q)
+                except Exception:   # noqa: BLE001 - the user's code failed: the firmware's NaN path
+                    u_code = math.nan
+            tau_m = ctrl.step(tau_r, tau_s, th, u_external=u_code)
+            if not math.isfinite(tau_m):   # the firmware: zero torque, FAULT CONTROLLER, DONE (fault)
+                self._write_all(bytes(batch))
+                self._send(M.FAULT, pr.encode_fault(i, pr.Fault.CONTROLLER))
+                self._send(M.DONE, pr.encode_done(sent, 2))
+                return
             sample = pr.Sample(i, t, tau_m, th, q, tau_s, tau_r, ctrl.u, ctrl.hat)
             frame = pr.encode_frame(M.SAMPLE, self.seq, pr.encode_sample(sample))
             self.seq = (self.seq + 1) & 0xFFFF

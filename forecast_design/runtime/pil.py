@@ -119,10 +119,13 @@ class PilResult:
         """Summary for ``--json`` (without the arrays)."""
         budget = M4_CLOCK_HZ / 2000.0
         ips = self.instructions_per_step
+        worst = self.stats.get("max_instructions_per_step") if (self.stats and ips is not None) else None
         return {"samples": self.samples, "expected": self.expected, "fault": self.fault,
                 "fault_index": self.fault_index, "fault_latency_s": self.fault_latency_s, "stats": self.stats,
-                "instructions_per_step": ips, "budget_cycles_2khz_168mhz": budget,
-                "budget_fraction_at_cpi_2": None if ips is None else 2.0 * ips / budget, "path": self.path}
+                "instructions_per_step": ips, "max_instructions_per_step": worst,
+                "budget_cycles_2khz_168mhz": budget,
+                "budget_fraction_at_cpi_2": None if ips is None else 2.0 * ips / budget,
+                "max_budget_fraction_at_cpi_2": None if worst is None else 2.0 * worst / budget, "path": self.path}
 
 
 class QemuBoard:
@@ -187,6 +190,9 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
                        noise_std: float = 1e-3, dtype: Any = np.float32) -> dict[str, np.ndarray]:
     """The all-Python closed loop: the same plant stepper and discrete controller, no firmware.
 
+    A controller written as code (the program is ``external``) runs as its code: a C file
+    compiled for the host (software in the loop), fed the firmware's own float32 measurements.
+
     Parameters
     ----------
     program : ControllerProgram
@@ -221,6 +227,16 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
     ctrl = program.make_step(dtype)
     refs = ref.signal().sample(n, rate)
     single = np.dtype(dtype) == np.float32
+    runner = None
+    if program.external:   # a controller written as code: software in the loop (its C on the host)
+        from ..simulation.code import code_runner
+
+        if design.controller is None or not design.controller.is_code or \
+                design.controller.identity() != program.external:
+            raise ParameterError(f"the program runs {program.external}: give the design that controller",
+                                 name="controller", value=program.external)
+        runner = code_runner(design.controller)
+        runner.reset(rate, design.testbed, design.environment)
     out = {k: np.zeros(n) for k in _SIGNALS}
     for i in range(n):
         th, q, tau_s = bed.measure()
@@ -229,7 +245,8 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
                                                  sensor_counts(q, opt.rad_per_count), opt.rad_per_count,
                                                  design.testbed.k, design.environment.locked)
         tau_r = float(np.float32(refs[i])) if single else float(refs[i])
-        tau_m = ctrl.step(tau_r, tau_s, th)
+        u_code = 0.0 if runner is None else runner.step(i / rate, tau_r, tau_s, th, q)
+        tau_m = ctrl.step(tau_r, tau_s, th, u_external=u_code)
         for key, v in zip(out, (tau_m, th, q, tau_s, tau_r, ctrl.u, ctrl.hat)):
             out[key][i] = v
         bed.advance(tau_m)
@@ -238,7 +255,7 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
 
 def pil_session(board: Board, program, design: Design, reference: pr.Reference, n: int, *,
                 options: FirmwareOptions, faults: PilFaults | None = None, effects: Sequence[Any] = (),
-                seed: int = 1, noise_std: float = 1e-3, timeout: float = 5.0) -> tuple[list, dict]:
+                seed: int = 1, noise_std: float = 1e-3, timeout: float = 30.0) -> tuple[list, dict]:
     """Upload, start, and run ``n`` lock-step periods against a firmware behind ``board``.
 
     Returns
@@ -248,12 +265,14 @@ def pil_session(board: Board, program, design: Design, reference: pr.Reference, 
     """
     faults = faults or PilFaults()
     rate = program.rate_hz
+    # everything slow happens before START: once the firmware runs, a host pause longer than its
+    # link timeout is a LINK_TIMEOUT fault, not a slow machine
+    bed = plant_stepper(design, effects, n=n, rate_hz=rate, seed=seed, process_noise_std=noise_std,
+                        encoder_counts=options.encoder_counts)
     board.ping(connect_timeout=20.0)
     board.upload(program)
     board._command(pr.MsgType.SET_REFERENCE, pr.encode_reference(reference))
     board._command(pr.MsgType.START, pr.encode_start(n))
-    bed = plant_stepper(design, effects, n=n, rate_hz=rate, seed=seed, process_noise_std=noise_std,
-                        encoder_counts=options.encoder_counts)
     rng = np.random.default_rng(faults.seed)
     samples: list[pr.Sample] = []
     info: dict[str, Any] = {"fault": None, "fault_index": None, "fault_latency_s": None, "stats": None}
@@ -294,11 +313,14 @@ def pil_session(board: Board, program, design: Design, reference: pr.Reference, 
                     info["stats"] = pr.decode_stats(frame.payload).to_mapping()
                 elif frame.type == pr.MsgType.DONE:
                     done = True
+            if frames:
+                deadline = time.monotonic() + timeout   # silence is no frame at all, not a slow answer
             if waiting_for is None and k < n and k != faults.silent_at and not done:
                 break   # a dropped frame: send the next period at once
-            if time.monotonic() > deadline:
+            if not got and not done and time.monotonic() > deadline:
                 raise LinkError(f"{board.link.port}: firmware silent for {timeout} s at period {k} "
-                                f"({len(samples)} samples received)")
+                                f"({len(samples)} samples received; a controller step that never returns blocks "
+                                "the firmware: on the board its 10 ms watchdog resets it, torque off)")
         k += 1
     return samples, info
 
@@ -310,7 +332,7 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
             out: str | Path | None = None, work_dir: str | Path | None = None,
             options: FirmwareOptions | None = None, faults: PilFaults | None = None,
             effects: Sequence[Any] = (), seed: int = 1, noise_std: float = 1e-3, icount: bool = True,
-            timeout: float = 5.0, testbed: Any = None) -> PilResult:
+            timeout: float = 30.0, testbed: Any = None) -> PilResult:
     """The ``forecast-design pil`` verb: build the PIL firmware, run it on qemu against the virtual testbed.
 
     Parameters
@@ -334,7 +356,8 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     icount : bool
         Count instructions (qemu ``-icount shift=0``).
     timeout : float
-        Host wait for each answer [s].
+        Host wait for each answer [s]: generous, since a loaded machine can stall qemu for
+        seconds; a firmware that never answers is reported after it.
 
     Returns
     -------
@@ -359,8 +382,9 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     opt = options or FirmwareOptions()
     work = Path(work_dir) if work_dir else (Path(out).with_suffix("").with_name(Path(out).stem + "-firmware")
                                             if out else Path("pil-firmware"))
+    # the firmware's own STATS measure every period's cost here: no separate cycle check
     fw = export_firmware(design, work, controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz,
-                         rate_hz=rate_hz, sfm_params=sfm_params, options=opt, testbed=testbed)
+                         rate_hz=rate_hz, sfm_params=sfm_params, options=opt, testbed=testbed, check_cycles=False)
     elf = build_firmware(work, "pil")
     n = int(round(duration * fw.program.rate_hz))
     with QemuBoard(elf, icount=icount) as qemu, Board(qemu.port, timeout=timeout) as board:

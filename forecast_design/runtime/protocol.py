@@ -568,6 +568,7 @@ class Fault(IntEnum):
     OVERRUN = 4          #: a control period started before the previous one finished
     WATCHDOG_RESET = 5   #: the board restarted from its independent watchdog (reported at the next START)
     ENCODER = 6          #: an encoder moved more counts in one period than the plausibility limit
+    CONTROLLER = 7       #: the controller's command was NaN or infinite (e.g. a controller written as code failed)
 
 
 def encode_sensor(index: int, raw_motor: int, raw_env: int) -> bytes:
