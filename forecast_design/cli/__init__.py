@@ -12,6 +12,7 @@ from typing import Any, Callable, Sequence
 
 from .. import __version__
 from ..errors import ForecastError
+from ..fileio import guard_inputs
 from ..plausibility import require_no_nan
 from ..params import BREAK_POINTS, COMPENSATOR_KINDS, OBSERVER_KINDS, Q_FAMILIES
 
@@ -94,9 +95,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         # Python warnings (the toolbox's own, numpy's) become one line each, printed only when the verb
         # succeeds: an error path prints its one error line and nothing else.
-        with warnings.catch_warnings(record=True) as caught:
+        with warnings.catch_warnings(record=True) as caught, guard_inputs():
             if not args.debug:
                 warnings.simplefilter("default")
+            _refuse_inputs_as_outputs(args)      # no output replaces a file the command reads
             code = int(args.handler(args) or 0)
         _print_warnings(caught)
         return code
@@ -132,6 +134,7 @@ from ._options import (  # noqa: E402  (the shared option helpers; verb modules 
     _json_positional,
     _note,
     _one_environment_from_args,
+    _refuse_inputs_as_outputs,
     _testbed_from_args,
 )
 

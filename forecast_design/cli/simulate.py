@@ -35,7 +35,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         return _simulate_repetitions(args)
     out = Path(args.out)  # save_simulation writes RUN.toml, RUN.csv, RUN.truth.json, RUN.truth.csv
     _refuse_overwriting_inputs(args, [out])
-    check_writable(out)
+    check_writable(out, stream_ok=False)   # RUN.toml names a set (RUN.csv, RUN.truth.*): never a device
     scenario = load_scenario(args.scenario)
     _note(scenario.notes)
     if args.friction:
@@ -107,7 +107,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     base = Path(args.out)
     outs = [base.with_name(f"{base.stem}_{i:03d}{base.suffix or '.toml'}") for i in range(n)]
     _refuse_overwriting_inputs(args, outs)
-    check_writable(base)
+    check_writable(base, stream_ok=False)
     if args.friction:
         scenario = scenario.with_friction(_friction_from_file(args.friction))
     batch = simulate_scenario(scenario, repetitions=range(n))

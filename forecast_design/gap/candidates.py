@@ -216,6 +216,15 @@ def _structures(effect: Effect, data: GapData) -> list[_Structure]:
     return data.cache[key]
 
 
+def _decimate_grid(data: GapData, column: Callable[[float], np.ndarray], grid: np.ndarray) -> np.ndarray:
+    """``data.decimate_many`` of one raw-rate column per grid point, a few points per filter pass.
+
+    All 30 grid points at once held 30 raw-rate columns and their filter copies, the peak
+    memory of a long log (about 1.7 kB per sample); rows are bit-equal either way.
+    """
+    return np.concatenate([data.decimate_many([column(g) for g in grid[i:i + 3]]) for i in range(0, grid.size, 3)])
+
+
 def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
     c = data.columns
     opts = data.options
@@ -296,7 +305,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         tau_m = data.raw["tau_m"]
         rate = data.experiment.rate_hz
         d_grid = np.geomspace(0.1e-3, opts.max_delay_s, 30)
-        delayed = data.decimate_many([delayed_input(tau_m, delay, rate) for delay in d_grid])
+        delayed = _decimate_grid(data, lambda delay: delayed_input(tau_m, delay, rate), d_grid)
         for delay, dec in zip(d_grid, delayed):
             col = u - dec
             out.append(_Structure([_Coef("c", data.stack({"motor": col}), 0.0, 1.5)],
@@ -308,7 +317,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         if span <= 0.0:
             return out
         h_grid = np.geomspace(max(span * 1e-4, 1e-6), 0.8 * span, 30)
-        clipped = data.decimate_many([np.clip(x, -half, half) for half in h_grid])
+        clipped = _decimate_grid(data, lambda half: np.clip(x, -half, half), h_grid)
         for half, dec in zip(h_grid, clipped):
             clip = tb.k * dec
             if data.tau_s_measured:

@@ -82,7 +82,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -649,12 +648,10 @@ def load_scenario(path: str | os.PathLike[str]) -> Scenario:
     ExperimentFormatError
         Invalid TOML or any rule of the format (naming file and key).
     """
+    from ..experiment_io import read_toml
+
     p = Path(path)
-    try:
-        with open(p, "rb") as fh:
-            doc = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise ExperimentFormatError(f"{p}: invalid TOML: {exc}", path=str(p)) from None
+    doc, _ = read_toml(p, "scenario file")   # size, nesting, UTF-8 (with or without BOM) checked there
     return scenario_from_mapping(doc, source=str(p))
 
 
