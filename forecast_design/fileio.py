@@ -762,24 +762,28 @@ def staged_set(folder: str | os.PathLike[str], *, manifest: str = MANIFEST) -> I
 
 def _commit(root: Path, staging: Path, manifest: str) -> None:
     names = sorted(entry.name for entry in os.scandir(staging))
+    pending = root / f".{manifest}.pending"
     for name in names:
-        if name == manifest:
+        if name in (manifest, pending.name):
             raise OutputError(f"{root / name}: is the manifest's name; a member cannot use it", path=str(root / name))
         if (staging / name).is_dir() or (root / name).is_dir():
             raise OutputError(f"{root / name}: a set holds files only, not folders", path=str(root / name))
         _refuse_input(root / name, root / name)
     digests = {name: _sha256(staging / name) for name in names}
-    try:
-        previous = _read_manifest(root / manifest) or {}
-    except OutputError:
-        previous = {}
+    # every name that may be in the folder from an earlier set, also from writes killed half-way
+    # (their names stay in the pending list until a write completes): members the new set lacks go
+    earlier: set[str] = set()
+    for listing in (root / manifest, pending):
+        with contextlib.suppress(OutputError):
+            earlier |= set(_read_manifest(listing) or {})
+    atomic_write(pending, "".join(f"{'0' * 64}  {name}\n" for name in sorted(earlier | set(names))))
     try:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(root / manifest)      # from here until the end, readers see "no complete set"
         _fsync_dir(root)
         for name in names:
             os.replace(staging / name, root / name)
-        for name in set(previous) - set(names):
+        for name in earlier - set(names):
             with contextlib.suppress(OSError):
                 if (root / name).is_file():
                     os.unlink(root / name)
@@ -787,3 +791,5 @@ def _commit(root: Path, staging: Path, manifest: str) -> None:
     except OSError as exc:
         raise _error(root, exc) from None
     atomic_write(root / manifest, "".join(f"{digests[name]}  {name}\n" for name in names))
+    with contextlib.suppress(OSError):
+        os.unlink(pending)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 
@@ -50,9 +51,13 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     from ..environments import resolve_environments, resolve_testbed
     from ..errors import ParameterError
     from ..executor import make_executor
+    from ..fileio import MANIFEST, staged_set
 
     if not (args.duration > 0):
         raise ParameterError(f"--duration must be > 0 [s], got {args.duration}", name="duration")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise ParameterError(f"--out {args.out}: not a folder (the result folder holds tables, plots and cells/)",
+                             name="out", value=args.out)
     t0 = time.perf_counter()
     if args.runs is not None:
         given = [f"--{name.replace('_', '-')}" for name in ("controller", "compensator", "envs", "reference",
@@ -90,24 +95,28 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     info["elapsed_s"] = round(time.perf_counter() - t0, 3)
     rows = result_rows(cells)
     df = result_table(cells)
-    paths = write_tables(df, args.out)
     plots = {}
-    if not args.no_plots:
-        from ..plotting.benchmark import plot_heatmap, plot_indicators, plot_overlays
+    # the result folder is one unit: written into a staging folder, swapped in, MANIFEST.sha256 last
+    # (read_results refuses a folder whose manifest is missing or does not match); cells/ stays a cache
+    with staged_set(args.out) as staging:
+        write_tables(df, staging)
+        if not args.no_plots:
+            from ..plotting.benchmark import plot_heatmap, plot_indicators, plot_overlays
 
-        for caption, name, draw in (("Indicators against environment stiffness", "indicators.png",
-                                     lambda p: plot_indicators(df, p)),
-                                    ("Repetition overlays", "overlays.png", lambda p: plot_overlays(cells, p)),
-                                    ("Heat map of the set", "heatmap.png", lambda p: plot_heatmap(df, p))):
-            fig = draw(paths["csv"].parent / name)
-            import matplotlib.pyplot as plt
+            for caption, name, draw in (("Indicators against environment stiffness", "indicators.png",
+                                         lambda p: plot_indicators(df, p)),
+                                        ("Repetition overlays", "overlays.png", lambda p: plot_overlays(cells, p)),
+                                        ("Heat map of the set", "heatmap.png", lambda p: plot_heatmap(df, p))):
+                fig = draw(staging / name)
+                import matplotlib.pyplot as plt
 
-            plt.close(fig)
-            plots[caption] = name
-    doc = summary(rows, spec_doc, info)
-    doc["files"] = {"parquet": "results.parquet", "csv": "results.csv", "report": "report.md", "plots": plots}
-    write_summary(doc, args.out)
-    write_report(markdown_report(rows, spec_doc, info, plots), args.out)
+                plt.close(fig)
+                plots[caption] = name
+        doc = summary(rows, spec_doc, info)
+        doc["files"] = {"parquet": "results.parquet", "csv": "results.csv", "report": "report.md", "plots": plots,
+                        "manifest": MANIFEST}
+        write_summary(doc, staging)
+        write_report(markdown_report(rows, spec_doc, info, plots), staging)
     if args.json:
         _write_json(args.json, doc)
     if args.json != "-":
