@@ -69,6 +69,7 @@ def loop_margins(
     delay_samples: int = 1,
     skew: float = 0.0,
     sigma: float | None = None,
+    method: str = "tustin",
 ) -> DiskMargin:
     """Disk margin of one force loop (the ``margins`` verb).
 
@@ -103,6 +104,9 @@ def loop_margins(
         Disk skew [-] (python-control's name).
     sigma : float or None
         Alias of ``skew``.
+    method : str
+        Discretisation of the controller and observer for ``sampled`` (``tustin``, ``zoh``,
+        ``backward-euler``: the simulator's ``method``).
 
     Returns
     -------
@@ -120,7 +124,7 @@ def loop_margins(
     ctrl = controller if controller is not None else (design.controller or PDController(P=5.0, D=0.1))
     if sampled:
         return sampled_force_loop(design, comp, controller=ctrl, believed=believed, rate_hz=rate_hz,
-                                  break_at=break_at, delay_samples=delay_samples).disk_margin(sigma)
+                                  break_at=break_at, delay_samples=delay_samples, method=method).disk_margin(sigma)
     from .loops import force_loop
 
     loop = force_loop(design, comp, controller=ctrl, believed=believed, break_at=break_at)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import sys
 import warnings
@@ -366,8 +367,9 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
         _write_json(args.json, mapping)
     if args.json != "-":
         extra = f", Q damping {result.q_damping:.4g}" if result.q_damping is not None else ""
-        print(f"{result.observer}: w_q = {result.w_q_hz:.4g} Hz{extra}, worst ratio {result.worst_ratio:.4f} "
-              f"({result.worst_environment}), feasible {result.feasible}; scan best {result.scan_w_q_hz:.4g} Hz, "
+        hz = lambda v: f"{v:.4g} Hz" if math.isfinite(v) else "none"    # noqa: E731 (infeasible: no cutoff)
+        print(f"{result.observer}: w_q = {hz(result.w_q_hz)}{extra}, worst ratio {result.worst_ratio:.4f} "
+              f"({result.worst_environment or '-'}), feasible {result.feasible}; scan best {hz(result.scan_w_q_hz)}, "
               f"agrees {result.agrees_with_scan}; {result.plants} plants, {result.evaluations} evaluations")
     if result.at_bound:
         option = "--band" if result.q_damping is None else "the damping range"
@@ -427,6 +429,9 @@ def _configure_identify(p: argparse.ArgumentParser) -> None:
 
 
 def _load_log(path: str, args: argparse.Namespace):
+    from ..plausibility import limit_of
+
+    limit = limit_of("log_samples_identify")
     if args.csv is not None:
         from ..friction import load_axis_csv
 
@@ -436,10 +441,10 @@ def _load_log(path: str, args: argparse.Namespace):
 
             raise ParameterError(f"--csv needs --{', --'.join(missing)} (the column names)", name=missing[0])
         return load_axis_csv(path, time=args.time, position=args.position, force=args.force,
-                             rate_hz=args.rate_hz, scale_force=args.scale_force)
+                             rate_hz=args.rate_hz, scale_force=args.scale_force, max_samples=limit)
     from ..experiment import load_experiment
 
-    return load_experiment(path)
+    return load_experiment(path, max_samples=limit, reader="identify")
 
 
 @_command("identify", "identify friction from a log by least squares (casadi), SFM to LuGre", _configure_identify)
@@ -632,7 +637,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from ..gap import diagnose
     from ..reporting import write_report
 
-    experiment = load_experiment(args.experiment)
+    from ..plausibility import limit_of
+
+    experiment = load_experiment(args.experiment, max_samples=limit_of("log_samples_diagnose"), reader="diagnose")
     diagnosis = diagnose(experiment)
     mapping = require_no_nan(diagnosis.to_mapping(), "diagnose")
     if args.report:
@@ -655,8 +662,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"this log cannot tell apart: {', '.join(pairs)}")
     for row in mapping["ranking"]:
         if not row["identified"] and row["reduction"] >= diagnosis.data.options.min_reduction:
-            print(f"warning: {row['effect']} would remove {100 * row['reduction']:.0f} % of the gap but is not "
-                  f"identified on this log: {'; '.join(row['reasons'][:2])}", file=sys.stderr)
+            print(f"forecast-design: warning: {row['effect']} would remove {100 * row['reduction']:.0f} % of the gap "
+                  f"but is not identified on this log: {'; '.join(row['reasons'][:2])}", file=sys.stderr)
     if args.report and args.json != "-":
         print(f"report: {args.report}")
     return 0

@@ -70,7 +70,9 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             cells, info = run_recorded(args.runs, out=args.out, executor=executor, progress=progress,
                                        derivative_on=args.derivative_on)
         for why in info["skipped"]:
-            print(f"note: skipped {why}", file=sys.stderr)
+            print(f"forecast-design: note: skipped {why}", file=sys.stderr)
+        for why in info["unreadable"]:
+            print(f"forecast-design: warning: skipped {why}", file=sys.stderr)
         spec_doc = {"runs": args.runs, "controllers": sorted({c.labels["controller"] for c in cells}),
                     "compensators": sorted({c.labels["compensator"] for c in cells}),
                     "environments": {c.labels["environment"]: dict(c.environment) for c in cells},
@@ -80,7 +82,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         testbed = resolve_testbed(args.testbed)
         envs = resolve_environments(args.envs or "exp-soft,locked", testbed=testbed, seed=args.seed)
         for note in envs.notes:
-            print(f"note: {note}", file=sys.stderr)
+            print(f"forecast-design: note: {note}", file=sys.stderr)
         spec = BenchmarkSpec(
             controllers=tuple(parse_controller(c) for c in (args.controller or ["pd:5:0.1"])),
             compensators=parse_compensators(args.compensator or ["none,sfm,ea-fob"]),
@@ -132,11 +134,11 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         where = f"{c.labels['controller']} + {c.labels['compensator']} in {c.labels['environment']}"
         runs = [r for r in c.runs if isinstance(r, dict)]
         if any(r.get("expected_diverged_at_s") is not None for r in runs):
-            print(f"warning: {where}: the frictionless expected response (nominal plant, d_m = 0) diverges: "
+            print(f"forecast-design: warning: {where}: the frictionless expected response (nominal plant, d_m = 0) diverges: "
                   "mae_N_m is not scored", file=sys.stderr)
         bad = [r["repetition"] for r in runs if not math.isnan(float(r.get("diverged_at_s", math.nan)))]
         if bad:
             unstable += 1
-            print(f"warning: {where}: repetitions {', '.join(map(str, bad))} diverged (unstable closed loop): "
+            print(f"forecast-design: warning: {where}: repetitions {', '.join(map(str, bad))} diverged (unstable closed loop): "
                   "not scored", file=sys.stderr)
     return 1 if unstable else 0

@@ -133,6 +133,27 @@ class SampledForceLoop:
         return disk_margin_from_polynomials(proxy, num / f, den / f, sigma, stable)
 
 
+#: Widest spread of the characteristic polynomial's coefficients the exact analysis trusts [decades]:
+#: each delay sample multiplies it by 2/T (3.6 decades at 2 kHz); beyond about 300 decades double
+#: precision loses the roots (a stable loop read as unstable, then LinAlgError), and up to 290 the
+#: margins were checked against a dense frequency grid and the poles against a state-space model.
+MAX_COEFFICIENT_DECADES = 250.0
+
+
+def _check_resolvable(chi: np.ndarray, delay_samples: int, rate_hz: float) -> None:
+    """Refuse a loop whose characteristic polynomial double precision cannot resolve (issue 23)."""
+    magnitudes = np.abs(chi[chi != 0.0])
+    finite = bool(np.all(np.isfinite(chi)))
+    decades = float(np.log10(magnitudes.max() / magnitudes.min())) if finite and magnitudes.size else math.inf
+    if decades > MAX_COEFFICIENT_DECADES:
+        spread = f"spans {decades:.0f} decades" if math.isfinite(decades) else "overflows"
+        raise ParameterError(f"delay_samples = {delay_samples} at rate_hz = {rate_hz:g} Hz: the sampled loop's "
+                             f"characteristic polynomial {spread}, more than double precision "
+                             f"resolves ({MAX_COEFFICIENT_DECADES:g}; each delay sample adds "
+                             f"{math.log10(2.0 * rate_hz):.1f}); give fewer delay samples",
+                             name="delay_samples", value=delay_samples)
+
+
 def _deflate_w(p: np.ndarray, what: str) -> np.ndarray:
     """p(w) / w for the exact rigid-body root w = 0, checking it is there up to rounding."""
     p = np.asarray(p, float)
@@ -268,6 +289,7 @@ def sampled_force_loop(
     break_at: str = "controller",
     delay_samples: int = 1,
     derivative_cutoff_hz: float | None = None,
+    method: str = "tustin",
 ) -> SampledForceLoop:
     """The force loop as it runs on the board: discrete controller and observer, ZOH plant.
 
@@ -292,6 +314,9 @@ def sampled_force_loop(
         applied from t_(n+d) (the issue's model: 1; the simulator applies it at once: 0).
     derivative_cutoff_hz : float or None
         Derivative filter of the PD [Hz]; ``None``: the simulator's default (200 Hz).
+    method : str
+        Discretisation of the PD and the observer filters, as the simulator's ``method``
+        (default ``tustin``; ``zoh``, ``backward-euler``).
 
     Returns
     -------
@@ -351,12 +376,13 @@ def sampled_force_loop(
     d = delay_samples
     rho, ell = np.array([a, 1.0]), np.array([-a, 1.0])
     cutoff = DEFAULT_DERIVATIVE_CUTOFF_HZ if derivative_cutoff_hz is None else derivative_cutoff_hz
-    ctf = DiscretePD(controller, rate_hz, derivative_cutoff_hz=cutoff).tf
+    ctf = DiscretePD(controller, rate_hz, derivative_cutoff_hz=cutoff, method=method).tf
     Cn, Cd = (poly.trim(p) for p in to_w(ctf))
     plant = zoh_plant(true_design, rate_hz)
     Ns, Nt, D = plant.Ns_w, plant.Nt_w, plant.D_w
     if compensator is not None and compensator.is_observer:
-        obs = ObserverCompensator(compensator, believed if believed is not None else true_design, rate_hz)
+        obs = ObserverCompensator(compensator, believed if believed is not None else true_design, rate_hz,
+                                  method=method)
         # a zero filter (e.g. G_theta of the DOBs) runs as one zero section: no poles
         pairs = [to_w(tf) if any(c != 0.0 for c in tf.num) else (np.zeros(1), np.ones(1)) for tf in obs.tfs]
         dens = [den for _, den in pairs]
@@ -387,6 +413,7 @@ def sampled_force_loop(
         den = poly.mul(Cd, D, poly.power(rho, d), poly.sub(poly.mul(E, rho), poly.mul(Bm, ell)))
         Lw = RationalTF(poly.trim(num), poly.trim(den), name="L_w")
     order = (len(Cd) - 1) + (len(D) - 1) + (len(E) - 1) + d + 1
+    _check_resolvable(chi, d, rate_hz)
     roots = np.roots(chi) if len(chi) > 1 else np.zeros(0, dtype=complex)
     stable = len(chi) - 1 == order and bool(
         np.all(roots.real < -STABILITY_TOLERANCE * np.maximum(1.0, np.abs(roots))))

@@ -56,6 +56,7 @@ from ..errors import ParameterError
 from ..discrete import DiscreteFilter, DiscreteTF, discretize, njit as _njit
 from ..lti import RationalTF
 from ..params import Compensator, Design, PDController
+from ..plausibility import check_below_nyquist
 
 __all__ = [
     "DEFAULT_DERIVATIVE_CUTOFF_HZ",
@@ -372,6 +373,7 @@ class ObserverCompensator:
         if compensator is None or not compensator.is_observer:
             raise ParameterError(f"ObserverCompensator needs an observer kind, got {compensator!r}",
                                  name="kind", value=getattr(compensator, "kind", None))
+        check_below_nyquist("w_q_hz (the Q cutoff)", compensator.w_q_hz, rate_hz)   # issue 23
         self.filters = observer_filters(compensator, believed)
         self.tfs = tuple(discretize(cancel_common_roots(tf), rate_hz, method)
                          for tf in (self.filters.from_tau_m, self.filters.from_tau_s, self.filters.from_theta))

@@ -88,6 +88,15 @@ class TuningResult:
         return out
 
 
+def _require_plant_margins(plants: Sequence[Any], what: str) -> None:
+    """Refuse a set where the loop without observer already has no margin: no ratio of it can be met."""
+    dead = sorted({p.label for p in plants if not p.alpha_plant > 0.0})
+    if dead:
+        raise SolverError(f"{what}: the force loop without an observer is unstable (disk margin 0) in "
+                          f"{', '.join(dead[:3])}{' ...' if len(dead) > 3 else ''}: no Q cutoff keeps a share of its "
+                          "margin; check the loop with margins (--sampled at this rate)")
+
+
 def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff"), *,
            uncertainty: float = 0.0, min_ratio: float = 0.9, band_hz: tuple[float, float] = (0.5, 30.0),
            q_family: str = "butterworth", q_order: int = 2, controller: PDController = PDController(),
@@ -193,6 +202,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), delay_samples)
     base = Compensator(kind=observer, w_q_hz=band_hz[0], q_family=q_family, q_order=q_order)
     plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed, executor=executor)
+    _require_plant_margins(plants, "tune_q")
     coeffs = _q_polynomial(base)
     evaluations = len({p.true_design for p in plants})    # plant-alone margins
     threshold = min_ratio * (1.0 - _FEAS_RTOL)
@@ -356,6 +366,7 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
     setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), delay_samples)
     base = Compensator(kind=observer, w_q_hz=w_q_hz, q_family="butterworth", q_order=2)
     plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed, executor=executor)
+    _require_plant_margins(plants, "tune_q_shape")
     w_q = 2 * math.pi * w_q_hz
     import casadi as ca
 
