@@ -552,6 +552,8 @@ def parse_controller(text: str) -> PDController:
     gains = []
     for part in parts[1:]:
         try:
+            if "_" in part:     # float() reads '5_0' as 50: digit separators are not a gain's syntax
+                raise ValueError(part)
             gains.append(float(part))
         except ValueError:
             raise ParameterError(f"controller {text!r}: {part!r} is not a number; {form}", name="controller",

@@ -25,6 +25,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ..errors import ParameterError
+from ..plausibility import check_limit
 from ..executor import Executor, LocalExecutor
 from ..fileio import atomic_write
 from ..params import Compensator, Design
@@ -262,6 +263,9 @@ def run_benchmark(spec: BenchmarkSpec, *, out: str | os.PathLike[str] | None = N
     if not isinstance(spec, BenchmarkSpec):
         raise ParameterError("run_benchmark needs a BenchmarkSpec", name="spec", value=type(spec).__name__)
     cells: list[Cell] = spec.cells()
+    for c in cells:     # one cell is one batch: bounded before any is simulated (or identified)
+        check_limit(f"benchmark cell of {spec.repetitions} repetitions x {c.duration_s:g} s at {spec.rate_hz:g} Hz",
+                    "batch_samples", spec.repetitions * max(1, round(c.duration_s * spec.rate_hz)))
     if sfm_params is None and any(c.compensator.kind == "sfm" for c in cells):
         sfm_params, _, _ = identify_extended_sfm(spec.effects, seed=spec.seed, testbed=spec.testbed)
     sfm = None if sfm_params is None else {k: float(v) for k, v in sfm_params.items()}

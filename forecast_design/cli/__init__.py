@@ -155,7 +155,11 @@ def _cmd_tf(args: argparse.Namespace) -> int:
 
     testbed = _testbed_from_args(args)
     designs = _environments_from_args(args).designs(testbed)
-    results = [(label, transfer_functions(design)) for label, design in designs]
+    results = []
+    with _progress_bar("tf", "environment", enabled=args.json != "-" and len(designs) > 1) as progress:
+        for label, design in designs:
+            results.append((label, transfer_functions(design)))
+            progress(len(results), len(designs))
     require_no_nan({label: tfs.to_mapping() for label, tfs in results}, "tf")
     if args.plot:
         from ..plotting.bode import plot_bode
@@ -209,7 +213,9 @@ def _write_json(target: str, obj: Any) -> None:
 def _reproduce_fig6(args: argparse.Namespace) -> int:
     from ..reproduce import fig6_table
 
-    rows = fig6_table(environments=_environments_from_args(args), testbed=_testbed_from_args(args), skew=args.sigma)
+    with _progress_bar("fig6", "environment", enabled=args.json != "-") as progress:
+        rows = fig6_table(environments=_environments_from_args(args), testbed=_testbed_from_args(args),
+                          skew=args.sigma, progress=progress)
     mapping = [row.to_mapping() for row in rows]
     if args.plot:
         from ..plotting.margins import plot_fig6
@@ -579,7 +585,8 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
                                  "the testbed and the environment)", name="scenario")
         scenario = load_scenario(args.scenario)
         _note(scenario.notes)
-        return emulate(faults=faults, design=scenario.design, effects=scenario.effects, realtime=args.realtime)
+        with scenario.naming_errors():      # e.g. an RK4 step unstable for this plant: names the scenario file
+            return emulate(faults=faults, design=scenario.design, effects=scenario.effects, realtime=args.realtime)
     return emulate(faults=faults, design=_design_from_args(args), realtime=args.realtime)
 
 
@@ -601,7 +608,7 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
 
 @_command("run", "upload the exported controller to a board, record a run as an experiment", _configure_run)
 def _cmd_run(args: argparse.Namespace) -> int:
-    from ..runtime import LinkError, run_on_port
+    from ..runtime import BoardError, LinkError, run_on_port
 
     try:
         comp = _compensator_from_args(args)
@@ -610,9 +617,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
                              w_q_hz=args.w_q_hz, env=_one_environment_from_args(args, "run")[1],
                              testbed=_testbed_from_args(args), timeout=args.timeout)
         summary = result.to_mapping()
-    except LinkError as exc:
+    except (LinkError, BoardError) as exc:
+        # a run that ended badly (lost link, board fault, a late write failure saved to a recovery file)
+        # still gets its --json summary, and the one error line says where it went
         if args.json and getattr(exc, "summary", None):
-            _write_json(args.json, exc.summary)
+            try:
+                _write_json(args.json, exc.summary)
+                note = "" if args.json == "-" else f"; run summary written to {args.json}"
+            except ForecastError as failed:
+                note = f"; the run summary could not be written either ({str(failed).splitlines()[0]})"
+            exc.args = (f"{str(exc).splitlines()[0]}{note}",) + exc.args[1:]
         raise
     if args.json:
         _write_json(args.json, summary)
@@ -719,7 +733,10 @@ def _configure_margins(p: argparse.ArgumentParser) -> None:
     p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
     p.add_argument("--sampled", action="store_true", help="sampled-data loop at --rate-hz")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0)
-    p.add_argument("--delay-samples", type=int, default=1)
+    p.add_argument("--delay-samples", type=int, default=1,
+                   help="--sampled: computation delay [samples] (default 1; the simulator and the firmware: 0)")
+    p.add_argument("--method", default="tustin", choices=("tustin", "zoh", "backward-euler"),
+                   help="--sampled: discretisation of controller and observer, as simulate's (default tustin)")
     _add_skew_option(p)
     _add_json_option(p, "the margins")
     p.add_argument("--plot", metavar="OUT.png", help="frequency-dependent disk margin")
@@ -741,8 +758,13 @@ def _cmd_margins(args: argparse.Namespace) -> int:
         believed_env = resolve_environments(args.believed, testbed=design.testbed).single("--believed")[1]
         believed = Design(testbed=design.testbed, environment=believed_env)
     controller = parse_controller(args.controller)
+    if not args.sampled and (args.method != "tustin" or args.delay_samples != 1):
+        from ..errors import ParameterError
+
+        raise ParameterError("--method and --delay-samples describe the sampled loop; add --sampled", name="sampled")
     dm = loop_margins(design, comp, believed=believed, controller=controller, break_at=args.break_at,
-                      sampled=args.sampled, rate_hz=args.rate_hz, delay_samples=args.delay_samples, sigma=args.sigma)
+                      sampled=args.sampled, rate_hz=args.rate_hz, delay_samples=args.delay_samples, sigma=args.sigma,
+                      method=args.method)
     if args.plot and dm.stable:
         import numpy as np
 
@@ -751,11 +773,15 @@ def _cmd_margins(args: argparse.Namespace) -> int:
         from ..loops import force_loop
 
         kwargs = dict(controller=controller, believed=believed, break_at=args.break_at)
-        loop = (sampled_force_loop(design, comp, rate_hz=args.rate_hz, delay_samples=args.delay_samples, **kwargs)
+        loop = (sampled_force_loop(design, comp, rate_hz=args.rate_hz, delay_samples=args.delay_samples,
+                                   method=args.method, **kwargs)
                 if args.sampled else force_loop(design, comp, **kwargs))
         top = np.pi * args.rate_hz if args.sampled else 1e4
         plot_disk_margin_curve(disk_margin_curve(loop.L, np.geomspace(1e-2, top, 800), args.sigma), args.plot)
-    mapping = require_no_nan({**dm.to_mapping(), "environment": env_name, "compensator": args.observer}, "margins")
+    assumed = ({"sampled": {"rate_hz": args.rate_hz, "delay_samples": args.delay_samples, "method": args.method}}
+               if args.sampled else {"sampled": None})
+    mapping = require_no_nan({**dm.to_mapping(), "environment": env_name, "compensator": args.observer, **assumed},
+                             "margins")
     if args.json:
         _write_json(args.json, mapping)
     if not dm.stable:
@@ -769,6 +795,9 @@ def _cmd_margins(args: argparse.Namespace) -> int:
         print(f"disk margin {dm.alpha:.4f} (stable): gain [{lo:.3f}, {hi:.3f}] dB, phase "
               f"+-{dm.phase_margin_deg:.2f} deg at {dm.frequency_rad_s / (2 * 3.141592653589793):.4g} Hz "
               f"({dm.frequency_rad_s:.4g} rad/s); delay margin {dm.delay_margin_s:.4g} s")
+        if args.sampled:
+            print(f"sampled loop: {args.rate_hz:g} Hz, {args.method}, command applied {args.delay_samples} sample(s) "
+                  "after it is computed (simulate and the firmware: 0)")
         if args.plot:
             print(f"plot: {args.plot}")
     return 0

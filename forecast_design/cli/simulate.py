@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from . import _add_json_option, _command, _friction_from_file, _json_positional, _note, _write_json
+from . import _add_json_option, _command, _friction_from_file, _json_positional, _note, _progress_bar, _write_json
 
 
 def _configure_simulate(p: argparse.ArgumentParser) -> None:
@@ -77,6 +77,9 @@ def _compensator_keys(comp) -> dict:
             "friction": None if comp is None else comp.friction_params}
 
 
+_BATCH_SAMPLES = 1_000_000   # samples simulated (and held) at once by simulate --repetitions
+
+
 def _repetition_count(text: str, available: int, source: str) -> int:
     from ..errors import ParameterError
 
@@ -97,10 +100,12 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..fileio import check_writable
+    from ..plausibility import check_limit
     from ..simulation.batch import simulate_scenario
     from ..simulation.run import save_simulation
     from ..simulation.scenario import load_scenario
 
+    check_writable(args.out, stream_ok=False)
     scenario = load_scenario(args.scenario)
     _note(scenario.notes)
     n = _repetition_count(args.repetitions, scenario.repetition_count, args.scenario)
@@ -110,9 +115,24 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     check_writable(base, stream_ok=False)
     if args.friction:
         scenario = scenario.with_friction(_friction_from_file(args.friction))
-    batch = simulate_scenario(scenario, repetitions=range(n))
-    results = [batch.result(i) for i in range(n)]
-    written = [save_simulation(result, out) for result, out in zip(results, outs)]
+    samples = max(1, round(scenario.options["duration_s"] * scenario.rate_hz))
+    check_limit(f"--repetitions: {n} runs x {samples} samples", "batch_samples", n * samples)
+    # batches of at most 1e6 samples (about 280 MB): each is written when done (memory of one batch, not of
+    # all runs) and the bar moves; every run is bit-equal to its own simulation, whatever the batch
+    step = max(1, min(n, _BATCH_SAMPLES // samples))
+    results, written, stats = [], [], []
+    with _progress_bar("simulate", "run", enabled=args.json != "-") as progress:
+        for start in range(0, n, step):
+            stop = min(n, start + step)
+            batch = simulate_scenario(scenario, repetitions=range(start, stop))
+            for k in range(stop - start):
+                result = batch.result(k)
+                written.append(save_simulation(result, outs[start + k]))
+                if args.json:
+                    stats.append(result.to_mapping()["statistics"])
+                if args.plot:
+                    results.append(result)
+            progress(stop, n)
     if args.plot:
         from ..plotting.simulation import plot_simulation
 
@@ -120,8 +140,8 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, {**_compensator_keys(scenario.design.compensator),
                                 "repetitions": [{"repetition": i, **{k: str(v) for k, v in paths.items()},
-                                                 "statistics": result.to_mapping()["statistics"]}
-                                                for i, (paths, result) in enumerate(zip(written, results))]})
+                                                 "statistics": stat}
+                                                for i, (paths, stat) in enumerate(zip(written, stats))]})
     if args.json != "-":
         for i, paths in enumerate(written):
             print(f"repetition {i}: {paths['experiment']}")

@@ -79,12 +79,13 @@ Omitted optional keys take the defaults of :func:`~.run.simulate`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -153,6 +154,7 @@ class Variability:
         if isinstance(self.repetitions, bool) or not isinstance(self.repetitions, int) or self.repetitions < 1:
             raise ParameterError(f"variability repetitions must be an integer >= 1, got {self.repetitions!r}",
                                  name="repetitions", value=self.repetitions)
+        check_limit("repetitions", "repetitions", self.repetitions)   # before any array of them is made
         if self.initial_angle not in ("random", "fixed"):
             raise ParameterError(f"variability initial_angle must be 'random' or 'fixed', got "
                                  f"{self.initial_angle!r}", name="initial_angle", value=self.initial_angle)
@@ -323,8 +325,25 @@ class Scenario:
         (:meth:`repetition`)."""
         rep = self.repetition(repetition)
         opts = {**self.options, "seed": rep.seed, "initial_angle": rep.initial_angle}
-        return simulate(self.design, reference=self.reference, effects=rep.effects, rate_hz=self.rate_hz,
-                        closed_loop=self.closed_loop, description=rep.description, **opts)
+        with self.naming_errors():
+            return simulate(self.design, reference=self.reference, effects=rep.effects, rate_hz=self.rate_hz,
+                            closed_loop=self.closed_loop, description=rep.description, **opts)
+
+    @contextlib.contextmanager
+    def naming_errors(self) -> Iterator[None]:
+        """Within the block, a ``ParameterError`` of the simulation (an unstable RK4 step for this plant, a
+        value no load check covers) names the scenario file first, as every scenario error does.
+
+        Yields
+        ------
+        None
+        """
+        try:
+            yield
+        except ParameterError as exc:
+            if not self.source or str(exc).startswith(f"{self.source}: "):
+                raise
+            raise ExperimentFormatError(f"{self.source}: {exc}", path=self.source, key=exc.name) from None
 
     def runs(self) -> list[SimulationResult]:
         """Every repetition of the scenario (one run without ``[variability]``)."""
@@ -548,6 +567,10 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
                                                 "([[truth.effects]])", path=source, key="truth.effects")
                 effects = [effect_from_mapping(e, source=source, where=f"truth.effects[{i}]")
                            for i, e in enumerate(value)]
+                words = [str(getattr(e, "effect", type(e).__name__)) for e in effects]
+                for word in dict.fromkeys(w for w in words if words.count(w) > 1):
+                    raise ExperimentFormatError(f"{prefix}[truth] effect '{word}' is given {words.count(word)} "
+                                                "times; give each effect once", path=source, key="truth.effects")
             elif key == "initial_angle":
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                     raise ExperimentFormatError(f"{prefix}[truth] initial_angle must be a number [rad]",
@@ -597,8 +620,14 @@ def _check_simulation(options: Mapping[str, Any], rate: float, prefix: str, sour
     def fail(key: str, message: str) -> ExperimentFormatError:
         return ExperimentFormatError(f"{prefix}[simulation] {key} {message}", path=source, key=f"simulation.{key}")
 
+    from ..discrete import METHODS
     from .controllers import DERIVATIVE_ON
 
+    if "method" in options and options["method"] not in METHODS:
+        raise fail("method", f"must be one of {', '.join(METHODS)}, got {options['method']!r}")
+    if "encoder_counts" in options and not options["encoder_counts"] >= 0:
+        raise fail("encoder_counts", f"must be an integer >= 0 [counts/rev] (0: exact angles), got "
+                                     f"{options['encoder_counts']!r}")
     if "derivative_on" in options and options["derivative_on"] not in DERIVATIVE_ON:
         raise fail("derivative_on", f"must be one of {', '.join(DERIVATIVE_ON)}, got {options['derivative_on']!r}")
     nyquist = rate / 2.0
