@@ -411,15 +411,20 @@ def _iter_lines(raw: bytes | mmap.mmap, start: int, stop: int, label: str) -> It
         pos, lineno = nxt, lineno + 1
 
 
-def _header_end(raw: bytes, start: int) -> tuple[int, int]:
-    """(end of the header line, start of the first row) in ``raw``; LF, CRLF or CR."""
-    lf = raw.find(b"\n", start)
-    cr = raw.find(b"\r", start, len(raw) if lf == -1 else lf + 1)  # look no further than the LF
+def _header_end(raw: bytes, start: int, limit: int | None = None) -> tuple[int, int]:
+    """(end of the header line, start of the first row) in ``raw``; LF, CRLF or CR.
+
+    With ``limit``, no further than ``limit`` bytes are looked at (a file without a line break in them
+    gives an end beyond ``start + limit``; nothing after it is touched).
+    """
+    end = len(raw) if limit is None else min(len(raw), start + limit + 2)
+    lf = raw.find(b"\n", start, end)
+    cr = raw.find(b"\r", start, end if lf == -1 else lf + 1)  # look no further than the LF
     if cr != -1 and (lf == -1 or cr < lf):
         return cr, cr + 2 if raw[cr + 1:cr + 2] == b"\n" else cr + 1
     if lf != -1:
         return lf, lf + 1
-    return len(raw), len(raw)
+    return end, end
 
 
 def _columnar(body: memoryview, width: int, use: list[int] | None = None) -> list[np.ndarray] | None:
@@ -500,7 +505,7 @@ def read_csv_table(raw: bytes | mmap.mmap, label: str, *, required: Iterable[str
             f"{label}: empty file; expected a header line with columns {', '.join(required)}",
             path=label, key="line 1",
         )
-    head_end, body_start = _header_end(raw, start)
+    head_end, body_start = _header_end(raw, start, CSV_MAX_LINE_BYTES)
     if head_end - start > CSV_MAX_LINE_BYTES:
         raise ExperimentFormatError(f"{label}: line 1 (the header) is longer than {CSV_MAX_LINE_BYTES} bytes; "
                                     "not a CSV file of this format", path=label, key="line 1")

@@ -245,10 +245,13 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         v = data.raw["v"]
         dt = 1.0 / data.experiment.rate_hz
         x_grid, v_grid = np.geomspace(1e-4, 1e-2, 5), np.geomspace(1e-3, 0.3, 6)
-        bumps = [np.exp(-(v / v_s) ** 2) for v_s in v_grid]
         for x_p in x_grid:
             s = _dahl(v, dt, x_p)
-            sgn, damp, *dec_bumps = data.decimate_many([s, np.gradient(s, dt) * x_p] + [s * b for b in bumps])
+            # the raw-rate columns made three at a time (see _decimate_grid): the bumps are recomputed per x_p
+            # rather than held, 8 B per sample each
+            columns = [lambda: s, lambda: np.gradient(s, dt) * x_p] + \
+                [lambda v_s=v_s: s * np.exp(-(v / v_s) ** 2) for v_s in v_grid]
+            sgn, damp, *dec_bumps = _decimate_grid(data, lambda k: columns[int(k)](), np.arange(len(columns)))
             for v_s, bump in zip(v_grid, dec_bumps):
                 out.append(_Structure(
                     [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
@@ -263,7 +266,8 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         # It nests coulomb (dF = 0), so stiction is never worse than coulomb on the fit blocks,
         # whatever the hardware's sticking mechanism (bristles or a true stick-slip switch).
         sign = _sign(data)
-        sgn, *dec_bumps = data.decimate_many([sign] + [sign * b for b in bumps])
+        columns = [lambda: sign] + [lambda v_s=v_s: sign * np.exp(-(v / v_s) ** 2) for v_s in v_grid]
+        sgn, *dec_bumps = _decimate_grid(data, lambda k: columns[int(k)](), np.arange(len(columns)))
         for v_s, bump in zip(v_grid, dec_bumps):
             out.append(_Structure(
                 [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0)],

@@ -146,10 +146,10 @@ def _check_resolvable(chi: np.ndarray, delay_samples: int, rate_hz: float) -> No
     finite = bool(np.all(np.isfinite(chi)))
     decades = float(np.log10(magnitudes.max() / magnitudes.min())) if finite and magnitudes.size else math.inf
     if decades > MAX_COEFFICIENT_DECADES:
-        spread = f"spans {decades:.0f} decades" if math.isfinite(decades) else "overflows"
+        spread = f"{decades:.0f} decades" if math.isfinite(decades) else "more decades than a float holds"
         raise ParameterError(f"delay_samples = {delay_samples} at rate_hz = {rate_hz:g} Hz: the sampled loop's "
-                             f"characteristic polynomial {spread}, more than double precision "
-                             f"resolves ({MAX_COEFFICIENT_DECADES:g}; each delay sample adds "
+                             f"characteristic polynomial spans {spread}, more than double precision "
+                             f"resolves ({MAX_COEFFICIENT_DECADES:g} decades; each delay sample adds "
                              f"{math.log10(2.0 * rate_hz):.1f}); give fewer delay samples",
                              name="delay_samples", value=delay_samples)
 
