@@ -495,6 +495,10 @@ def read_csv_table(raw: bytes | mmap.mmap, label: str, *, required: Iterable[str
     ExperimentFormatError
         One line naming the file and the line (the header is line 1) and column.
     """
+    if max_rows is not None and (isinstance(max_rows, bool) or not isinstance(max_rows, (int, np.integer))
+                                 or max_rows < 1):
+        raise ParameterError(f"max_samples must be an integer >= 1, got {clip(repr(max_rows))}", name="max_samples",
+                             value=max_rows)
     limit = DEFAULT_MAX_SAMPLES if max_rows is None else int(max_rows)
     start = len(_BOM) if raw[:len(_BOM)] == _BOM else 0
     stop = len(raw)
@@ -654,9 +658,10 @@ def data_name(toml_path: Path, data: str | os.PathLike[str] | None) -> str:
     else:
         data_path = Path(data)
         if data_path.is_absolute():
-            data_path = Path(os.path.relpath(data_path, toml_path.parent.resolve()))
+            data_path = Path(os.path.relpath(data_path, os.path.realpath(toml_path.parent)))
         data_str = data_path.as_posix()
-    if toml_path.parent.resolve() / data_str == toml_path.resolve():
+    # realpath, not Path.resolve: a symlink loop is the writer's one-line error, not a RuntimeError here
+    if Path(os.path.realpath(toml_path.parent)) / data_str == Path(os.path.realpath(toml_path)):
         raise ParameterError(f"data {data_str!r} would overwrite the TOML file {toml_path}",
                              name="data", value=data_str)
     return data_str

@@ -305,7 +305,7 @@ def refuse_overwriting(outputs: Iterable[str | os.PathLike[str] | None],
         ident = _identity(p)
         if ident is not None:
             sources[ident] = os.fspath(p)
-        with contextlib.suppress(OSError, ValueError, TypeError):
+        with contextlib.suppress(OSError, ValueError, TypeError, RuntimeError):   # RuntimeError: a symlink loop
             sources.setdefault(Path(p).resolve(), os.fspath(p))
     for out in outputs:
         if out is None or os.fspath(out) == "-":
