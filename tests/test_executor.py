@@ -281,3 +281,41 @@ def test_a_scheduler_killed_mid_benchmark_ends_the_command_in_one_line(tmp_path)
     lines = err.strip().splitlines()
     assert bench.returncode == 2 and len(lines) == 1, err
     assert lines[0].startswith("forecast-design: error: the Dask cluster at ") and "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_a_cluster_that_loses_every_worker_ends_the_command_in_one_line(tmp_path, monkeypatch, capsys):
+    """The only worker (no nanny to restart it) is killed while a task runs: no hang, one line."""
+    distributed = pytest.importorskip("distributed")
+    from forecast_design import executor
+    from forecast_design.cli import main
+
+    dask = os.path.join(os.path.dirname(sys.executable), "dask")
+    monkeypatch.setattr(executor, "DASK_WORKER_WAIT_S", 3.0)
+    with distributed.LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address="127.0.0.1:0") as cluster:
+        worker = subprocess.Popen([dask, "worker", cluster.scheduler_address, "--nthreads", "1", "--no-nanny"],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            with distributed.Client(cluster.scheduler_address, timeout=60) as watch:
+                watch.wait_for_workers(1, timeout=120)
+
+                def killer():
+                    deadline = time.monotonic() + 120
+                    while not any(watch.processing().values()) and time.monotonic() < deadline:
+                        time.sleep(0.05)
+                    worker.kill()
+
+                th = threading.Thread(target=killer, daemon=True)
+                th.start()
+                t0 = time.monotonic()
+                code = main(["benchmark", "--envs", "soft,stiff,exp-soft,locked", "--compensator", "none,ea-fob",
+                             "--repetitions", "4", "--duration", "3", "--out", str(tmp_path / "b"),
+                             "--scheduler", cluster.scheduler_address])
+                th.join(10)
+        finally:
+            if worker.poll() is None:
+                worker.kill()
+            worker.wait()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "lost every worker and none came back within 3 s" in err[0] and time.monotonic() - t0 < 120
