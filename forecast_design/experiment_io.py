@@ -461,7 +461,8 @@ def _columnar(body: memoryview, width: int, use: list[int] | None = None) -> lis
 def read_csv_table(raw: bytes | mmap.mmap, label: str, *, required: Iterable[str] = REQUIRED_COLUMNS,
                    role: str = "required columns",
                    usecols: Iterable[str] | None = None,
-                   max_rows: int | None = None, reader: str = "this command") -> tuple[list[str], dict[str, np.ndarray]]:
+                   max_rows: int | None = None,
+                   reader: str = "this command") -> tuple[list[str], dict[str, np.ndarray]]:
     """Parse a CSV file's bytes into float64 columns.
 
     Parameters

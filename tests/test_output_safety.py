@@ -160,7 +160,8 @@ def test_stdout_redirected_to_a_file_is_appended_through_the_descriptor(tmp_path
     log = tmp_path / "log.txt"
     with open(log, "w") as fh:
         done = subprocess.run([sys.executable, "-c", "import sys; print('before', flush=True); "
-                               "from forecast_design.cli import main; sys.exit(main(['tf', '--json', '/proc/self/fd/1']))"],
+                               "from forecast_design.cli import main; "
+                               "sys.exit(main(['tf', '--json', '/proc/self/fd/1']))"],
                               stdout=fh, stderr=subprocess.PIPE, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     text = log.read_text()

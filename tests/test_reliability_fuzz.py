@@ -171,7 +171,8 @@ def _read_files(argv, folder):
     """Regular files of the work folder a command line names as inputs (with an experiment TOML's CSV)."""
     outputs = {argv[i + 1] for i, a in enumerate(argv[:-1]) if a in OUTPUT_OPTIONS}
     named = [a for a in argv if a not in outputs and (folder / a).is_file() and not (folder / a).is_symlink()]
-    return set(named) | {a[:-5] + ".csv" for a in named if a.endswith(".toml") and (folder / (a[:-5] + ".csv")).exists()}
+    csvs = {a[:-5] + ".csv" for a in named if a.endswith(".toml")}
+    return set(named) | {c for c in csvs if (folder / c).exists()}
 
 
 def _snapshot(folder):

@@ -298,7 +298,8 @@ def _nan_prone_log(folder: Path, name: str, env, rate: float) -> Path:
     t = np.arange(n) / rate
     tau_m = 0.5 * np.sin(2 * np.pi * 0.7 * t) + 0.2 * np.sign(np.sin(0.9 * t))
     theta = 0.01 * np.sin(6 * t) + 1e-3 * np.random.default_rng(0).standard_normal(n)
-    exp = experiment_from_arrays(Design(testbed=Testbed(), environment=env), rate, t, tau_m, theta, 0.005 * np.sin(6 * t))
+    exp = experiment_from_arrays(Design(testbed=Testbed(), environment=env), rate, t, tau_m, theta,
+                                 0.005 * np.sin(6 * t))
     return save_experiment(exp, folder / name)
 
 

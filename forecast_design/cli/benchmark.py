@@ -134,11 +134,11 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         where = f"{c.labels['controller']} + {c.labels['compensator']} in {c.labels['environment']}"
         runs = [r for r in c.runs if isinstance(r, dict)]
         if any(r.get("expected_diverged_at_s") is not None for r in runs):
-            print(f"forecast-design: warning: {where}: the frictionless expected response (nominal plant, d_m = 0) diverges: "
-                  "mae_N_m is not scored", file=sys.stderr)
+            print(f"forecast-design: warning: {where}: the frictionless expected response (nominal plant, d_m = 0) "
+                  "diverges: mae_N_m is not scored", file=sys.stderr)
         bad = [r["repetition"] for r in runs if not math.isnan(float(r.get("diverged_at_s", math.nan)))]
         if bad:
             unstable += 1
-            print(f"forecast-design: warning: {where}: repetitions {', '.join(map(str, bad))} diverged (unstable closed loop): "
-                  "not scored", file=sys.stderr)
+            print(f"forecast-design: warning: {where}: repetitions {', '.join(map(str, bad))} diverged (unstable "
+                  "closed loop): not scored", file=sys.stderr)
     return 1 if unstable else 0
