@@ -80,6 +80,8 @@ __all__ = [
     "check_physical",
     "check_limit",
     "check_number",
+    "check_below_nyquist",
+    "limit_of",
     "require_no_nan",
 ]
 
@@ -570,6 +572,14 @@ COMPUTATION_LIMITS: Mapping[str, tuple[int, int, str]] = {
     "simulation_samples": (1, 10_000_000, "samples of one simulation (duration_s x rate_hz)"),
     "runs": (1, 100_000, "simulated runs of one benchmark (bench-gap logs, benchmark cells x repetitions)"),
     "seed": (0, 2**63 - 1, "random seed"),
+    "repetitions": (1, 10_000, "repetitions of a scenario's [variability] or of a benchmark cell"),
+    "batch_samples": (1, 10_000_000, "simulated samples of one batch (runs x duration_s x rate_hz), "
+                                     "about 280 B each"),
+    "environments": (1, 10_000, "environments of one set (the points of every grid of a file, lists, presets)"),
+    "log_samples_check": (1, 2**23, "samples of a log check reads (70 min at 2 kHz), about 300 B each"),
+    "log_samples_identify": (1, 2**22, "samples of a log identify reads (35 min at 2 kHz), about 390 B each"),
+    "log_samples_diagnose": (1, 2**21, "samples of a log diagnose reads (17 min at 2 kHz), about 920 B each"),
+    "log_samples_benchmark": (1, 2**20, "samples of one recorded run benchmark --runs reads (8.7 min at 2 kHz)"),
 }
 
 
@@ -595,6 +605,50 @@ def check_physical(owner: str, name: str, value: float) -> float:
         raise ParameterError(f"{owner} {name} = {value!r} is outside its plausible range [{lo:g}, {hi:g}] {unit}",
                              name=name, value=value)
     return value
+
+
+def check_below_nyquist(name: str, frequency_hz: float, rate_hz: float) -> float:
+    """Refuse a filter frequency a discretisation at ``rate_hz`` cannot represent (at or above Nyquist).
+
+    Tustin folds a cutoff above ``rate_hz / 2`` onto ``(2/T) atan(w T / 2)`` below it, ZOH and
+    backward Euler place its poles near z = 0 or -1: the discrete filter is no longer the one
+    named, and the loop that runs it is not the one analysed.
+
+    Parameters
+    ----------
+    name : str
+        How the message names the frequency (e.g. ``"w_q_hz (the Q cutoff)"``).
+    frequency_hz : float
+        The filter's frequency [Hz].
+    rate_hz : float
+        The sampling rate [Hz].
+
+    Returns
+    -------
+    float
+        ``frequency_hz``.
+
+    Raises
+    ------
+    ParameterError
+        One line naming the frequency, the Nyquist frequency and the rate.
+    """
+    if math.isfinite(frequency_hz) and math.isfinite(rate_hz) and frequency_hz >= rate_hz / 2.0:
+        raise ParameterError(f"{name} = {frequency_hz:g} Hz is at or above the Nyquist frequency {rate_hz / 2.0:g} Hz "
+                             f"of rate_hz = {rate_hz:g} Hz: a discrete filter cannot represent it; choose a value "
+                             f"below {rate_hz / 2.0:g} Hz", name=name.split()[0], value=frequency_hz)
+    return frequency_hz
+
+
+def limit_of(name: str) -> int:
+    """The largest value :data:`COMPUTATION_LIMITS` allows for ``name``.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`COMPUTATION_LIMITS`.
+    """
+    return COMPUTATION_LIMITS[name][1]
 
 
 def check_limit(option: str, name: str, value: Any) -> int:

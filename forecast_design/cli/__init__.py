@@ -13,8 +13,10 @@ from typing import Any, Callable, Sequence
 
 from .. import __version__
 from ..errors import ForecastError
+from ..fileio import guard_inputs
 from ..plausibility import require_no_nan
-from ..params import BREAK_POINTS, COMPENSATOR_KINDS, OBSERVER_KINDS, Q_FAMILIES
+from ..params import BREAK_POINTS, COMPENSATOR_KINDS, Q_FAMILIES
+from ..controllers.base import DISCRETIZATIONS
 
 __all__ = ["main"]
 
@@ -95,9 +97,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         # Python warnings (the toolbox's own, numpy's) become one line each, printed only when the verb
         # succeeds: an error path prints its one error line and nothing else.
-        with warnings.catch_warnings(record=True) as caught:
+        with warnings.catch_warnings(record=True) as caught, guard_inputs():
             if not args.debug:
                 warnings.simplefilter("default")
+            _refuse_inputs_as_outputs(args)      # no output replaces a file the command reads
             code = int(args.handler(args) or 0)
         _print_warnings(caught)
         return code
@@ -135,6 +138,7 @@ from ._options import (  # noqa: E402  (the shared option helpers; verb modules 
     _json_positional,
     _note,
     _one_environment_from_args,
+    _refuse_inputs_as_outputs,
     _testbed_from_args,
 )
 
@@ -154,7 +158,11 @@ def _cmd_tf(args: argparse.Namespace) -> int:
 
     testbed = _testbed_from_args(args)
     designs = _environments_from_args(args).designs(testbed)
-    results = [(label, transfer_functions(design)) for label, design in designs]
+    results = []
+    with _progress_bar("tf", "environment", enabled=args.json != "-" and len(designs) > 1) as progress:
+        for label, design in designs:
+            results.append((label, transfer_functions(design)))
+            progress(len(results), len(designs))
     require_no_nan({label: tfs.to_mapping() for label, tfs in results}, "tf")
     if args.plot:
         from ..plotting.bode import plot_bode
@@ -208,7 +216,9 @@ def _write_json(target: str, obj: Any) -> None:
 def _reproduce_fig6(args: argparse.Namespace) -> int:
     from ..reproduce import fig6_table
 
-    rows = fig6_table(environments=_environments_from_args(args), testbed=_testbed_from_args(args), skew=args.sigma)
+    with _progress_bar("fig6", "environment", enabled=args.json != "-") as progress:
+        rows = fig6_table(environments=_environments_from_args(args), testbed=_testbed_from_args(args),
+                          skew=args.sigma, progress=progress)
     mapping = [row.to_mapping() for row in rows]
     if args.plot:
         from ..plotting.margins import plot_fig6
@@ -297,92 +307,6 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return handler(args)
 
 
-# --- tune-q ---------------------------------------------------------------------
-
-
-def _configure_tune_q(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--compensator", "--observer", dest="observer", required=True, choices=OBSERVER_KINDS,
-                   help="the observer whose Q cutoff is tuned")
-    _add_controller_option(p)
-    _add_environment_options(p, default="soft,stiff", many=True)
-    p.add_argument("--uncertainty", type=_float_range, default=0.0, metavar="FRACTION",
-                   help="relative range of the true J, d, k_e (vertices of the box)")
-    p.add_argument("--min-ratio", type=_float_range, default=0.9,
-                   help="required disk-margin ratio observer/plant (default 0.9)")
-    p.add_argument("--band", type=_float_range, nargs=2, default=(0.5, 30.0), metavar=("LO", "HI"),
-                   help="search band of the cutoff [Hz] (default 0.5 30)")
-    p.add_argument("--q-family", default="butterworth", choices=Q_FAMILIES)
-    p.add_argument("--q-order", type=int, default=2)
-    p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
-    p.add_argument("--max-margin", metavar="W_Q_HZ", type=_float_range,
-                   help="instead: at this fixed cutoff, choose the 2nd-order Q damping that "
-                        "maximises the worst-case margin ratio")
-    p.add_argument("--seed", type=int, default=0, help="seed of random:N environment sets")
-    p.add_argument("--sampled", action="store_true",
-                   help="analyse the sampled-data loop (discretised controller/observer, ZOH plant)")
-    p.add_argument("--rate-hz", type=_float_range, default=2000.0, help="--sampled: control rate [Hz]")
-    p.add_argument("--delay-samples", type=int, default=1, help="--sampled: computation delay [samples]")
-    p.add_argument("--exact-scan", action="store_true", help="verify with a full exact scan (slow)")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="compute the plants' margins on N local processes (large sets; default: this process)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="compute them on a Dask cluster, tcp://HOST:PORT (same answer as locally)")
-    p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write JSON to OUT (or stdout)")
-    p.add_argument("--plot", metavar="OUT.png",
-                   help="draw the trade-off: worst-case margin ratio and friction-rejection bandwidth "
-                        "against the cutoff, per observer, with the chosen cutoff (JSON key 'tradeoff')")
-
-
-@_command("tune-q", "choose the Q-filter cutoff by optimisation (casadi) over a set of environments",
-          _configure_tune_q)
-def _cmd_tune_q(args: argparse.Namespace) -> int:
-    from ..tuning import tune_q, tune_q_shape
-
-    # random:N is expanded here with --seed; the set (an EnvironmentSet) is what tune_q receives
-    args.envs = _environments_from_args(args, seed=args.seed)
-    testbed = _testbed_from_args(args)
-    controller = _controller_from_args(args)
-    with contextlib.ExitStack() as stack:
-        executor = None
-        if args.scheduler or args.workers is not None:
-            from ..executor import make_executor
-
-            executor = stack.enter_context(make_executor(args.scheduler, args.workers))
-        if args.max_margin is not None:
-            result = tune_q_shape(args.observer, args.envs, w_q_hz=args.max_margin, uncertainty=args.uncertainty,
-                                  controller=controller, break_at=args.break_at, seed=args.seed, sampled=args.sampled, rate_hz=args.rate_hz,
-                                  delay_samples=args.delay_samples, testbed=testbed, executor=executor)
-        else:
-            with _progress_bar("exact scan", "cutoff") as progress:
-                result = tune_q(args.observer, args.envs, uncertainty=args.uncertainty, min_ratio=args.min_ratio,
-                                band_hz=tuple(args.band), q_family=args.q_family, q_order=args.q_order,
-                                controller=controller, break_at=args.break_at, seed=args.seed, progress=progress, sampled=args.sampled,
-                                rate_hz=args.rate_hz, delay_samples=args.delay_samples,
-                                scan="exact" if args.exact_scan else "bounded", testbed=testbed, executor=executor)
-    mapping = require_no_nan(result.to_mapping(), "tune-q")
-    if args.plot:
-        from ._tradeoff_plot import plot_tune_q_tradeoff
-
-        mapping["tradeoff"] = plot_tune_q_tradeoff(args, result, args.envs)
-    if args.json:
-        _write_json(args.json, mapping)
-    if args.json != "-":
-        extra = f", Q damping {result.q_damping:.4g}" if result.q_damping is not None else ""
-        print(f"{result.observer}: w_q = {result.w_q_hz:.4g} Hz{extra}, worst ratio {result.worst_ratio:.4f} "
-              f"({result.worst_environment}), feasible {result.feasible}; scan best {result.scan_w_q_hz:.4g} Hz, "
-              f"agrees {result.agrees_with_scan}; {result.plants} plants, {result.evaluations} evaluations")
-    if result.at_bound:
-        option = "--band" if result.q_damping is None else "the damping range"
-        print(f"forecast-design: warning: the answer sits on the {result.at_bound}: the best value may lie "
-              f"beyond it (widen {option} to find out)", file=sys.stderr)
-    if not result.feasible:
-        print(f"forecast-design: warning: no cutoff in the band meets min-ratio {result.min_ratio:g} in every "
-              f"environment: the best of the band, {result.w_q_hz:.4g} Hz, keeps {result.worst_ratio:.3f} "
-              f"({result.worst_environment})", file=sys.stderr)
-        return 1
-    return 0
-
-
 # --- pipeline ----------------------------------------------------------------------
 
 
@@ -431,6 +355,9 @@ def _configure_identify(p: argparse.ArgumentParser) -> None:
 
 
 def _load_log(path: str, args: argparse.Namespace):
+    from ..plausibility import limit_of
+
+    limit = limit_of("log_samples_identify")
     if args.csv is not None:
         from ..friction import load_axis_csv
 
@@ -440,10 +367,10 @@ def _load_log(path: str, args: argparse.Namespace):
 
             raise ParameterError(f"--csv needs --{', --'.join(missing)} (the column names)", name=missing[0])
         return load_axis_csv(path, time=args.time, position=args.position, force=args.force,
-                             rate_hz=args.rate_hz, scale_force=args.scale_force)
+                             rate_hz=args.rate_hz, scale_force=args.scale_force, max_samples=limit)
     from ..experiment import load_experiment
 
-    return load_experiment(path)
+    return load_experiment(path, max_samples=limit, reader="identify")
 
 
 @_command("identify", "identify friction from a log by least squares (casadi), SFM to LuGre", _configure_identify)
@@ -580,7 +507,8 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
                                  "the testbed and the environment)", name="scenario")
         scenario = load_scenario(args.scenario)
         _note(scenario.notes)
-        return emulate(faults=faults, design=scenario.design, effects=scenario.effects, realtime=args.realtime)
+        with scenario.naming_errors():      # e.g. an RK4 step unstable for this plant: names the scenario file
+            return emulate(faults=faults, design=scenario.design, effects=scenario.effects, realtime=args.realtime)
     return emulate(faults=faults, design=_design_from_args(args), realtime=args.realtime)
 
 
@@ -602,7 +530,7 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
 
 @_command("run", "upload the exported controller to a board, record a run as an experiment", _configure_run)
 def _cmd_run(args: argparse.Namespace) -> int:
-    from ..runtime import LinkError, run_on_port
+    from ..runtime import BoardError, LinkError, run_on_port
 
     try:
         comp = _compensator_from_args(args)
@@ -611,9 +539,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
                              w_q_hz=args.w_q_hz, env=_one_environment_from_args(args, "run")[1],
                              testbed=_testbed_from_args(args), timeout=args.timeout)
         summary = result.to_mapping()
-    except LinkError as exc:
+    except (LinkError, BoardError) as exc:
+        # a run that ended badly (lost link, board fault, a late write failure saved to a recovery file)
+        # still gets its --json summary, and the one error line says where it went
         if args.json and getattr(exc, "summary", None):
-            _write_json(args.json, exc.summary)
+            try:
+                _write_json(args.json, exc.summary)
+                note = "" if args.json == "-" else f"; run summary written to {args.json}"
+            except ForecastError as failed:
+                note = f"; the run summary could not be written either ({str(failed).splitlines()[0]})"
+            exc.args = (f"{str(exc).splitlines()[0]}{note}",) + exc.args[1:]
         raise
     if args.json:
         _write_json(args.json, summary)
@@ -638,7 +573,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from ..gap import diagnose
     from ..reporting import write_report
 
-    experiment = load_experiment(args.experiment)
+    from ..plausibility import limit_of
+
+    experiment = load_experiment(args.experiment, max_samples=limit_of("log_samples_diagnose"), reader="diagnose")
     diagnosis = diagnose(experiment)
     mapping = require_no_nan(diagnosis.to_mapping(), "diagnose")
     if args.report:
@@ -661,8 +598,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"this log cannot tell apart: {', '.join(pairs)}")
     for row in mapping["ranking"]:
         if not row["identified"] and row["reduction"] >= diagnosis.data.options.min_reduction:
-            print(f"warning: {row['effect']} would remove {100 * row['reduction']:.0f} % of the gap but is not "
-                  f"identified on this log: {'; '.join(row['reasons'][:2])}", file=sys.stderr)
+            print(f"forecast-design: warning: {row['effect']} would remove {100 * row['reduction']:.0f} % of the gap "
+                  f"but is not identified on this log: {'; '.join(row['reasons'][:2])}", file=sys.stderr)
     if args.report and args.json != "-":
         print(f"report: {args.report}")
     return 0
@@ -718,7 +655,11 @@ def _configure_margins(p: argparse.ArgumentParser) -> None:
     p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
     p.add_argument("--sampled", action="store_true", help="sampled-data loop at --rate-hz")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0)
-    p.add_argument("--delay-samples", type=int, default=1)
+    p.add_argument("--delay-samples", type=int, default=1,
+                   help="--sampled: computation delay [samples] (default 1; the simulator and the firmware: 0)")
+    p.add_argument("--method", default=None, choices=DISCRETIZATIONS,
+                   help="--sampled: set the controller's discretization (default: the controller's own, as "
+                        "simulate runs it); the observers are discretised with tustin")
     _add_skew_option(p)
     _add_json_option(p, "the margins")
     p.add_argument("--plot", metavar="OUT.png", help="the loop at a glance: disk margin over frequency, |S| and |T|, "
@@ -740,6 +681,10 @@ def _cmd_margins(args: argparse.Namespace) -> int:
     if args.believed:
         believed_env = resolve_environments(args.believed, testbed=design.testbed).single("--believed")[1]
         believed = Design(testbed=design.testbed, environment=believed_env)
+    if not args.sampled and (args.method is not None or args.delay_samples != 1):
+        from ..errors import ParameterError
+
+        raise ParameterError("--method and --delay-samples describe the sampled loop; add --sampled", name="sampled")
     analysis = analyse_loop(design, comp, believed=believed, controller=_controller_from_args(args),
                             break_at=args.break_at, sampled=args.sampled, rate_hz=args.rate_hz,
                             delay_samples=args.delay_samples, skew=args.sigma, environment_name=env_name)

@@ -150,6 +150,7 @@ def _json_positional(args: argparse.Namespace, name: str, suffix: str = ".toml")
 
 
 _FRICTION_MODELS = ("sfm", "extended-sfm")
+FRICTION_MAX_BYTES = 2**20   # an identify --json file is a few kB
 
 
 def _friction_from_file(path: str) -> dict[str, float]:
@@ -158,16 +159,14 @@ def _friction_from_file(path: str) -> dict[str, float]:
     Only the SFM-shaped laws (viscous, coulomb, offset, angle harmonics) drive the SFM feed-forward;
     a fitted inertia is not friction and is left out (with a note).
     """
-    from pathlib import Path
-
     from ..errors import ExperimentFormatError
+    from ..experiment_io import read_regular_file
 
+    raw = read_regular_file(path, path, not_found=f"{path}: friction file not found (write it with identify --json)",
+                            error_path=path, max_bytes=FRICTION_MAX_BYTES, what="friction file")
     try:
-        doc = json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise ExperimentFormatError(f"{path}: friction file not found (write it with identify --json)",
-                                    path=path) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        doc = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise ExperimentFormatError(f"{path}: not an identify --json file: {str(exc).splitlines()[0]}",
                                     path=path) from None
     params = doc.get("params") if isinstance(doc, dict) else None
@@ -206,3 +205,52 @@ def _compensator_from_args(args: argparse.Namespace):
 def _add_skew_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--skew", "--sigma", dest="sigma", type=_float_range, default=0.0, metavar="SKEW",
                    help="disk skew sigma (python-control/MATLAB 'skew'; 0 balanced, the paper's)")
+
+
+# --- inputs that an output must not replace ------------------------------------------------------------------------
+
+_INPUT_OPTIONS = ("experiment", "log", "scenario", "csv", "validate", "friction", "testbed", "believed", "envs")
+_RUN_OUT_VERBS = ("simulate", "run", "pil")     # --out names an experiment TOML; its CSV goes beside it
+
+
+def _experiment_data(path: str) -> str | None:
+    """The CSV an experiment TOML names, or None (not an experiment, or unreadable: the verb says why)."""
+    from pathlib import Path
+
+    from ..errors import ForecastError
+    from ..experiment_io import FORMAT, read_toml
+
+    try:
+        doc, _ = read_toml(Path(path))
+    except ForecastError:
+        return None
+    data = doc.get("data")
+    if doc.get("format") != FORMAT or not isinstance(data, str) or "\x00" in data:
+        return None
+    return str(Path(path).parent / data)
+
+
+def _refuse_inputs_as_outputs(args: argparse.Namespace) -> None:
+    """Before any work: no --json, --plot or --out file may be a file the command reads.
+
+    The inputs are every file an option names (an experiment TOML with its CSV, a scenario,
+    friction, environment and testbed files); the outputs every file the verb will write under
+    its own name (``fileio.refuse_overwriting`` compares what they resolve to). Files a verb
+    finds only while it runs are guarded when written (``fileio.guard_inputs``).
+    """
+    from ..fileio import refuse_overwriting
+
+    named = [getattr(args, name, None) for name in _INPUT_OPTIONS]
+    named += list(getattr(args, "env", None) or ())
+    inputs = [v for v in named if isinstance(v, str) and v and os.path.isfile(v)]
+    inputs += [csv for csv in map(_experiment_data, [v for v in inputs if v.endswith(".toml")]) if csv]
+    outputs = [getattr(args, "json", None), getattr(args, "plot", None)]
+    out = getattr(args, "out", None)
+    if getattr(args, "command", None) in _RUN_OUT_VERBS and isinstance(out, str) and out:
+        from pathlib import Path
+
+        toml = Path(out)
+        outputs += [toml, toml.with_suffix(".csv"), toml.with_name(toml.stem + ".truth.json"),
+                    toml.with_name(toml.stem + ".truth.csv")]
+    refuse_overwriting([o for o in outputs if o], inputs)
+
