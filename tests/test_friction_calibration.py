@@ -162,7 +162,10 @@ def test_stribeck_static_level_is_not_reported_when_the_decay_velocity_runs_to_t
     exp, true = friction_log("stribeck", params, seed=1, duration_s=6.0, rate_hz=500.0)
     fit = identify(exp, "stribeck", holdout=0.0)
     assert not fit.status["stribeck_velocity"].identified
-    assert fit.status["static"].status == "uncertain" and "not resolved" in fit.status["static"].reason
+    # not reported: either the profile runs flat to the top of its range, or the interval is wider than
+    # +-10 % of the value (the precision an identified number promises)
+    st = fit.status["static"]
+    assert st.status == "uncertain" and ("not resolved" in st.reason or "wider than +-10 %" in st.reason)
     assert fit.params["coulomb"] == pytest.approx(true["coulomb"], rel=0.05) and fit.status["coulomb"].identified
 
 

@@ -129,6 +129,10 @@ def prepare_identification_data(t: np.ndarray, position: np.ndarray, force: np.n
     keep_raw, sel = select_samples(kin.velocity, settings, step, rule)
     e, R = settings.edge_samples, settings.decimation_factor
     keep = np.ascontiguousarray(keep_raw[e:n - e][::R])[:dec.shape[0]]
+    # what slides, whatever the rule's mode: the identifiability check runs on every path
+    sliding_raw = keep_raw if sel.applied else select_samples(
+        kin.velocity, settings, step, dataclasses.replace(rule, mode="on"))[0]
+    sliding = np.ascontiguousarray(sliding_raw[e:n - e][::R])[:dec.shape[0]]
     static_keep = None
     if model.is_dynamic and sel.applied:
         static_keep, keep = keep, np.ones(keep.size, dtype=bool)
@@ -140,7 +144,8 @@ def prepare_identification_data(t: np.ndarray, position: np.ndarray, force: np.n
                               force_filtered=dec[:, 4 + p] if dynamic else None,
                               regressor_filtered=dec[:, 5 + p:] if dynamic else None,
                               dt=settings.decimation_factor / rate, settings=settings, n_raw=n,
-                              keep=keep, selection=sel, encoder_step=step, static_keep=static_keep)
+                              keep=keep, selection=sel, encoder_step=step, static_keep=static_keep,
+                              sliding=sliding)
 
 
 def _raw_columns(force: np.ndarray, kin: Any, model: FrictionModel, settings: FilterSettings,
@@ -205,26 +210,32 @@ def _check_identifiable(model: FrictionModel, position: np.ndarray, data: Identi
             f"no motion in the log (position range {span:.3g}): friction parameters "
             f"{', '.join(lost)} are not identifiable; excite the axis in both directions")
     sel = data.selection
-    if sel is not None and sel.applied:
-        need = max(int(np.ceil(sel.rule.min_fraction * sel.n_total)), 4 * len(names))
-        if sel.n_used < need:
-            raise IdentifiabilityError(
-                f"not identifiable: only {sel.n_used} of {sel.n_total} samples slide away from stops and "
-                f"reversals (need {need}); {', '.join(names)} cannot be fitted by a static friction law. "
-                "Excite longer sliding, or fit every sample with selection='off' (CLI --select-samples off)")
-    v = data.velocity[data.used]
-    vth = 0.05 * float(np.max(np.abs(v)))
-    pos = float(np.mean(v > vth))
-    neg = float(np.mean(v < -vth))
+    sliding = data.sliding if data.sliding is not None else data.used
+    n_slide, n_total = int(np.count_nonzero(sliding)), int(sliding.size)
+    frac = sel.rule.min_fraction if sel is not None else 0.05
+    need = max(int(np.ceil(frac * n_total)), 4 * len(names))
+    if n_slide < need and not model.is_dynamic:
+        # on every path: switching the sample rule off fits the stops too, but a static law is
+        # identified only from what slides (a log that never slides gave viscous 266 for 0.3)
+        raise IdentifiabilityError(
+            f"not identifiable: only {n_slide} of {n_total} samples slide away from stops and reversals "
+            f"(need {need}); {', '.join(names)} cannot be identified by a static friction law from this log, "
+            "whichever samples are fitted. Record a log that slides longer in both directions",
+            parameters=tuple(names), reasons=(f"too little sliding: {n_slide} of {n_total} samples slide",))
+    v = data.velocity[sliding] if n_slide else data.velocity[data.used]
+    vth = 0.05 * float(np.max(np.abs(v))) if v.size else 0.0
+    pos = float(np.mean(v > vth)) if v.size else 0.0
+    neg = float(np.mean(v < -vth)) if v.size else 0.0
     directional = [n for term in model.terms if term.uses_direction for n in term.names()]
     if directional and min(pos, neg) < 0.01:
         side = "positive" if pos > neg else "negative"
         lost = directional + (["offset"] if model.has(Offset) else [])
         raise IdentifiabilityError(
-            f"the log moves in the {side} direction only ({100 * max(pos, neg):.1f} % of samples "
+            f"the log slides in the {side} direction only ({100 * max(pos, neg):.1f} % of the sliding samples "
             f"above 5 % of peak speed one way, {100 * min(pos, neg):.1f} % the other): "
             f"{', '.join(lost)} are not identifiable (a direction-dependent term cannot be told "
-            "from an offset without motion both ways)")
+            "from an offset without motion both ways)", parameters=tuple(lost),
+            reasons=(f"the log slides in the {side} direction only",))
 
 
 def _check_conditioning(names: tuple[str, ...], sol: "_lsq.LsqSolution", stacklevel: int) -> float:

@@ -81,6 +81,10 @@ class IdentificationData:
     static_keep : ndarray of bool, optional
         For LuGre (which keeps every sample): the samples the static rule
         would keep, used by its Stribeck start.
+    sliding : ndarray of bool, shape (m,), optional
+        Samples that slide, away from stops and reversals: what the sample rule would keep
+        if it were on (:mod:`forecast_design.friction.selection`), whatever its mode. The
+        information a static friction law is identified from; checked on every path.
     force_filtered, regressor_filtered : ndarray, optional
         For LuGre: the force and the regressor (but the inertia column) low-passed
         by the position filter, ``lowpass(force) - inertia theta''``. The
@@ -100,6 +104,7 @@ class IdentificationData:
     selection: SelectionResult | None = None
     encoder_step: float = 0.0
     static_keep: np.ndarray | None = None
+    sliding: np.ndarray | None = None
     force_filtered: np.ndarray | None = None
     regressor_filtered: np.ndarray | None = None
 
@@ -115,6 +120,7 @@ class IdentificationData:
             acceleration=self.acceleration[:n], regressor=self.regressor[:n],
             keep=None if self.keep is None else self.keep[:n],
             static_keep=None if self.static_keep is None else self.static_keep[:n],
+            sliding=None if self.sliding is None else self.sliding[:n],
             force_filtered=None if self.force_filtered is None else self.force_filtered[:n],
             regressor_filtered=None if self.regressor_filtered is None else self.regressor_filtered[:n])
 

@@ -18,7 +18,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..plausibility import LogScales, ParameterStatus, assess, friction_bound
+from ..plausibility import LogScales, ParameterStatus, assess, friction_bound, speed_resolution
 from .terms import FrictionModel, LuGre, Stribeck
 
 __all__ = ["grade", "identifiability", "SLIDING_MIN"]
@@ -28,8 +28,8 @@ SLIDING_MIN = 0.05
 #: Gross sliding is faster than 3 x the Stribeck velocity (the decay is then below exp(-9) ~ 1e-4, so
 #: the Coulomb level is observed, not extrapolated) ...
 GROSS_VS = 3.0
-#: ... and faster than 20 encoder speed steps (one count per sample), where one sample resolves the
-#: speed to 5 %.
+#: ... and faster than 20 encoder speed resolutions (one count per derivative-filter window,
+#: :func:`forecast_design.plausibility.speed_resolution`), where the filtered speed is resolved to 5 %.
 GROSS_RESOLUTION = 20.0
 
 
@@ -101,7 +101,8 @@ def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus],
     A Stribeck or LuGre fit needs *gross sliding*: at least :data:`SLIDING_MIN`
     of the samples faster than ``max(3 v_s_hi, 20 speed_resolution)``, with
     ``v_s_hi`` the upper end of the Stribeck velocity's 95 % interval (when
-    it is identified) and ``speed_resolution = encoder_step x rate``. Without
+    it is identified) and ``speed_resolution = encoder_step x position_cutoff_hz``
+    (:func:`forecast_design.plausibility.speed_resolution`). Without
     it the curve parameters (and LuGre's damping sigma1) are downgraded to
     ``uncertain`` in `status` (modified in place when it is a dict) and the
     fit is declared not identifiable; LuGre's sigma0 (presliding stiffness,
@@ -129,13 +130,13 @@ def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus],
         vs_hi = 0.0
         if vs_st.identified and interval95 is not None and math.isfinite(interval95["stribeck_velocity"][1]):
             vs_hi = float(interval95["stribeck_velocity"][1])
-        v_res = float(data.encoder_step) * float(data.settings.rate_hz)
+        v_res = speed_resolution(float(data.encoder_step), data.settings.rate_hz, data.settings.position_cutoff_hz)
         gross = max(GROSS_VS * vs_hi, GROSS_RESOLUTION * v_res)
         v = np.abs(np.asarray(data.velocity, dtype=float))
         frac = float(np.mean(v > gross)) if v.size else 0.0
         if frac < SLIDING_MIN:
             why = (f"too little sliding: {100 * frac:.2g} % of the samples are faster than {gross:.3g} "
-                   f"(gross sliding: 3 x the Stribeck velocity and 20 encoder speed steps; need "
+                   f"(gross sliding: 3 x the Stribeck velocity and 20 encoder speed resolutions; need "
                    f"{100 * SLIDING_MIN:g} %), so the friction curve is not observed")
             lost = [n for n in term.names() if n != "sigma0"]
             if isinstance(status, dict):
@@ -146,7 +147,8 @@ def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus],
                                                     reason=f"not identifiable: {why}", plausible=st.plausible)
             kept = [n for n in status if n not in lost and status[n].identified]
             return f"not identifiable: {why}" + (f"; still identified: {', '.join(kept)}" if kept else "")
-        if isinstance(term, LuGre) and isinstance(status, dict) and status["sigma1"].identified:
+        if isinstance(term, LuGre) and isinstance(status, dict) and status["sigma1"].status in ("identified",
+                                                                                                "uncertain"):
             # sigma1 acts only while the bristles relax after a reversal, over F_c / (sigma0 |v|);
             # when that is shorter than a sample the discrete model cannot resolve the transient
             # and sigma1 comes out biased low (5-25 % on independent logs, beyond its interval)

@@ -258,11 +258,6 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                                      reason=f"|{nm}| = {abs(base[nm]):.4g} is beyond {bnd.hi:.3g} but its 95 % interval "
                                             f"(+- {1.96 * float(std[i]):.2g}) reaches the plausible range: not resolved",
                                      plausible=st.plausible)
-            if st.status == "uncertain":
-                # a parameter whose zero is not "no effect" (gain 1, environment scale 1, sigma0)
-                # is judged by the Wald tests below, not by its distance from zero
-                st = ParameterStatus(name=nm, value=base[nm], std=float(std[i]), status="identified",
-                                     plausible=st.plausible) if not _zero_means_absent(nm) else st
         status[nm] = st
     # With a presliding (bristle) state the sticking behaviour, not the Stribeck decay, tells
     # stiction from coulomb: an unresolved v_s is then flagged but does not decide.
@@ -319,11 +314,6 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
 
 def _is_harmonic(name: str) -> bool:
     return len(name) > 1 and name[0] in "ab" and name[1:].isdigit()
-
-
-def _zero_means_absent(name: str) -> bool:
-    return not (name in ("gain", "J", "d", "k_e", "sigma0", "v_s", "x_p", "delay_s", "width_rad")
-                or name.endswith("_scale"))
 
 
 def calibration_status(data: GapData, fit: CandidateFit) -> dict[str, ParameterStatus]:

@@ -13,7 +13,7 @@ from ..effects import Effect
 from ..errors import IdentifiabilityError, ParameterError, SolverError
 from ..params import Environment, PDController, Testbed, environment_preset
 from ..plausibility import DATASHEET_TOLERANCE
-from .model import (ANGLE_WORDS, ENCODER_STEP, MAX_ATTEMPTS, RATES_HZ, _WORDS, Excitation, IndependentCase,
+from .model import (ANGLE_WORDS, MAX_ATTEMPTS, RATES_HZ, _WORDS, Excitation, IndependentCase,
                     IndependentLog, IndependentTruth, _word)
 from .signals import excitation_signal, one_line_fraction
 from .plant import simulate_independent
@@ -356,8 +356,8 @@ def identifiability(case: IndependentCase, truth: IndependentTruth) -> str | Non
             if case.environment.locked:
                 return "environment_mismatch: the output is locked"
             travel = float(np.ptp(truth.q))
-            if travel < 100 * ENCODER_STEP:
-                return (f"environment_mismatch: the output moves {travel / ENCODER_STEP:.0f} counts, "
+            if travel < 100 * case.encoder_step:
+                return (f"environment_mismatch: the output moves {travel / case.encoder_step:.0f} counts, "
                         "needs >= 100")
     return None
 
@@ -408,6 +408,9 @@ def make_independent_log(word: Effect | str, index: int, seed: int, *,
 
 
 _FRICTION_DEFAULTS: Mapping[str, Mapping[str, float]] = MappingProxyType({
+    "sfm": MappingProxyType({"viscous": 0.3, "coulomb": 0.3}),
+    "asymmetric": MappingProxyType({"viscous_pos": 0.3, "viscous_neg": 0.25, "coulomb_pos": 0.3,
+                                    "coulomb_neg": 0.22}),
     "extended-sfm": MappingProxyType({"viscous": 0.3, "coulomb": 0.3, "sin1": 0.05, "cos1": 0.02,
                                       "sin2": 0.0, "cos2": 0.03, "sin3": 0.01, "cos3": 0.0,
                                       "sin4": 0.0, "cos4": 0.01}),
