@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from . import _add_json_option, _command, _friction_from_file, _json_positional, _note, _write_json
+from . import (_add_allow_unidentified, _add_json_option, _check_sfm_loop, _command, _friction_from_file,
+               _json_positional, _note, _write_json)
 
 
 def _configure_simulate(p: argparse.ArgumentParser) -> None:
@@ -14,6 +15,7 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--friction", metavar="F.json",
                    help="identified friction (identify --model sfm --json F.json): the run's compensator becomes "
                         "an SFM on these parameters (the scenario's compensator must be none or sfm)")
+    _add_allow_unidentified(p)
     p.add_argument("--repetitions", metavar="N|all",
                    help="simulate repetitions 0..N-1 (or all) of the scenario's [variability] in one batch "
                         "(simulate_batch, one run per core) and write RUN_000.toml, RUN_001.toml, ...")
@@ -39,7 +41,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     _note(scenario.notes)
     if args.friction:
-        scenario = scenario.with_friction(_friction_from_file(args.friction))
+        scenario = _with_checked_friction(scenario, args)
     result = scenario.run()
     paths = save_simulation(result, args.out)
     if args.plot:
@@ -54,6 +56,15 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         for key, value in paths.items():
             print(f"{key}: {value}")
     return 0
+
+
+def _with_checked_friction(scenario, args: argparse.Namespace):
+    """The scenario with the --friction SFM compensator, refused when not identified or when it destabilises the loop."""
+    scenario = scenario.with_friction(_friction_from_file(args.friction, args.allow_unidentified))
+    if scenario.closed_loop:
+        _check_sfm_loop(scenario.design, scenario.design.compensator.friction_params,
+                        controller=scenario.design.controller, rate_hz=scenario.rate_hz)
+    return scenario
 
 
 def _run_files(out) -> list:
@@ -109,7 +120,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     _refuse_overwriting_inputs(args, outs)
     check_writable(base)
     if args.friction:
-        scenario = scenario.with_friction(_friction_from_file(args.friction))
+        scenario = _with_checked_friction(scenario, args)
     batch = simulate_scenario(scenario, repetitions=range(n))
     results = [batch.result(i) for i in range(n)]
     written = [save_simulation(result, out) for result, out in zip(results, outs)]

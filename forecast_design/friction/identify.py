@@ -34,10 +34,8 @@ __all__ = [
     "IdentificationData",
     "fit_friction",
     "identify",
-    "fit_friction_experiment",
     "prepare_identification_data",
     "validate",
-    "validate_experiment",
     "fit_data",
     "predict_data",
     "fit_percent",
@@ -379,7 +377,8 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
                  settings: FilterSettings | None = None, holdout: float = 0.0,
                  constrain: bool = True, selection: SampleSelection | str | bool | None = "auto",
                  encoder_step: float | None = None, zoh_force: bool = False,
-                 scales: LogScales | None = None, **nonlinear_options: Any) -> FrictionFit:
+                 scales: LogScales | None = None, adequacy: bool = True,
+                 **nonlinear_options: Any) -> FrictionFit:
     """Identify a friction model from one log.
 
     Parameters
@@ -428,6 +427,10 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
     scales : LogScales, optional
         The log's magnitudes for the plausible ranges; default measured from
         ``force`` and ``position`` (:func:`forecast_design.plausibility.log_scales`).
+    adequacy : bool
+        Test the residual for structure a richer model would explain (direction, speed,
+        angle) and its whiteness (:mod:`forecast_design.friction.adequacy`); a parameter
+        such a structure moves outside its interval becomes ``uncertain``.
     **nonlinear_options
         Passed to the nonlinear solver (``max_iter``, ``sigma0_init``); unknown
         keys raise ParameterError.
@@ -526,7 +529,18 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
     status = grade(model, params, dict(zip(names, std)), scales, held=held, overrides=est.overrides,
                    active=est.active)
     intervals = _intervals(names, est.params, std, m_used - len(names), est.log_scale)
+    adq = None
+    if adequacy:
+        from .adequacy import check_adequacy
+
+        adq = check_adequacy(model, params, status, intervals, data, data.force - y_hat)
+        for name, why in adq.flagged.items():
+            st = status[name]
+            status[name] = dataclasses.replace(st, status="uncertain", reason=why)
     verdict = identifiability(model, status, data, intervals)  # may downgrade statuses (too little sliding)
+    if adq is not None and not adq.adequate:
+        lead = "" if verdict.startswith("model inadequate") else "model inadequate: "
+        verdict = (verdict + "; " if verdict != "identified" else "") + lead + adq.summary()
     return FrictionFit(
         model=model,
         params=MappingProxyType(params),
@@ -554,6 +568,7 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
         hac_lags=est.lags,
         scales=scales,
         zoh_force=bool(zoh_force),
+        adequacy=adq,
     )
 
 
@@ -721,68 +736,3 @@ def _naming(source: str):
         if source not in ("arrays", "experiment") and not message.startswith(source):
             exc.args = (f"{source}: {message}",) + exc.args[1:]
         raise
-
-
-# --- deprecated entry points (kept for one release; use identify / validate / friction_log) ---
-
-
-def fit_friction_experiment(experiment: Any, model: FrictionModel | str = "extended-sfm", *,
-                            harmonics: int | None = None, offset: bool = False,
-                            estimate_inertia: bool = False, **kwargs: Any) -> FrictionFit:
-    """Deprecated alias of :func:`identify` on an experiment (no hold-out unless asked, as before).
-
-    Parameters
-    ----------
-    experiment : Experiment
-        The log.
-    model : FrictionModel or str
-        As in :func:`identify`.
-    harmonics, offset, estimate_inertia
-        As in :func:`identify`.
-    **kwargs
-        As in :func:`identify`; ``holdout`` defaults to 0.
-
-    Returns
-    -------
-    FrictionFit
-        ``identify(experiment, model, holdout=0.0, ...)``.
-    """
-    kwargs.setdefault("holdout", 0.0)
-    kwargs.setdefault("selection", "auto")
-    return identify(experiment, model, harmonics=harmonics, offset=offset, estimate_inertia=estimate_inertia,
-                    **kwargs)
-
-
-def validate_experiment(fit: FrictionFit, experiment: Any) -> FrictionValidation:
-    """Deprecated alias of :func:`validate` on an experiment.
-
-    Parameters
-    ----------
-    fit : FrictionFit
-        The fit to test.
-    experiment : Experiment
-        The second log.
-
-    Returns
-    -------
-    FrictionValidation
-        ``validate(fit, experiment)``.
-    """
-    return validate(fit, experiment)
-
-
-def log_arrays(log: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | None]:
-    """Deprecated: ``(t, position, force, inertia)`` of :func:`friction_log`.
-
-    Parameters
-    ----------
-    log : Experiment or AxisLog
-        The log.
-
-    Returns
-    -------
-    tuple
-        Time [s], position [rad or m], explained force [N m or N], nominal inertia or None.
-    """
-    data = friction_log(log)
-    return data.t, data.position, data.force, data.inertia

@@ -96,7 +96,7 @@ def grade(model: FrictionModel, params: Mapping[str, float], std: Mapping[str, f
 
 def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus], data: Any,
                     interval95: Mapping[str, tuple[float, float]] | None = None) -> str:
-    """One line on the whole fit: ``identified``, ``partly identified: ...`` or ``not identifiable: ...``.
+    """One line on the whole fit: ``identified``, ``partly identified: ...``, ``model inadequate: ...`` or ``not identifiable: ...``.
 
     A Stribeck or LuGre fit needs *gross sliding*: at least :data:`SLIDING_MIN`
     of the samples faster than ``max(3 v_s_hi, 20 speed_resolution)``, with
@@ -122,7 +122,9 @@ def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus],
     Returns
     -------
     str
-        The verdict.
+        The verdict; ``model inadequate: ...`` when every friction parameter is downgraded by the
+        residual's structure (:mod:`forecast_design.friction.adequacy`): the log identifies a richer
+        model, not this one.
     """
     term = model.nonlinear_term
     if isinstance(term, (LuGre, Stribeck)):
@@ -168,5 +170,8 @@ def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus],
     friction = [n for n in status if n not in ("inertia", "offset")]
     if friction and all(n in bad for n in friction):
         reasons = "; ".join(f"{n}: {status[n].status}" for n in friction)
+        if all(status[n].reason.startswith("model inadequate") for n in friction):
+            # the log identifies a richer model, not this one: an answer about the model, not the log
+            return f"model inadequate: no parameter of this model is identified ({reasons})"
         return f"not identifiable: no friction parameter is identified ({reasons})"
     return "partly identified: " + ", ".join(f"{n} ({status[n].status})" for n in bad) + " not identified"

@@ -12,7 +12,7 @@ written for one generator:
   bound or a grid parameter at a grid end is ``at_bound``). An effect counts only
   when its defining coefficients differ from zero by a Wald test at 5 % (e.g. the
   torque gain's ``1 - gain``, the harmonics of cogging jointly, tested on the feature
-  directions the log's excitation resolves: :func:`_group_wald_p`) and none of its
+  directions the log's excitation resolves: :func:`forecast_design.friction._lsq.group_wald_p`) and none of its
   parameters is implausible (a bristle stiffness by its presliding displacement
   ``F_s / sigma0``; collinear harmonics by the torque they make together); an
   environment scaled alike in J, d and k_e within the datasheet tolerance is the
@@ -48,7 +48,7 @@ from scipy import stats
 
 from ..effects import Effect
 from ..plausibility import ParameterStatus, assess, effect_bound
-from ..friction._lsq import hac_covariance
+from ..friction._lsq import group_wald_p, hac_covariance
 from .candidates import CandidateFit, _calibration, _fit_rows as _candidate_fit_rows
 from .residuals import GapData, gap_log_scales
 
@@ -109,52 +109,8 @@ class _Design:
 
 
 def _group_wald_p(design: _Design, group: Sequence[int]) -> float:
-    """p-value of the joint Wald test that a group of coefficients is zero [-].
-
-    The test is made on the principal directions of the group's standardised feature columns
-    (on the fit rows) that carry at least ``1e-6`` of their variance, the rule of
-    :func:`isolability`: collinear columns (harmonics over a fraction of a revolution) leave a
-    lower-rank test of the contribution they share, which is well determined even when no single
-    coefficient is. The covariance of those directions is computed on the design re-expressed in
-    them (projecting the coefficients' covariance would cancel catastrophically). Columns never
-    excited carry no test.
-
-    Parameters
-    ----------
-    design : _Design
-        The fit's design (:func:`_coefficient_covariance`).
-    group : sequence of int
-        Indices into all coefficients (calibration first) of the free coefficients tested.
-    """
-    g = np.asarray(group, dtype=int)
-    A, rows = design.A, design.rows
-    others = np.setdiff1d(np.arange(A.shape[1]), g)   # an unexcited group column leaves the test whole
-    Ag = A[:, g]
-    norm = np.sqrt(np.sum(Ag[rows] ** 2, axis=0))
-    ok = np.isfinite(norm) & (norm > 0) & np.isfinite(design.coef[g])
-    if not np.any(ok):
-        return 1.0
-    g, norm = g[ok], norm[ok]
-    Z = A[:, g] / norm                                # standardised columns
-    C = Z[rows].T @ Z[rows]
-    try:
-        w, V = np.linalg.eigh(0.5 * (C + C.T))
-    except np.linalg.LinAlgError:
-        return 1.0
-    keep = w > 1e-6 * max(float(w.max()), 1e-300)
-    if not np.any(keep):
-        return 1.0
-    Vk = V[:, keep]
-    A_red = np.column_stack([A[:, others], Z @ Vk])
-    free = np.concatenate([~design.bound[others], np.ones(Vk.shape[1], dtype=bool)])
-    cov = hac_covariance(A_red, design.residual, free=free, keep=rows).covariance
-    n_o = others.size
-    S = cov[n_o:, n_o:]
-    z = Vk.T @ (design.coef[g] * norm)                # the group's estimate along the kept directions
-    if not (np.all(np.isfinite(S)) and np.all(np.isfinite(z))):
-        return 1.0
-    chi2 = float(z @ np.linalg.lstsq(0.5 * (S + S.T), z, rcond=1e-12)[0])
-    return float(stats.chi2.sf(chi2, int(Vk.shape[1]))) if math.isfinite(chi2) else 1.0
+    """p-value of the joint Wald test that a group of coefficients is zero (:func:`group_wald_p`)."""
+    return group_wald_p(design.A, design.residual, design.coef, group, keep=design.rows, bound=design.bound)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
