@@ -43,15 +43,17 @@ harmonic amplitudes)      room for inertial torques at reversals.
 viscous coefficient       ``0 <= d <= 1.5 torque_max / speed_p99``: at the log's typical
                           top speed the viscous torque cannot exceed the torque range.
 Stribeck velocity         ``2 speed_resolution <= v_s <= speed_max``: below the encoder's
-                          speed resolution no curve can be resolved; above the largest
-                          speed the decay is not observed.
+                          speed resolution no curve can be resolved (``not_identifiable``);
+                          above the largest speed the decay is not observed.
 bristle stiffness sigma0  ``static / sigma0`` (presliding displacement) between one encoder
-                          step and 0.1 rad.
+                          step and 0.1 rad; below one step it is not resolved
+                          (``not_identifiable``, not implausible).
 bristle damping sigma1    ``0 <= sigma1 <= 10 * 2 sqrt(sigma0 J_m)`` (ten times critical).
 torque gain               ``0.5 <= g <= 2``: a factor beyond that is a wrong torque
                           constant, not an unmodelled effect.
 delay                     ``0 <= delay <= 0.05 s`` (100 samples at 2 kHz).
-backlash width            ``2 encoder steps <= width <= 2 deflection_max``.
+backlash width            ``2 encoder steps <= width <= 2 deflection_max`` (below two steps:
+                          not resolved, ``not_identifiable``).
 environment scales        ``0.1 <= scale <= 10`` of the declared value.
 ========================  ==============================================================
 
@@ -270,12 +272,18 @@ class Bound:
         One line: where the range comes from.
     magnitude : bool
         Compare ``|value|`` (harmonic coefficients, offsets of either sign) instead of the value.
+    resolution : str
+        Which end is the log's *resolution* rather than physics (``"above"``, ``"below"`` or
+        ``""``): beyond it the number is not resolved by the sensors (a bristle deflection below
+        one encoder count, a Stribeck velocity below the speed resolution), so it is
+        ``not_identifiable``, not evidence against the effect it belongs to.
     """
 
     lo: float
     hi: float
     why: str
     magnitude: bool = False
+    resolution: str = ""
 
     def contains(self, value: float) -> bool:
         """True when ``value`` lies in the range (``|value|`` for a magnitude bound)."""
@@ -380,6 +388,11 @@ def assess(name: str, value: float, *, std: float | None = None, bound: Bound | 
         return out("implausible", f"{name} is not finite")
     if bound is not None and not bound.contains(value):
         shown = "|" + name + "|" if bound.magnitude else name
+        v = abs(value) if bound.magnitude else value
+        if (bound.resolution == "above" and v > bound.hi) or (bound.resolution == "below" and v < bound.lo):
+            end = bound.hi if v > bound.hi else bound.lo
+            return out("not_identifiable", f"{shown} = {v:.4g} is beyond {end:.3g}, the log's resolution "
+                                           f"({bound.why}): not resolved, no evidence either way")
         return out("implausible", f"{shown} = {abs(value) if bound.magnitude else value:.4g} outside the plausible "
                                   f"range [{bound.lo:.3g}, {bound.hi:.3g}] ({bound.why})")
     if solver_bounds is not None:
@@ -471,15 +484,17 @@ def friction_bound(name: str, scales: LogScales, *, static: float | None = None)
     if name == "stribeck_velocity":
         lo = 2.0 * scales.speed_resolution
         return Bound(lo, max(scales.speed_max, lo),
-                     f"Stribeck velocity between 2 encoder speed steps ({lo:.2g}) and the largest speed")
+                     f"Stribeck velocity between 2 encoder speed steps ({lo:.2g}) and the largest speed",
+                     resolution="below")
     if name == "sigma0":
         # presliding displacement static / sigma0 between one encoder step and 0.1 rad
         if static is not None and math.isfinite(static) and static > 0.0:
             return Bound(static / 0.1, static / scales.encoder_step,
                          f"presliding displacement static/sigma0 = {static:.3g}/sigma0 between one encoder "
-                         "step and 0.1 rad")
+                         "step and 0.1 rad", resolution="above")
         return Bound(T / 0.1 if T > 0 else 0.0, 1.5 * T / scales.encoder_step,
-                     "presliding displacement static/sigma0 between one encoder step and 0.1 rad")
+                     "presliding displacement static/sigma0 between one encoder step and 0.1 rad",
+                     resolution="above")
     if name == "sigma1":
         if scales.J_m is None:
             return Bound(0.0, math.inf, "bristle damping >= 0")
@@ -518,7 +533,8 @@ def effect_bound(name: str, scales: LogScales, *, static: float | None = None) -
     if name == "width_rad":
         lo = 2.0 * scales.encoder_step
         return Bound(lo, max(2.0 * scales.deflection_max, lo),
-                     "dead band between two encoder steps and twice the largest spring deflection")
+                     "dead band between two encoder steps and twice the largest spring deflection",
+                     resolution="below")
     if name == "v_s":
         return friction_bound("stribeck_velocity", scales)
     if name in ("sigma0", "sigma1"):

@@ -63,8 +63,8 @@ def printed_quantum(values: np.ndarray) -> np.ndarray:
     number of significant digits (``%.6g``), of decimal places (``%.4f``: small values keep
     fewer significant digits), or any other; a trailing zero the printer dropped only makes the
     bound looser. A value that is exactly a float32 (a logger or board that stores float32, whose
-    decimal representation looks like 17 digits) may carry a float32 rounding of half its ulp.
-    Zero is exact.
+    decimal representation looks like 17 digits) may carry a float32 rounding of half its ulp. A
+    zero gets the column's finest step (a fixed-decimal logger prints small values as zero).
 
     Parameters
     ----------
@@ -74,7 +74,7 @@ def printed_quantum(values: np.ndarray) -> np.ndarray:
     Returns
     -------
     ndarray, same shape
-        The step [same unit]; 0 for zeros.
+        The step [same unit].
     """
     v = np.asarray(values, dtype=float).ravel()
     out = np.zeros(v.size)
@@ -89,9 +89,14 @@ def printed_quantum(values: np.ndarray) -> np.ndarray:
         else:
             place = len(whole) - len(whole.rstrip("0"))
         out[i] = 10.0 ** (place + (int(ex) if ex else 0))
-    f32 = v.astype(np.float32).astype(float) == v
+    f32 = (v.astype(np.float32).astype(float) == v) & (v != 0.0)
     if np.any(f32):
         out[f32] = np.maximum(out[f32], np.spacing(np.abs(v[f32]).astype(np.float32)).astype(float))
+    # a printed zero is anything below half the finest step of the column: with fixed decimals 0.0000
+    # stands for |x| < 5e-5 (with significant digits a zero is exact, and the finest step is tiny)
+    zero = (v == 0.0) & np.isfinite(v)
+    if np.any(zero) and np.any(out > 0):
+        out[zero] = float(np.min(out[out > 0]))
     return out.reshape(np.shape(values))
 
 
@@ -158,7 +163,7 @@ DERIVED_MAX_BEYOND = 1e-3
 #: Smallest fraction of rows beyond their printed rounding for a column judged measured without doubt [-].
 MEASURED_MIN_BEYOND = 0.05
 #: Rows inspected by the decision (evenly spaced) [-].
-CLASSIFY_ROWS = 20_000
+CLASSIFY_ROWS = 4000
 
 
 def classify_tau_s(derived: bool, tau_s: np.ndarray, theta: np.ndarray, q: np.ndarray) -> TauSSource:
@@ -202,20 +207,52 @@ def classify_tau_s(derived: bool, tau_s: np.ndarray, theta: np.ndarray, q: np.nd
     rows = np.arange(0, tau_s.size, max(1, tau_s.size // CLASSIFY_ROWS))
     step = (printed_quantum(tau_s[rows]) + abs(coef[0]) * (printed_quantum(theta[rows]) + printed_quantum(q[rows])))
     rms = float(np.sqrt(np.mean(tau_s ** 2))) if tau_s.size else 0.0
-    half = 0.5 * step + 1e-12 * rms + 8.0 * np.finfo(float).eps * np.abs(tau_s[rows])
-    beyond = float(np.mean(np.abs(left[rows]) > half)) if rows.size else 0.0
     expected = float(np.sqrt(np.mean((step / np.sqrt(12.0)) ** 2))) if rows.size else 0.0
     expected = max(expected, 1e-12 * rms)
     actual = float(np.sqrt(np.mean(left ** 2)))
     excess = actual / expected if expected > 0 else (0.0 if actual == 0 else math.inf)
-    # standard error of c: the residual (or, if smaller, the rounding) level over the design
+    # standard errors of k_log and c: the residual (or, if smaller, the rounding) level over the design
     level = max(actual, expected)
     cov = np.linalg.pinv(A.T @ A) * level ** 2
+    half = 0.5 * step + 1e-12 * rms + 8.0 * np.finfo(float).eps * np.abs(tau_s[rows])
+    # the line a logger could have used: the least-squares one is pulled by rounding errors that repeat
+    # (a motor at rest prints the same value for many rows), so the line whose largest rounding-scaled
+    # residual is smallest is searched (a linear programme in k and c) and the rows beyond it counted
+    kc = _chebyshev_line(A[rows], tau_s[rows], half, coef)
+    beyond = float(np.mean(np.abs(tau_s[rows] - A[rows] @ kc) > half)) if rows.size else 0.0
     source = "derived" if beyond <= DERIVED_MAX_BEYOND else "measured"
     uncertain = DERIVED_MAX_BEYOND < beyond < MEASURED_MIN_BEYOND
     return TauSSource(source=source, digits=digits, k_log=float(coef[0]), excess=float(excess),
                       offset_N_m=float(coef[1]), offset_std_N_m=float(math.sqrt(cov[1, 1])),
                       beyond_rounding=beyond, uncertain=uncertain)
+
+
+def _chebyshev_line(A: np.ndarray, y: np.ndarray, half: np.ndarray, start: np.ndarray) -> np.ndarray:
+    """``(k, c)`` minimising ``max |y - A (k, c)| / half`` (HiGHS linear programme), near ``start``.
+
+    Solved for the change from ``start`` with both unknowns and the constraints scaled to order one;
+    ``start`` is returned when the solver fails or does no better.
+    """
+    from scipy.optimize import linprog
+
+    if y.size == 0 or not np.all(half > 0):
+        return start
+    r = (y - A @ start) / half
+    Z = A / half[:, None]
+    scale = np.max(np.abs(Z), axis=0)
+    scale[scale == 0] = 1.0
+    Zs = Z / scale
+    # variables (du, dv, t): |r - Zs (du, dv)| <= 1 + t, minimise t
+    ones = np.ones((y.size, 1))
+    A_ub = np.vstack([np.hstack([-Zs, -ones]), np.hstack([Zs, -ones])])
+    b_ub = np.concatenate([1.0 - r, 1.0 + r])
+    bound = float(np.max(np.abs(r))) + 1.0
+    res = linprog(c=[0.0, 0.0, 1.0], A_ub=A_ub, b_ub=b_ub, method="highs",
+                  bounds=[(-bound, bound), (-bound, bound), (None, None)])
+    if res.status != 0:
+        return start
+    kc = start + res.x[:2] / scale
+    return kc if np.max(np.abs(y - A @ kc) / half) <= np.max(np.abs(r)) else start
 
 
 def tau_s_source_of(experiment) -> TauSSource:

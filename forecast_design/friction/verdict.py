@@ -28,9 +28,11 @@ SLIDING_MIN = 0.05
 #: Gross sliding is faster than 3 x the Stribeck velocity (the decay is then below exp(-9) ~ 1e-4, so
 #: the Coulomb level is observed, not extrapolated) ...
 GROSS_VS = 3.0
-#: ... and faster than 20 encoder speed resolutions (one count per derivative-filter window,
-#: :func:`forecast_design.plausibility.speed_resolution`), where the filtered speed is resolved to 5 %.
-GROSS_RESOLUTION = 20.0
+#: ... and faster than 10 encoder speed resolutions (one count per derivative-filter window,
+#: :func:`forecast_design.plausibility.speed_resolution`): the quantisation's RMS speed noise through the
+#: filter is ``(s / sqrt 12) rate sqrt((2 pi f_c / rate)^3 / (3 pi))``, 0.47 resolutions at a cut-off of a
+#: tenth of the rate, so there one sample resolves the speed to 5 %.
+GROSS_RESOLUTION = 10.0
 
 
 def _bound_name(name: str) -> str:
@@ -96,10 +98,12 @@ def grade(model: FrictionModel, params: Mapping[str, float], std: Mapping[str, f
 
 def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus], data: Any,
                     interval95: Mapping[str, tuple[float, float]] | None = None) -> str:
-    """One line on the whole fit: ``identified``, ``partly identified: ...``, ``model inadequate: ...`` or ``not identifiable: ...``.
+    """One line on the whole fit: ``identified``, ``partly identified: ...``, ``model inadequate: ...``,
+    ``imprecise: ...`` (every friction parameter only to its interval) or ``not identifiable: ...``
+    (the log carries no information on them; the ``identify`` verb exits 3).
 
     A Stribeck or LuGre fit needs *gross sliding*: at least :data:`SLIDING_MIN`
-    of the samples faster than ``max(3 v_s_hi, 20 speed_resolution)``, with
+    of the samples faster than ``max(3 v_s_hi, 10 speed_resolution)``, with
     ``v_s_hi`` the upper end of the Stribeck velocity's 95 % interval (when
     it is identified) and ``speed_resolution = encoder_step x position_cutoff_hz``
     (:func:`forecast_design.plausibility.speed_resolution`). Without
@@ -138,7 +142,7 @@ def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus],
         frac = float(np.mean(v > gross)) if v.size else 0.0
         if frac < SLIDING_MIN:
             why = (f"too little sliding: {100 * frac:.2g} % of the samples are faster than {gross:.3g} "
-                   f"(gross sliding: 3 x the Stribeck velocity and 20 encoder speed resolutions; need "
+                   f"(gross sliding: 3 x the Stribeck velocity and 10 encoder speed resolutions; need "
                    f"{100 * SLIDING_MIN:g} %), so the friction curve is not observed")
             lost = [n for n in term.names() if n != "sigma0"]
             if isinstance(status, dict):
@@ -173,5 +177,8 @@ def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus],
         if all(status[n].reason.startswith("model inadequate") for n in friction):
             # the log identifies a richer model, not this one: an answer about the model, not the log
             return f"model inadequate: no parameter of this model is identified ({reasons})"
+        if any(status[n].status == "uncertain" for n in friction):
+            # the log pins the numbers, only less precisely than an identified number promises
+            return f"imprecise: no friction parameter is known to +-10 % ({reasons}); use the intervals"
         return f"not identifiable: no friction parameter is identified ({reasons})"
     return "partly identified: " + ", ".join(f"{n} ({status[n].status})" for n in bad) + " not identified"

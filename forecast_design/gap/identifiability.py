@@ -262,7 +262,11 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
     for nm, g in grid.items():
         if nm in status and nm not in secondary and status[nm].status == "at_bound" \
                 and nm in ("delay_s", "width_rad", "v_s"):
-            reasons.append(status[nm].reason)
+            reasons.append(f"{status[nm].reason}: a search that stops at its bound has not found the value")
+    if "gain" in base and abs(base["gain"] - 1.0) <= data.options.calibration_tolerance:
+        # a common rescaling of J_m, d_m and k within their datasheet tolerance is a re-calibration
+        reasons.append(f"gain {base['gain']:.4g} is within the re-calibration's datasheet tolerance "
+                       f"(+-{100 * data.options.calibration_tolerance:g} %): a rescaling of J_m, d_m and k, not an effect")
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
     data.cache[key] = (fit, out)
     return out

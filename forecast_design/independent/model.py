@@ -34,6 +34,7 @@ _FRICTION_WORDS = (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION)
 _PARAM_KEYS = ("F_c", "F_s", "v_s", "sigma0", "sigma1", "pos_a", "pos_b", "cog_a", "cog_b",
                "width", "delay_s", "gain", "J_factor", "d_factor", "k_e_factor", "F_c_neg", "F_s_neg", "d_neg")
 _TAU_S_RE = re.compile(r"^(omitted|sensor|derived:(\d+)|decimals:(\d+))$")
+_ANGLE_RE = re.compile(r"^(exact|digits:(\d+)|decimals:(\d+))$")
 #: Encoder resolutions the loggers may have [counts/rev]: the testbed's, 16 and 14 bit.
 ENCODER_COUNTS = (COUNTS_PER_REV, 2**16, 2**14)
 
@@ -160,6 +161,10 @@ class IndependentCase:
     encoder_counts : int
         Counts per revolution of both encoders [-] (2,000,000 on the testbed; 65,536 or
         16,384 for 16- and 14-bit encoders).
+    angle_logging : str
+        How the logger prints ``theta`` and ``q``: ``exact`` (every digit of the quantised
+        angle), ``digits:<n>`` (n = 4-17 significant digits) or ``decimals:<n>`` (n = 3-12
+        decimal places). A derived ``tau_s`` is computed from the angles before printing.
     sensor_noise : float
         Standard deviation of the torque-sensor noise [N m].
     sensor_offset : float
@@ -207,6 +212,7 @@ class IndependentCase:
     tau_m_digits: int = 8
     encoder_noise_counts: float = 0.0
     encoder_counts: int = COUNTS_PER_REV
+    angle_logging: str = "exact"
     sensor_noise: float = 0.0
     sensor_offset: float = 0.0
     sensor_gain: float = 1.0
@@ -227,6 +233,11 @@ class IndependentCase:
             raise ParameterError("tau_s_logging must be 'omitted', 'sensor', 'derived:<1..17>' or "
                                  f"'decimals:<0..12>', got {self.tau_s_logging!r}", name="tau_s_logging",
                                  value=self.tau_s_logging)
+        a = _ANGLE_RE.match(str(self.angle_logging))
+        if a is None or (a.group(2) is not None and not 4 <= int(a.group(2)) <= 17) \
+                or (a.group(3) is not None and not 3 <= int(a.group(3)) <= 12):
+            raise ParameterError("angle_logging must be 'exact', 'digits:<4..17>' or 'decimals:<3..12>', "
+                                 f"got {self.angle_logging!r}", name="angle_logging", value=self.angle_logging)
         c = self.encoder_counts
         if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not 64 <= int(c) <= 10**9:
             raise ParameterError(f"encoder_counts must be an integer in [64, 1e9], got {c!r}",

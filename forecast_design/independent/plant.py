@@ -389,6 +389,14 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
             raise SolverError(f"the state left any physical range at t = {t_k + T} s")
 
     t = np.round(case.t0_s + np.arange(n) * T, 9)
+    if case.angle_logging != "exact":     # the logger prints the angles (tau_s was computed before)
+        kind, _, places = case.angle_logging.partition(":")
+        if kind == "digits":
+            theta_m, q_m = round_significant(theta_m, int(places)), round_significant(q_m, int(places))
+        else:
+            fixed = f".{int(places)}f"
+            theta_m = np.array([float(format(v, fixed)) for v in theta_m.tolist()])
+            q_m = np.array([float(format(v, fixed)) for v in q_m.tolist()])
     if tau_s_mode == "omitted":
         tau_s_col = None
     elif tau_s_mode == "sensor":
