@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import warnings
 from typing import Any
 
 from .loops.sampled import SampledForceLoop, sampled_force_loop
@@ -193,8 +194,6 @@ def sfm_loop_check(design: Design, friction: Any, *, controller: PDController | 
     import control
     import numpy as np
 
-    from .simulation.controllers import DEFAULT_DERIVATIVE_CUTOFF_HZ, DEFAULT_VELOCITY_CUTOFF_HZ, pd_transfer_function
-
     tb, env = design.testbed, design.environment
     ctrl = controller if controller is not None else (design.controller or PDController(P=5.0, D=0.1))
     viscous = float(dict(friction).get("viscous", 0.0))
@@ -209,6 +208,19 @@ def sfm_loop_check(design: Design, friction: Any, *, controller: PDController | 
         B = [[0.0], [1.0 / tb.J_m], [0.0], [0.0]]
         C = [[tb.k, 0.0, -tb.k, 0.0], [1.0, 0.0, 0.0, 0.0]]
     T = 1.0 / float(rate_hz)
+    with warnings.catch_warnings():
+        # scipy flags the leading zero of a strictly proper numerator in python-control's conversions
+        warnings.simplefilter("ignore")
+        return _sfm_loop(A, B, C, T, ctrl, viscous, delay_samples, env, tb)
+
+
+def _sfm_loop(A, B, C, T, ctrl, viscous, delay_samples, env, tb) -> "SfmLoopCheck":
+    """The closed loop of :func:`sfm_loop_check` and its spectral radius."""
+    import control
+    import numpy as np
+
+    from .simulation.controllers import DEFAULT_DERIVATIVE_CUTOFF_HZ, DEFAULT_VELOCITY_CUTOFF_HZ, pd_transfer_function
+
     plant = control.c2d(control.ss(np.array(A), np.array(B), np.array(C), np.zeros((2, 1))), T, "zoh")
     cf = pd_transfer_function(ctrl, DEFAULT_DERIVATIVE_CUTOFF_HZ).to_control()
     wv = 2.0 * np.pi * DEFAULT_VELOCITY_CUTOFF_HZ

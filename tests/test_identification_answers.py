@@ -167,7 +167,7 @@ def test_an_offset_collinear_with_the_harmonics_is_not_identified_on_a_closed_lo
 # --- 5. interval coverage per model (Monte Carlo on the independent generator) ------------------
 
 
-COVERAGE_LOGS = {"sfm": 8, "asymmetric": 5, "stribeck": 5, "extended-sfm": 2}
+COVERAGE_LOGS = {"sfm": 8, "asymmetric": 5, "stribeck": 5, "extended-sfm": 3}
 
 
 def _draw(law: str, i: int) -> dict:

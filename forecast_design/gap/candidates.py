@@ -235,7 +235,12 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         # presliding displacement x_p, a Stribeck bump of width v_s and bristle damping.
         v = data.raw["v"]
         dt = 1.0 / data.experiment.rate_hz
-        x_grid, v_grid = np.geomspace(1e-4, 1e-2, 5), np.geomspace(1e-3, 0.3, 6)
+        # searches bounded by the log: a Stribeck bump narrower than twice the speed resolution, or a
+        # presliding displacement below one encoder count, is not resolved and would only fit noise
+        scales = gap_log_scales(data)
+        v_lo = max(1e-3, 2.0 * scales.speed_resolution)
+        x_lo = max(1e-4, scales.encoder_step)
+        x_grid, v_grid = np.geomspace(x_lo, max(1e-2, 10 * x_lo), 5), np.geomspace(v_lo, max(0.3, 10 * v_lo), 6)
         bumps = [np.exp(-(v / v_s) ** 2) for v_s in v_grid]
         for x_p in x_grid:
             s = _dahl(v, dt, x_p)
@@ -305,9 +310,11 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
     elif effect is Effect.BACKLASH:
         x = data.raw["x"]
         span = float(np.percentile(np.abs(x), 99))
-        if span <= 0.0:
+        step = gap_log_scales(data).encoder_step
+        if span <= 2.0 * step:
             return out
-        h_grid = np.geomspace(max(span * 1e-4, 1e-6), 0.8 * span, 30)
+        # a dead band below an encoder count is not resolved: the search starts there
+        h_grid = np.geomspace(max(span * 1e-4, 1e-6, step), 0.8 * span, 30)
         clipped = data.decimate_many([np.clip(x, -half, half) for half in h_grid])
         for half, dec in zip(h_grid, clipped):
             clip = tb.k * dec

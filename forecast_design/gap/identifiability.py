@@ -195,6 +195,13 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         if nm in grid:
             _, value, lo, hi = grid[nm]
             st = assess(nm, base[nm], bound=effect_bound(nm, scales, static=base.get("F_s")), solver_bounds=(lo, hi))
+            resolution = _RESOLUTION_END.get(nm, lambda _: 0.0)(scales)
+            if st.status == "at_bound" and math.isclose(base[nm], lo, rel_tol=1e-6) and lo <= resolution * (1 + 1e-9):
+                # the search starts at the log's resolution (candidates bound it there): a value on that end
+                # is not resolved by the sensors, which is no evidence against the effect
+                st = ParameterStatus(name=nm, value=base[nm], std=None, status="not_identifiable",
+                                     reason=f"{nm} = {base[nm]:.4g} is at the log's resolution ({resolution:.3g}): "
+                                            "not resolved, no evidence either way", plausible=st.plausible)
         elif np.any(depends & bound_eff):
             c = s.coefs[int(np.flatnonzero(depends & bound_eff)[0])]
             st = assess(nm, base[nm], bound=effect_bound(nm, scales, static=base.get("F_s")))
@@ -270,6 +277,13 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
     data.cache[key] = (fit, out)
     return out
+
+
+#: The resolution of the log where a candidate's grid search starts (:func:`.candidates._build_structures`):
+#: a Stribeck bump twice the speed resolution wide, a presliding displacement or a dead band of one count.
+_RESOLUTION_END = {"v_s": lambda sc: max(1e-3, 2.0 * sc.speed_resolution),
+                   "x_p": lambda sc: max(1e-4, sc.encoder_step),
+                   "width_rad": lambda sc: 2.0 * sc.encoder_step}
 
 
 def _is_harmonic(name: str) -> bool:
