@@ -1,6 +1,6 @@
 """Friction identification on independent logs: interval coverage per model and confident wrong numbers.
 
-Run: python benchmarks/bench_friction_coverage.py [--logs N] [--workers W] [--families ...]
+Run: python benchmarks/bench_friction_coverage.py [--logs N] [--workers W] [--families ...] [--cache DIR]
 
 Families (each log drawn from its own seed, parameters drawn around the Forecast testbed's):
 
@@ -94,16 +94,38 @@ def jobs(family: str, n: int, seed0: int) -> list[dict]:
     return out
 
 
+def _cached_log(job: dict):
+    """The job's log and truth: simulated, or read back from ``job["cache"]`` (experiment files + truth JSON)."""
+    import json
+    from pathlib import Path
+
+    from forecast_design.experiment import load_experiment
+
+    stem = Path(job["cache"]) / f"{job['family']}-{job['law']}-{job['seed']}-{job.get('selection', 'auto')}" \
+        if job.get("cache") else None
+    if stem is not None and stem.with_suffix(".json").exists():
+        return load_experiment(stem.with_suffix(".toml")), json.loads(stem.with_suffix(".json").read_text())
+    from forecast_design.experiment import save_experiment
+    from forecast_design.independent import friction_log
+
+    exp, true = friction_log(job["law"], job["params"], seed=job["seed"], **job["kw"])
+    if stem is not None:
+        stem.parent.mkdir(parents=True, exist_ok=True)
+        save_experiment(exp, stem.with_suffix(".toml"))
+        stem.with_suffix(".json").write_text(json.dumps(true))
+        exp = load_experiment(stem.with_suffix(".toml"))
+    return exp, true
+
+
 def run_job(job: dict) -> dict:
     """Simulate one log, identify it, score every parameter."""
     import warnings
 
     from forecast_design.errors import IdentifiabilityError
     from forecast_design.friction import identify
-    from forecast_design.independent import friction_log
 
     t0 = time.perf_counter()
-    exp, true = friction_log(job["law"], job["params"], seed=job["seed"], **job["kw"])
+    exp, true = _cached_log(job)
     rec = dict(family=job["family"], law=job["law"], model=job["model"], seed=job["seed"],
                selection=job.get("selection", "auto"), counts=job["kw"].get("encoder_counts", 2_000_000),
                env=job["kw"].get("environment", "link-only"), params=[], refused=None)
@@ -174,10 +196,11 @@ def main() -> None:
     ap.add_argument("--families", default="open,closed,coarse,little,wrong")
     ap.add_argument("--seed", type=int, default=2500)
     ap.add_argument("--json", metavar="OUT", help="also write every record as JSON")
+    ap.add_argument("--cache", metavar="DIR", help="keep the simulated logs (experiment files) here and reuse them")
     args = ap.parse_args()
     per_family = {"open": args.logs * len(LAWS), "closed": args.logs, "coarse": args.logs, "little": 2 * len(LAWS),
                   "wrong": 12}
-    all_jobs = [j for f in args.families.split(",") for j in jobs(f, per_family[f], args.seed)]
+    all_jobs = [{**j, "cache": args.cache} for f in args.families.split(",") for j in jobs(f, per_family[f], args.seed)]
     t0 = time.perf_counter()
     print(f"{len(all_jobs)} logs on {args.workers} workers; machine {platform.machine()}, {os.cpu_count()} cores, "
           f"{platform.processor() or platform.platform()}; load {os.getloadavg()[0]:.2f}; "

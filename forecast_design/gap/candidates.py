@@ -227,9 +227,14 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         out.append(_Structure([_Coef("c", data.stack({"motor": c["u"]}), -np.inf, 1.0)],
                               lambda p: {"gain": float(1.0 - p[0])}, n_params=1))
     elif effect is Effect.COULOMB:
-        sgn = data.decimate(_sign(data))
-        out.append(_Structure([_Coef("F_c", data.stack({"motor": sgn}), 0.0)],
-                              lambda p: {"F_c": float(p[0])}, level=lambda p: p[0], n_params=1))
+        sign = _sign(data)
+        pos, neg = data.decimate_many([np.maximum(sign, 0.0), np.minimum(sign, 0.0)])
+        # a level per direction of motion (friction often differs by direction), both >= 0: a constant
+        # torque, which would need a negative level one way, is not friction
+        out.append(_Structure([_Coef("F_c", data.stack({"motor": pos}), 0.0),
+                               _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+                              lambda p: {"F_c": float(p[0]), "F_c_neg": float(p[1])},
+                              level=lambda p: max(p[0], p[1]), n_params=2, tests=((0, 1),)))
     elif effect is Effect.STICTION:
         # LuGre-type friction: presliding (bristle) direction state s in [-1, 1] with
         # presliding displacement x_p, a Stribeck bump of width v_s and bristle damping.
@@ -244,14 +249,17 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         bumps = [np.exp(-(v / v_s) ** 2) for v_s in v_grid]
         for x_p in x_grid:
             s = _dahl(v, dt, x_p)
-            sgn, damp, *dec_bumps = data.decimate_many([s, np.gradient(s, dt) * x_p] + [s * b for b in bumps])
+            pos, damp, neg, *dec_bumps = data.decimate_many([np.maximum(s, 0.0), np.gradient(s, dt) * x_p,
+                                                             np.minimum(s, 0.0)] + [s * b for b in bumps])
             for v_s, bump in zip(v_grid, dec_bumps):
                 out.append(_Structure(
-                    [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
-                     _Coef("sigma1", data.stack({"motor": damp}), 0.0)],
+                    [_Coef("F_c", data.stack({"motor": pos}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
+                     _Coef("sigma1", data.stack({"motor": damp}), 0.0),
+                     _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
                     lambda p, v_s=v_s, x_p=x_p: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
-                                                 "sigma0": float((p[0] + p[1]) / x_p), "sigma1": float(p[2])},
-                    level=lambda p: p[0] + p[1], n_params=5, tests=((0, 1),),
+                                                 "sigma0": float((p[0] + p[1]) / x_p), "sigma1": float(p[2]),
+                                                 "F_c_neg": float(p[3])},
+                    level=lambda p: max(p[0], p[3]) + p[1], n_params=6, tests=((0, 1, 3),),
                     grid=(("v_s", float(v_s), float(v_grid[0]), float(v_grid[-1])),
                           ("x_p", float(x_p), float(x_grid[0]), float(x_grid[-1])))))
         # Static (switched) Stribeck friction without presliding, x_p -> 0: the Coulomb candidate's
@@ -259,12 +267,15 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         # It nests coulomb (dF = 0), so stiction is never worse than coulomb on the fit blocks,
         # whatever the hardware's sticking mechanism (bristles or a true stick-slip switch).
         sign = _sign(data)
-        sgn, *dec_bumps = data.decimate_many([sign] + [sign * b for b in bumps])
+        pos, neg, *dec_bumps = data.decimate_many([np.maximum(sign, 0.0), np.minimum(sign, 0.0)]
+                                                  + [sign * b for b in bumps])
         for v_s, bump in zip(v_grid, dec_bumps):
             out.append(_Structure(
-                [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0)],
-                lambda p, v_s=v_s: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s)},
-                level=lambda p: p[0] + p[1], n_params=3, tests=((0, 1),),
+                [_Coef("F_c", data.stack({"motor": pos}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
+                 _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+                lambda p, v_s=v_s: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
+                                    "F_c_neg": float(p[2])},
+                level=lambda p: max(p[0], p[2]) + p[1], n_params=4, tests=((0, 1, 2),),
                 grid=(("v_s", float(v_s), float(v_grid[0]), float(v_grid[-1])),)))
     elif effect in (Effect.COGGING, Effect.POSITION_FRICTION):
         th = data.raw["theta"]

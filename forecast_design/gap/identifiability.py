@@ -61,6 +61,8 @@ ISOLABILITY_THRESHOLD = 0.3
 CALIBRATION = "calibration"
 #: Wald-test level of an effect's defining coefficients [-].
 WALD_ALPHA = 0.05
+#: Largest ratio of a friction candidate's levels for the two directions of motion [-].
+ASYMMETRY_MAX_RATIO = 3.0
 
 
 def _fit_rows(data: GapData, fit: CandidateFit) -> np.ndarray:
@@ -212,7 +214,12 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         else:
             bnd = effect_bound(nm, scales, static=base.get("F_s"))
             st = assess(nm, base[nm], std=float(std[i]), bound=bnd)
-            if st.status == "implausible" and _is_harmonic(nm) and bnd is not None and math.isfinite(std[i]) \
+            if st.status == "implausible" and _is_harmonic(nm) and bnd is not None and not math.isfinite(std[i]):
+                # a harmonic on a direction the log does not resolve (collinear over part of a revolution)
+                st = ParameterStatus(name=nm, value=base[nm], std=None, status="not_identifiable",
+                                     reason=f"|{nm}| = {abs(base[nm]):.4g} lies on a direction of the harmonics this "
+                                            "log does not resolve", plausible=st.plausible)
+            elif st.status == "implausible" and _is_harmonic(nm) and bnd is not None \
                     and abs(base[nm]) - 1.96 * float(std[i]) <= bnd.hi:
                 # collinear harmonics (part of a revolution) trade large coefficients that cancel;
                 # a coefficient whose interval reaches the plausible range is unresolved, not
@@ -270,8 +277,17 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         if nm in status and nm not in secondary and status[nm].status == "at_bound" \
                 and nm in ("delay_s", "width_rad", "v_s"):
             reasons.append(f"{status[nm].reason}: a search that stops at its bound has not found the value")
-    if "gain" in base and abs(base["gain"] - 1.0) <= data.options.calibration_tolerance:
-        # a common rescaling of J_m, d_m and k within their datasheet tolerance is a re-calibration
+    if "F_c_neg" in base and max(base["F_c"], base["F_c_neg"]) > 0 and \
+            min(base["F_c"], base["F_c_neg"]) < ASYMMETRY_MAX_RATIO ** -1 * max(base["F_c"], base["F_c_neg"]):
+        # a drive's friction differs by direction by tens of percent; a level near zero one way is a constant
+        # torque (a driver's offset, cogging over part of a revolution), not friction
+        reasons.append(f"friction levels {base['F_c']:.3g} / {base['F_c_neg']:.3g} N m (positive / negative motion) "
+                       f"differ by more than a factor {ASYMMETRY_MAX_RATIO:g}: a constant torque, not friction")
+    if "gain" in base and abs(base["gain"] - 1.0) <= data.options.calibration_tolerance and not any(
+            st_.status == "at_bound" for st_ in calibration_status(data, fit).values()):
+        # a common rescaling of J_m, d_m and k within their datasheet tolerance, which the re-calibration
+        # (not on its bound) could have absorbed, is a re-calibration (a gain beyond what the bounded
+        # re-calibration absorbed stays a gain)
         reasons.append(f"gain {base['gain']:.4g} is within the re-calibration's datasheet tolerance "
                        f"(+-{100 * data.options.calibration_tolerance:g} %): a rescaling of J_m, d_m and k, not an effect")
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
