@@ -571,7 +571,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
     if winner is None:
         # an effect the log resolves (held-out test, identified, the torque accuracy, the total gap lowered)
         # but that explains less than min_reduction: the verdict, graded weak
-        weak = sorted((r for r in ranked if r.weak), key=lambda r: r.bic)
+        weak = sorted((r for r in ranked if r.weak and _weak_is_distinct(data, r, by_effect[str(r.effect)], base, iso)),
+                      key=lambda r: r.bic)
         if weak and weak[0].effect in (Effect.STICTION, Effect.POSITION_FRICTION):
             coul = next((r for r in weak if r.effect is Effect.COULOMB), None)
             if coul is not None and not _richer_law_justified(data, by_effect[str(weak[0].effect)],
@@ -601,6 +602,25 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
                      replay=replay, isolability=iso, calibration=calibration_status(data, base), grade=grade)
+
+
+def _weak_is_distinct(data: GapData, weak: RankedCandidate, fit: CandidateFit, base: CandidateFit,
+                      iso: Isolability) -> bool:
+    """A weak effect is named only when nothing the nominal model already has looks the same.
+
+    It must be isolable from the re-calibration of J_m, d_m and k (:func:`.identifiability.isolability`),
+    and a cogging must remove more than a constant motor torque does (over part of a revolution the
+    harmonics make a constant: a driver's offset, a sensor's zero left over).
+    """
+    if CALIBRATION in iso.confusable_with(str(weak.effect)):
+        return False
+    if weak.effect is Effect.COGGING and base.gap_held_out > 0:
+        const = fit_constant_torque(data)
+        r_cog = 1.0 - fit.gap_held_out / base.gap_held_out
+        r_const = 1.0 - const.gap_held_out / base.gap_held_out
+        if r_const >= CONSTANT_TORQUE_SHARE * r_cog:
+            return False
+    return True
 
 
 def _explained_rms(reference: CandidateFit, candidate: CandidateFit, rows: np.ndarray) -> float:
