@@ -608,10 +608,15 @@ def _weak_is_distinct(data: GapData, weak: RankedCandidate, fit: CandidateFit, b
                       iso: Isolability) -> bool:
     """A weak effect is named only when nothing the nominal model already has looks the same.
 
-    It must be isolable from the re-calibration of J_m, d_m and k (:func:`.identifiability.isolability`),
-    and a cogging must remove more than a constant motor torque does (over part of a revolution the
+    It must be isolable from the re-calibration of J_m, d_m and k (:func:`.identifiability.isolability`;
+    a torque gain, which never is, only when the re-calibration sits on its datasheet bound), and a
+    cogging must remove more than a constant motor torque does (over part of a revolution the
     harmonics make a constant: a driver's offset, a sensor's zero left over).
     """
+    if weak.effect is Effect.TORQUE_GAIN:
+        # a gain lies in the span of the re-calibration by construction; only the calibration's datasheet
+        # bound tells them apart, so a weak gain counts when the re-calibration sits on that bound
+        return any(st.status == "at_bound" for st in calibration_status(data, base).values())
     if CALIBRATION in iso.confusable_with(str(weak.effect)):
         return False
     if weak.effect is Effect.COGGING and base.gap_held_out > 0:
