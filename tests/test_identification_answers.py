@@ -264,3 +264,21 @@ def test_sfm_loop_check_agrees_with_the_sampled_loop_and_flags_a_large_viscous(e
     assert plain.spectral_radius == pytest.approx(float(np.max(np.abs(loop.closed_loop_poles))), abs=1e-6)
     assert sfm_loop_check(design, {"viscous": 0.3}).stable      # the motor's own damping, compensated
     assert not sfm_loop_check(design, {"viscous": 265.8}).stable
+
+
+def test_simulate_refuses_unidentified_or_destabilising_friction(tmp_path, capsys):
+    from test_one_interface import SCENARIO, TABLE
+
+    scenario = tmp_path / "s.toml"
+    scenario.write_text(SCENARIO.format(environment=TABLE, compensator=""))
+    unidentified = {"model": "sfm", "params": {"viscous": 0.31, "coulomb": 0.27}, "identified": False,
+                    "not_identified": ["coulomb"], "status": {"coulomb": {"status": "uncertain"}}}
+    (tmp_path / "u.json").write_text(json.dumps(unidentified))
+    code, _, err = _run(capsys, "simulate", scenario, "--out", tmp_path / "a.toml", "--friction", tmp_path / "u.json")
+    assert code == 2 and "coulomb (uncertain)" in err and not (tmp_path / "a.toml").exists()
+    code, _, err = _run(capsys, "simulate", scenario, "--out", tmp_path / "a.toml", "--friction", tmp_path / "u.json",
+                        "--allow-unidentified")
+    assert code == 0 and (tmp_path / "a.toml").exists()
+    (tmp_path / "x.json").write_text(json.dumps({"model": "sfm", "params": {"viscous": 265.8, "coulomb": 0.1}}))
+    code, _, err = _run(capsys, "simulate", scenario, "--out", tmp_path / "b.toml", "--friction", tmp_path / "x.json")
+    assert code == 2 and "unstable" in err and "margins" not in err and not (tmp_path / "b.toml").exists()
