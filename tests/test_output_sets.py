@@ -27,7 +27,8 @@ from forecast_design.benchmark import CellResult, parse_compensators, parse_refe
 from forecast_design.benchmark import BenchmarkSpec
 from forecast_design.errors import OutputError
 from forecast_design.fileio import MANIFEST, staged_set, verify_manifest
-from forecast_design.params import PDController, environment_preset
+from forecast_design.controllers import PD
+from forecast_design.params import environment_preset
 
 TEMP = fileio._TEMP_NAME
 
@@ -188,7 +189,7 @@ def test_benchmark_killed_at_random_times_leaves_one_consistent_result_set(tmp_p
 
 
 def test_reused_cells_must_be_the_ones_their_key_names_and_intact(tmp_path):
-    spec = BenchmarkSpec(controllers=(PDController(P=5.0, D=0.1),), compensators=parse_compensators("none"),
+    spec = BenchmarkSpec(controllers=(PD(P=5.0, D=0.1),), compensators=parse_compensators("none"),
                          environments=(("soft", environment_preset("soft")), ("locked", environment_preset("locked"))),
                          references=(parse_reference("step:0.2:0.2"),), repetitions=2)
     cells, info = run_benchmark(spec, out=tmp_path)

@@ -200,8 +200,9 @@ def _state_space_max_pole(env: str, kind: str | None, d: int, rate: float = 2000
     """Largest |z| of the sampled loop as python-control's state-space interconnection (delays exact, z = 0)."""
     import control as ct
 
-    from forecast_design.params import Compensator, Design, PDController
-    from forecast_design.simulation.controllers import DEFAULT_DERIVATIVE_CUTOFF_HZ, DiscretePD, ObserverCompensator
+    from forecast_design.compensators import compensator_strategy
+    from forecast_design.controllers import PAPER_PD, controller_law
+    from forecast_design.params import Compensator, Design
     from forecast_design.symbolic import force_plant_tf, motor_angle_tf
 
     T = 1.0 / rate
@@ -210,17 +211,18 @@ def _state_space_max_pole(env: str, kind: str | None, d: int, rate: float = 2000
     def ss(num, den, u, y, dt=T):
         return ct.ss(ct.tf(np.asarray(num, float), np.asarray(den, float), dt), inputs=u, outputs=y)
 
-    pd = DiscretePD(PDController(P=5.0, D=0.1), rate, derivative_cutoff_hz=DEFAULT_DERIVATIVE_CUTOFF_HZ).tf
+    pd = controller_law(PAPER_PD, rate).feedback_tf()     # the loop's u = -C(z) tau_s (+ reference path)
     blocks = [ss(pd.num, pd.den, "e", "u"), ss([1.0], [1.0] + [0.0] * d, "c", "a")]
     for tf, y in ((force_plant_tf(design), "tau_s"), (motor_angle_tf(design), "theta")):
         z = ct.sample_system(ct.ss(ct.tf(np.asarray(tf.num, float), np.asarray(tf.den, float))), T, "zoh")
         blocks.append(ct.ss(z.A, z.B, z.C, z.D, T, inputs="a", outputs=y))
     terms = ["u"]
     if kind is not None:
-        gm, gs, gt = ObserverCompensator(Compensator(kind=kind, w_q_hz=10.0), design, rate).tfs
+        comp = Compensator(kind=kind, w_q_hz=10.0)
+        gm, gs, gt = compensator_strategy(comp).discrete_filters(comp, design, rate)
         blocks += [ss([1.0], [1.0, 0.0], "c", "cp"), ss(gm.num, gm.den, "cp", "hm"), ss(gs.num, gs.den, "tau_s", "hs")]
         terms += ["hm", "hs"]
-        if np.any(np.asarray(gt.num) != 0.0):
+        if gt is not None:
             blocks.append(ss(gt.num, gt.den, "theta", "ht"))
             terms.append("ht")
     blocks += [ct.summing_junction(terms, "c", dt=T), ct.summing_junction(["r", "-tau_s"], "e", dt=T)]
@@ -267,27 +269,29 @@ def test_a_q_cutoff_at_or_above_nyquist_is_refused_everywhere(tmp_path, capsys, 
 
 @pytest.mark.parametrize("method", ["tustin", "zoh", "backward-euler"])
 def test_the_sampled_margin_and_the_simulation_agree_on_stability(method):
-    """With the simulator's own loop (command applied within the period, delay 0) and method, the sampled
-    analysis says unstable exactly when the simulated run diverges (ZOH observers fail above ~500 Hz here)."""
+    """With the simulator's own loop (command applied within the period, delay 0) and the controller's
+    discretization, the sampled analysis says unstable exactly when the simulated run diverges."""
     from forecast_design.analysis import loop_margins
-    from forecast_design.params import Compensator, Design, PDController
+    from forecast_design.controllers import PD
+    from forecast_design.params import Compensator, Design
     from forecast_design.simulation import simulate
     from forecast_design.simulation.references import Step
 
     design = Design.nominal("stiff")
     verdicts = []
-    for kind in ("ea-fob", "lo-dob"):
-        for w_q in (200.0, 600.0, 950.0):
-            comp = Compensator(kind=kind, w_q_hz=w_q)
-            dm = loop_margins(design, comp, sampled=True, rate_hz=2000.0, delay_samples=0, method=method)
-            run = simulate(Design(testbed=design.testbed, environment=design.environment,
-                                  controller=PDController(P=5.0, D=0.1), compensator=comp),
-                           reference=Step(amplitude=0.2), duration_s=0.5, rate_hz=2000.0, method=method,
-                           process_noise_std=0.0, encoder_counts=None)
-            verdicts.append((kind, w_q, dm.stable, run.diverged_at_s is None))
-    assert all(stable == ran for _, _, stable, ran in verdicts), verdicts
-    if method == "zoh":
-        assert any(not stable for _, _, stable, _ in verdicts)     # the sweep sees both answers
+    for P in (5.0, 300.0, 3000.0):
+        ctrl = PD(P=P, D=0.02 * P, T_f=0.0008, discretization=method)
+        for kind in ("ea-fob", "lo-dob"):
+            for w_q in (200.0, 950.0):
+                comp = Compensator(kind=kind, w_q_hz=w_q)
+                dm = loop_margins(design, comp, controller=ctrl, sampled=True, rate_hz=2000.0, delay_samples=0)
+                run = simulate(Design(testbed=design.testbed, environment=design.environment, controller=ctrl,
+                                      compensator=comp),
+                               reference=Step(amplitude=0.2), duration_s=0.5, rate_hz=2000.0,
+                               process_noise_std=0.0, encoder_counts=None)
+                verdicts.append((P, kind, w_q, dm.stable, run.diverged_at_s is None))
+    assert all(stable == ran for *_, stable, ran in verdicts), verdicts
+    assert {stable for *_, stable, _ in verdicts} == {True, False}     # the sweep sees both answers
 
 
 def _nan_prone_log(folder: Path, name: str, env, rate: float) -> Path:
@@ -375,7 +379,7 @@ def test_a_utf8_bom_toml_is_accepted_everywhere(tmp_path, capsys):
     ([("[reference]", '[[truth.effects]]\neffect = "stiction"\nF_s = 0.5\nF_c = 0.4\n\n[reference]')],
      ["effect 'stiction' is given 2 times"]),
     ([("encoder_counts = 2000000", "encoder_counts = -5")], ["[simulation] encoder_counts"]),
-    ([('method = "tustin"', 'method = "euler"')], ["[simulation] method", "tustin"]),
+    ([('discretization = "tustin"', 'discretization = "euler"')], ["discretization", "tustin"]),
     ([("k_e = 100.0", "k_e = 1e+32")], ["k_e = 1e+32"]),
 ])
 def test_scenario_errors_name_the_file(tmp_path, capsys, replace, words):
@@ -393,7 +397,7 @@ def test_emulate_scenario_errors_name_the_file(tmp_path, capsys):
 def test_digit_separators_in_a_controller_are_refused(capsys):
     for argv in (["margins", "--controller", "pd:5_0:0"], ["export", "--controller", "pd:5:0_1", "--out", "x"]):
         code, out, err = cli(argv, capsys)
-        assert_one_line_error(code, err, "is not a number", "pd:P:D")
+        assert_one_line_error(code, err, "is not a decimal number", "5_0" if "margins" in argv else "0_1")
     assert not os.path.exists("x")
 
 

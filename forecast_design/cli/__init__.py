@@ -88,7 +88,7 @@ def _print_warnings(caught: Sequence[warnings.WarningMessage]) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; return the exit code (0 ok, 2 bad input)."""
+    """Run the command line; return the exit code (0 ok, 1 an answer that is a failure, 2 bad input, 3 not identifiable)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "handler", None):
@@ -134,6 +134,8 @@ from ._options import (  # noqa: E402  (the shared option helpers; verb modules 
     _design_from_args,
     _environments_from_args,
     _float_range,
+    _add_allow_unidentified,
+    _check_sfm_loop,
     _friction_from_file,
     _json_positional,
     _note,
@@ -327,100 +329,6 @@ def _cmd_pipeline(args: argparse.Namespace) -> int:
     return 0
 
 
-# --- identify ---------------------------------------------------------------------
-
-
-def _configure_identify(p: argparse.ArgumentParser) -> None:
-    from ..friction import MODEL_NAMES
-
-    p.add_argument("log", nargs="?", metavar="LOG.toml", help="experiment in the shared format (motor side)")
-    p.add_argument("--csv", metavar="FILE", help="instead: a plain CSV of a rigid axis (with the column options)")
-    p.add_argument("--time", metavar="COL", help="--csv: time column [s]")
-    p.add_argument("--position", metavar="COL", help="--csv: position column [rad or m]")
-    p.add_argument("--force", metavar="COL", help="--csv: force/torque column [N m or N]")
-    p.add_argument("--rate-hz", type=_float_range, help="--csv: declared sample rate [Hz]")
-    p.add_argument("--scale-force", type=_float_range, default=1.0, help="--csv: factor on the force column")
-    p.add_argument("--model", default="extended-sfm", choices=MODEL_NAMES)
-    p.add_argument("--harmonics", type=int, help="angle harmonics N (default 4 where they apply)")
-    p.add_argument("--estimate-inertia", action="store_true", help="fit the inertia instead of the nominal J_m")
-    p.add_argument("--offset", action=argparse.BooleanOptionalAction, default=None,
-                   help="fit a constant offset term (default: when tau_s is a torque sensor's measurement)")
-    p.add_argument("--holdout", type=_float_range, default=0.3, help="fraction held out for fit %% (default 0.3)")
-    p.add_argument("--select-samples", choices=("auto", "on", "off"), default="auto",
-                   help="leave stops and reversals out of static fits: auto (when the log stops, default), "
-                        "on, off (plain IDIM on every sample)")
-    p.add_argument("--validate", metavar="FILE", help="second log (same kind and column mapping) to cross-test")
-    p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write the fit as JSON to OUT (or stdout)")
-    p.add_argument("--plot", metavar="OUT.png", help="measured vs estimated friction (like the paper's Fig. 9)")
-
-
-def _load_log(path: str, args: argparse.Namespace):
-    from ..plausibility import limit_of
-
-    limit = limit_of("log_samples_identify")
-    if args.csv is not None:
-        from ..friction import load_axis_csv
-
-        missing = [opt for opt in ("time", "position", "force") if getattr(args, opt) is None]
-        if missing:
-            from ..errors import ParameterError
-
-            raise ParameterError(f"--csv needs --{', --'.join(missing)} (the column names)", name=missing[0])
-        return load_axis_csv(path, time=args.time, position=args.position, force=args.force,
-                             rate_hz=args.rate_hz, scale_force=args.scale_force, max_samples=limit)
-    from ..experiment import load_experiment
-
-    return load_experiment(path, max_samples=limit, reader="identify")
-
-
-@_command("identify", "identify friction from a log by least squares (casadi), SFM to LuGre", _configure_identify)
-def _cmd_identify(args: argparse.Namespace) -> int:
-    from ..errors import ParameterError
-    from ..friction import identify
-
-    if (args.log is None) == (args.csv is None):
-        raise ParameterError("give exactly one of LOG.toml or --csv FILE", name="log")
-    log = _load_log(args.csv if args.csv is not None else args.log, args)
-    validation = _load_log(args.validate, args) if args.validate else None
-    fit = identify(log, args.model, harmonics=args.harmonics, offset=args.offset,
-                   estimate_inertia=args.estimate_inertia, holdout=args.holdout, validation_log=validation,
-                   selection=args.select_samples)
-    if args.plot:
-        from ..friction import fit_data
-        from ..plotting.friction import plot_friction_fit
-
-        plot_friction_fit(fit, fit_data(fit, log), args.plot, prismatic=getattr(log, "prismatic", False))
-    mapping = fit.to_mapping()
-    from ..friction.logs import parameter_unit    # units follow the log: N, m for a prismatic axis
-
-    mapping["units"] = {name: parameter_unit(name, getattr(log, "prismatic", False)) for name in mapping["params"]}
-    if args.json:
-        _write_json(args.json, mapping)
-    if args.json != "-":
-        sel = mapping["selection"]
-        used = (f", {mapping['n_samples_used']} of {mapping['n_samples']} samples (stops and reversals left out)"
-                if sel and sel["applied"] else "")
-        print(f"model {mapping['model']}: fit {mapping['fit_percent']['estimation']:.2f} % (estimation), "
-              f"{mapping['fit_percent']['holdout']:.2f} % (hold-out), condition number "
-              f"{mapping['condition_number']:.4g}{used}")
-        for name, value in mapping["params"].items():
-            std = mapping["std"].get(name)
-            shown = f"+- {std:.3g}" if std is not None else "(no interval)"
-            status = mapping["status"][name]["status"]
-            print(f"  {name:<20} {value: .6g}  {shown} {mapping['units'][name]}"
-                  + ("" if status == "identified" else f"  [{status}]"))
-        if "validation" in mapping:
-            print(f"validation: relative error {mapping['validation']['relative_error_percent']:.3f} %")
-        if mapping["identifiability"] != "identified":
-            print(mapping["identifiability"])
-    # An honest answer, not an error: one warning per number that is not an estimate (exit code stays 0).
-    for name in mapping["not_identified"]:
-        st = mapping["status"][name]
-        print(f"forecast-design: warning: {name} not identified ({st['status']}): {st.get('reason', '')}",
-              file=sys.stderr)
-    return 0
-
-
 # --- export / emulate / run -----------------------------------------------------------
 
 _COMPENSATOR_CHOICES = COMPENSATOR_KINDS
@@ -432,6 +340,7 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
     _add_environment_options(p, default="exp-soft", many=False)
     p.add_argument("--friction", metavar="F.json", help="identified friction for --compensator sfm "
                                                         "(the file identify --model sfm --json F.json writes)")
+    _add_allow_unidentified(p)
     p.add_argument("--tau-max", type=_float_range, default=float("inf"), metavar="N_M",
                    help="command saturation |tau_m| <= TAU_MAX [N m] (default: none)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz] (default 10)")
@@ -457,6 +366,12 @@ def _cmd_export(args: argparse.Namespace) -> int:
         raise ParameterError(f"--tau-max must be > 0 [N m], got {args.tau_max:g}", name="tau_max")
     _, env = _one_environment_from_args(args, "export")
     comp = _compensator_from_args(args)
+    if comp is not None and comp.kind == "sfm":
+        # the loop's stability with the compensator, before code is written for a board
+        from ..params import Design
+
+        _check_sfm_loop(Design(testbed=_testbed_from_args(args), environment=env), comp.friction_params,
+                        controller=_controller_from_args(args), rate_hz=args.rate_hz)
     if args.firmware:
         from ._firmware import _cmd_export_firmware
 
@@ -517,6 +432,7 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
     _add_controller_option(p)
     p.add_argument("--compensator", "--observer", dest="compensator", default="none", choices=_COMPENSATOR_CHOICES)
     p.add_argument("--friction", metavar="F.json", help="identified friction for --compensator sfm (identify --json)")
+    _add_allow_unidentified(p)
     p.add_argument("--w-q-hz", type=_float_range, default=10.0)
     _add_environment_options(p, default="exp-soft", many=False)
     p.add_argument("--reference", default="square:0.2:0.5", metavar="KIND:ARGS",

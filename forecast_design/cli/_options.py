@@ -153,11 +153,13 @@ _FRICTION_MODELS = ("sfm", "extended-sfm")
 FRICTION_MAX_BYTES = 2**20   # an identify --json file is a few kB
 
 
-def _friction_from_file(path: str) -> dict[str, float]:
+def _friction_from_file(path: str, allow_unidentified: bool = False) -> dict[str, float]:
     """The identified friction of an ``identify --json F.json`` file, for an SFM compensator.
 
     Only the SFM-shaped laws (viscous, coulomb, offset, angle harmonics) drive the SFM feed-forward;
-    a fitted inertia is not friction and is left out (with a note).
+    a fitted inertia is not friction and is left out (with a note). A file whose fit says a number is
+    not identified (``not_identified``, ``identified: false``, a "not identifiable" or "model
+    inadequate" verdict) is refused unless ``allow_unidentified`` (``--allow-unidentified``).
     """
     from ..errors import ExperimentFormatError
     from ..experiment_io import read_regular_file
@@ -177,9 +179,18 @@ def _friction_from_file(path: str) -> dict[str, float]:
     if model not in _FRICTION_MODELS:
         raise ExperimentFormatError(f"{path}: model {model!r} cannot drive the SFM compensator; identify with "
                                     f"--model {' or --model '.join(_FRICTION_MODELS)}", path=path, key="model")
-    for name in doc.get("not_identified") or ():
-        print(f"forecast-design: warning: {path}: {name} was not identified; its value is used as it is",
-              file=sys.stderr)
+    lost = list(doc.get("not_identified") or ())
+    verdict = str(doc.get("identifiability") or "")
+    if lost or doc.get("identified") is False or verdict.startswith(("not identifiable", "model inadequate")):
+        shown = ", ".join(f"{n} ({(doc.get('status') or {}).get(n, {}).get('status', 'not identified')})"
+                          for n in lost) or verdict
+        if not allow_unidentified:
+            raise ExperimentFormatError(
+                f"{path}: the friction is not identified ({shown}): a compensator on numbers the log did not "
+                "determine is not written; identify a model the log identifies, or pass --allow-unidentified to "
+                "use the values as they are", path=path, key="not_identified")
+        print(f"forecast-design: warning: {path}: --allow-unidentified: using friction that is not identified "
+              f"({shown}) as it is", file=sys.stderr)
     if "inertia" in params:
         _note([f"{path}: the fitted inertia is not friction; the SFM compensator leaves it out"])
     return {k: v for k, v in params.items() if k != "inertia"}
@@ -199,7 +210,25 @@ def _compensator_from_args(args: argparse.Namespace):
     if args.compensator == "none":
         return None
     return Compensator(kind=args.compensator, w_q_hz=args.w_q_hz,
-                       friction=_friction_from_file(friction) if friction else ())
+                       friction=_friction_from_file(friction, getattr(args, "allow_unidentified", False))
+                       if friction else ())
+
+
+def _add_allow_unidentified(p: argparse.ArgumentParser) -> None:
+    """``--allow-unidentified``: use a --friction file whose numbers are not all identified."""
+    p.add_argument("--allow-unidentified", action="store_true",
+                   help="with --friction: use friction that identify did not report identified (default: refuse)")
+
+
+def _check_sfm_loop(design, friction, controller=None, rate_hz: float = 2000.0) -> None:
+    """Refuse, in one line, an SFM feed-forward that makes the sampled force loop unstable."""
+    from ..analysis import sfm_loop_check
+    from ..errors import ParameterError
+
+    check = sfm_loop_check(design, friction, controller=controller, rate_hz=rate_hz)
+    if not check.stable:
+        raise ParameterError(f"{check.message()}; no code or run is produced for it", name="friction",
+                             value=check.viscous)
 
 
 def _add_skew_option(p: argparse.ArgumentParser) -> None:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from . import _add_json_option, _command, _friction_from_file, _json_positional, _note, _progress_bar, _write_json
+from . import (_add_allow_unidentified, _add_json_option, _check_sfm_loop, _command, _friction_from_file,
+               _json_positional, _note, _progress_bar, _write_json)
 
 
 def _configure_simulate(p: argparse.ArgumentParser) -> None:
@@ -14,6 +15,7 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--friction", metavar="F.json",
                    help="identified friction (identify --model sfm --json F.json): the run's compensator becomes "
                         "an SFM on these parameters (the scenario's compensator must be none or sfm)")
+    _add_allow_unidentified(p)
     p.add_argument("--repetitions", metavar="N|all",
                    help="simulate repetitions 0..N-1 (or all) of the scenario's [variability] in one batch "
                         "(simulate_batch, one run per core) and write RUN_000.toml, RUN_001.toml, ...")
@@ -39,7 +41,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     _note(scenario.notes)
     if args.friction:
-        scenario = scenario.with_friction(_friction_from_file(args.friction))
+        scenario = _with_checked_friction(scenario, args)
     result = scenario.run()
     paths = save_simulation(result, args.out)
     if args.plot:
@@ -72,6 +74,15 @@ def _report_faults(faults) -> int:
         print(f"forecast-design: controller fault at t = {f['t_s']:.4g} s (period {f['period']}): "
               f"{f['reason']}; the command is zero from then on", file=sys.stderr)
     return 1 if faulted else 0
+
+
+def _with_checked_friction(scenario, args: argparse.Namespace):
+    """The scenario with the --friction SFM compensator, refused when not identified or when it destabilises the loop."""
+    scenario = scenario.with_friction(_friction_from_file(args.friction, args.allow_unidentified))
+    if scenario.closed_loop:
+        _check_sfm_loop(scenario.design, scenario.design.compensator.friction_params,
+                        controller=scenario.design.controller, rate_hz=scenario.rate_hz)
+    return scenario
 
 
 def _run_files(out) -> list:
@@ -132,7 +143,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     _refuse_overwriting_inputs(args, outs)
     check_writable(base, stream_ok=False)
     if args.friction:
-        scenario = scenario.with_friction(_friction_from_file(args.friction))
+        scenario = _with_checked_friction(scenario, args)
     samples = max(1, round(scenario.options["duration_s"] * scenario.rate_hz))
     check_limit(f"--repetitions: {n} runs x {samples} samples", "batch_samples", n * samples)
     # batches of at most 1e6 samples (about 280 MB): each is written when done (memory of one batch, not of
