@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,7 +46,9 @@ __all__ = [
     "loop_margins",
     "LoopAnalysis",
     "LoopResponse",
+    "SfmLoopCheck",
     "analyse_loop",
+    "sfm_loop_check",
 ]
 
 # Names that moved to a higher layer (Fig. 6 is a reproduction); resolved on use, one release.
@@ -321,3 +324,78 @@ def analyse_loop(
                        "classical margins at every crossover (MATLAB allmargin); frequencies in rad/s and Hz",
     }
     return LoopAnalysis(dm, cm, loop, assumptions, notes)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class SfmLoopCheck:
+    """Whether the sampled force loop stays stable with an SFM feed-forward's velocity feedback.
+
+    Parameters
+    ----------
+    stable : bool
+        Every closed-loop pole inside the unit circle.
+    spectral_radius : float
+        Largest closed-loop pole magnitude [-].
+    viscous : float
+        The feed-forward's viscous coefficient [N m s/rad].
+    d_m : float
+        The plant's own motor damping [N m s/rad].
+    """
+
+    stable: bool
+    spectral_radius: float
+    viscous: float
+    d_m: float
+
+    def message(self) -> str:
+        """One line saying why the loop is unstable ('' when stable)."""
+        if self.stable:
+            return ""
+        return (f"the force loop with this SFM feed-forward is unstable (closed-loop pole at |z| = "
+                f"{self.spectral_radius:.4g}): its viscous term {self.viscous:.4g} N m s/rad feeds the measured speed "
+                f"back against the motor's own damping d_m = {self.d_m:.4g} N m s/rad")
+
+
+def sfm_loop_check(design: Design, friction: Any, *, controller: Any = None, rate_hz: float = 2000.0,
+                   delay_samples: int = 1) -> SfmLoopCheck:
+    """Linear stability of the sampled force loop with an SFM compensator (before code goes to a board).
+
+    The SFM feed-forward ``tau_m = u + viscous v_hat + coulomb sign(v_hat) + ...`` is, linearised,
+    a velocity feedback ``viscous V(z) theta`` around the plant (the sfm strategy's linear part);
+    its Coulomb, offset and harmonic terms are bounded and do not move the poles. The loop is the
+    one :func:`sampled_force_loop` builds for every analysis (ZOH plant, the controller's own
+    law, the command ``delay_samples`` late); an identified viscous far above the motor's own
+    damping (266 N m s/rad for d_m = 0.3 on a log that never slid) makes it unstable.
+
+    Parameters
+    ----------
+    design : Design
+        The plant the code will run on (testbed and environment).
+    friction : Mapping[str, float]
+        The SFM parameters (``viscous`` [N m s/rad] or its two directional levels; the others do not
+        change stability).
+    controller : Controller or str, optional
+        The force controller (default the design's, else the paper's PD 5/0.1).
+    rate_hz : float
+        Control rate [Hz].
+    delay_samples : int
+        Computation delay [samples] (the board's: 1).
+
+    Returns
+    -------
+    SfmLoopCheck
+        Stability and the largest closed-loop pole magnitude.
+
+    Examples
+    --------
+    >>> from forecast_design.params import Design
+    >>> sfm_loop_check(Design.nominal("exp-soft"), {"viscous": 265.8}).stable
+    False
+    """
+    from .compensators.sfm_params import viscous_slope
+
+    ctrl = resolve_controller(controller if controller is not None else design.controller, default=PAPER_PD)
+    comp = Compensator(kind="sfm", friction=dict(friction))
+    loop = sampled_force_loop(design, comp, controller=ctrl, rate_hz=rate_hz, delay_samples=delay_samples)
+    return SfmLoopCheck(stable=bool(loop.stable), spectral_radius=loop.max_pole_magnitude,
+                        viscous=float(viscous_slope(dict(friction))), d_m=float(design.testbed.d_m))

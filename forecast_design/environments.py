@@ -31,7 +31,7 @@ from .errors import ExperimentFormatError, ParameterError
 from .experiment_io import FORMAT
 from .experiment_io import parse_toml as _parse_toml
 from .experiment_io import read_toml_document as _read_toml
-from .plausibility import check_limit
+from .plausibility import check_limit, limit_of
 from .params import (
     ENVIRONMENT_PRESETS,
     Design,
@@ -467,6 +467,9 @@ def _from_file(path: Path, link: dict[str, float]) -> EnvironmentSet:
     names: list[str] = []
     envs: list[Environment] = []
     notes: list[str] = []
+    if len(tables) > limit_of("environments"):
+        raise ExperimentFormatError(f"{label}: {len(tables)} [[environment]] tables, more than a set may have "
+                                    f"({limit_of('environments')})", path=label, key="environment")
     for i, table in enumerate(tables):
         section = "[environment]" if single else f"[[environment]] #{i + 1}"
         for name, env, note in _expand_table(table, section, label, link, default_name=
@@ -477,6 +480,9 @@ def _from_file(path: Path, link: dict[str, float]) -> EnvironmentSet:
             names.append(name)
             envs.append(env)
             notes += note
+            if len(envs) > limit_of("environments"):
+                raise ExperimentFormatError(f"{label}: more than {limit_of('environments')} environments over its "
+                                            "tables, more than a set may have", path=label, key="environment")
     return EnvironmentSet(tuple(names), tuple(envs), source=label, notes=tuple(notes))
 
 
@@ -517,6 +523,10 @@ def _expand_table(table: Any, section: str, label: str, link: dict[str, float], 
         if key in table:
             axes.append((key, _values(table[key], lambda m, k=key: fail(f"{k} {m}", k))))
     grid_keys = [key for key, vals in axes if not _is_scalar(table[key])]
+    points = math.prod(len(vals) for _, vals in axes)
+    if points > limit_of("environments"):       # counted before any environment is built
+        raise fail(f"grid of {' x '.join(str(len(v)) for _, v in axes if len(v) > 1)} = {points} environments, more "
+                   f"than a set may have ({limit_of('environments')})", grid_keys[0] if grid_keys else "")
     for point in itertools.product(*(vals for _, vals in axes)):
         values = dict(zip((key for key, _ in axes), point), locked=locked)
         suffix = ",".join(f"{key}={values[key]:.4g}" for key in grid_keys)
@@ -538,6 +548,8 @@ def _values(value: Any, fail) -> list[float]:
     if isinstance(value, list):
         if not value:
             raise fail("list is empty")
+        if len(value) > limit_of("environments"):
+            raise fail(f"list has {len(value)} values, more than a set may have ({limit_of('environments')})")
         return [_finite(v, fail) for v in value]
     if not isinstance(value, Mapping):
         raise fail(f"must be a number, a list, {{log = [a, b], n = N}}, {{lin = [a, b], n = N}} or "
@@ -554,8 +566,9 @@ def _values(value: Any, fail) -> list[float]:
         if not (isinstance(ends, list) and len(ends) == 2):
             raise fail(f"{kind} must be [first, last], got {ends!r}")
         a, b = (_finite(v, fail) for v in ends)
-        if isinstance(n, bool) or not isinstance(n, int) or n < 2:
-            raise fail(f"n must be an integer >= 2, got {n!r}")
+        top = limit_of("environments")
+        if isinstance(n, bool) or not isinstance(n, int) or not 2 <= n <= top:
+            raise fail(f"n must be an integer in [2, {top}] (the most environments of one set), got {n!r}")
         if kind == "log":
             if a <= 0.0 or b <= 0.0:
                 raise fail(f"log grid ends must be > 0, got {ends!r}")

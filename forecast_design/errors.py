@@ -12,6 +12,7 @@ __all__ = [
     "SolverError",
     "ExportError",
     "OutputError",
+    "EXIT_NOT_IDENTIFIABLE",
 ]
 
 
@@ -58,7 +59,29 @@ class ParameterError(ForecastError, ValueError):
 
 
 class IdentifiabilityError(ForecastError, ValueError):
-    """A log that cannot identify the requested parameters (no motion, one direction)."""
+    """A log that cannot identify the requested parameters (no motion, one direction, too little sliding).
+
+    Not identifiable is an answer about the log, not bad input: the ``identify`` verb writes it
+    as JSON and exits with its own code (3, :data:`forecast_design.errors.EXIT_NOT_IDENTIFIABLE`).
+
+    Parameters
+    ----------
+    message : str
+        What the log lacks (one line).
+    parameters : tuple of str
+        The parameters it cannot identify (empty: unspecified).
+    reasons : tuple of str
+        Short reasons, one per missing piece of information.
+    """
+
+    def __init__(self, message: str, *, parameters: tuple[str, ...] = (), reasons: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.parameters = tuple(parameters)
+        self.reasons = tuple(reasons) or (message,)
+
+
+#: Exit code of a command whose answer is "not identifiable" (the log lacks the information) [-].
+EXIT_NOT_IDENTIFIABLE = 3
 
 
 class SolverError(ForecastError, RuntimeError):

@@ -25,17 +25,20 @@ finish.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
+import re
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from functools import partial
 from typing import Any, Callable, Iterable, Sequence
 
-from .errors import ParameterError
+from .errors import ForecastError, ParameterError
 
 __all__ = ["Executor", "LocalExecutor", "DaskExecutor", "make_executor", "available_workers", "batched",
-           "run_batch", "DEFAULT_RETRIES"]
+           "run_batch", "DEFAULT_RETRIES", "DASK_CONNECT_TIMEOUT_S", "DASK_WORKER_WAIT_S"]
 
 #: Times a task is resubmitted after its worker died [-].
 DEFAULT_RETRIES = 3
@@ -211,45 +214,103 @@ class LocalExecutor(Executor):
         return [results[i] for i in range(total)]
 
 
+#: How long a Dask client waits to connect to the scheduler [s].
+DASK_CONNECT_TIMEOUT_S = 10.0
+#: How long the scheduler may have no worker (before the first task, or after every worker left
+#: during a run) before the command fails in one line [s].
+DASK_WORKER_WAIT_S = 30.0
+_ADDRESS = re.compile(r"^(tcp|tls)://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):([0-9]{1,5})$")
+
+
+def _quiet_loggers() -> dict[str, int]:
+    """Silence dask's own loggers (client reconnection tracebacks); return their levels to restore."""
+    names = ["distributed", "tornado"] + [n for n in logging.root.manager.loggerDict
+                                         if n.startswith(("distributed.", "tornado."))]
+    levels = {}
+    for name in names:
+        logger = logging.getLogger(name)
+        levels[name] = logger.level
+        logger.setLevel(logging.CRITICAL + 1)
+    return levels
+
+
+def _restore_loggers(levels: dict[str, int]) -> None:
+    for name, level in levels.items():
+        logging.getLogger(name).setLevel(level)
+
+
+def _cluster_error(address: str, what: str, exc: BaseException | None = None) -> ParameterError:
+    why = "" if exc is None else f": {type(exc).__name__}" + (f" {' '.join(str(exc).split())}" if str(exc) else "")
+    return ParameterError(f"the Dask cluster at {address} {what}{why}"[:400], name="scheduler", value=address)
+
+
 class DaskExecutor(Executor):
     """Tasks on a ``dask.distributed`` cluster (the scheduler at ``address``).
 
     Parameters
     ----------
     address : str
-        Scheduler address, ``tcp://HOST:PORT``.
+        Scheduler address, ``tcp://HOST:PORT`` (or ``tls://``), the port given.
     retries : int
         Resubmissions of a task whose worker died or that raised [-].
     timeout_s : float
-        Time to wait for the scheduler [s].
+        Time to wait for the scheduler to answer [s] (:data:`DASK_CONNECT_TIMEOUT_S`).
+    worker_wait_s : float, optional
+        Time to wait for a first worker, and for a worker again when all left during a run
+        [s] (default :data:`DASK_WORKER_WAIT_S`).
+
+    Raises
+    ------
+    ParameterError
+        One line: a malformed address, no scheduler answering within ``timeout_s``, or no
+        worker within ``worker_wait_s``.
 
     Notes
     -----
     The workers need the same ``forecast_design`` (and numpy/numba) as the client: tasks are
-    pickled by reference to the package's functions.
+    pickled by reference to the package's functions. A scheduler that goes away during a run,
+    or a task the cluster gave up on (its workers kept dying), ends the command in one line.
     """
 
-    def __init__(self, address: str, *, retries: int = DEFAULT_RETRIES, timeout_s: float = 10.0) -> None:
-        if not isinstance(address, str) or "://" not in address:
-            raise ParameterError(f"--scheduler must be an address like tcp://HOST:PORT, got {address!r}",
-                                 name="scheduler", value=address)
+    def __init__(self, address: str, *, retries: int = DEFAULT_RETRIES, timeout_s: float = DASK_CONNECT_TIMEOUT_S,
+                 worker_wait_s: float | None = None) -> None:
+        match = _ADDRESS.match(address) if isinstance(address, str) else None
+        if match is None or not 1 <= int(match.group(3)) <= 65535:
+            raise ParameterError(f"--scheduler must be an address like tcp://HOST:PORT (with the port), got "
+                                 f"{address!r}", name="scheduler", value=address)
         try:
             from distributed import Client
         except ImportError:  # pragma: no cover - pinned dependency
             raise ParameterError("--scheduler needs dask.distributed (pip install distributed)", name="scheduler",
                                  value=address) from None
+        self.address = address
+        self.worker_wait_s = DASK_WORKER_WAIT_S if worker_wait_s is None else float(worker_wait_s)
+        # the client logs its reconnection attempts with tracebacks: a lost scheduler is this
+        # executor's one-line error instead (the level is restored by close)
+        self._log_levels = _quiet_loggers()
         try:
             self.client = Client(address, timeout=timeout_s, set_as_default=False)
         except (OSError, TimeoutError) as exc:
+            _restore_loggers(self._log_levels)
             raise ParameterError(f"cannot reach the Dask scheduler at {address}: {exc}", name="scheduler",
                                  value=address) from None
-        self.address = address
+        try:
+            self.client.wait_for_workers(1, timeout=self.worker_wait_s)
+        except Exception:     # noqa: BLE001 - dask's TimeoutError, or the scheduler gone meanwhile
+            self.close()
+            raise _cluster_error(address, f"has no worker after {self.worker_wait_s:g} s; start workers with "
+                                          f"'dask worker {address}'") from None
         self.retries = int(retries)
         self.name = address
         self.workers = len(self.client.scheduler_info().get("workers", {}))
 
+    def _worker_count(self) -> int:
+        return len(self.client.scheduler_info().get("workers", {}))
+
     def map(self, func, tasks, *, progress=None):
-        from distributed import as_completed
+        from concurrent.futures import CancelledError
+
+        from distributed import wait as dask_wait
 
         tasks = list(tasks)
         total = len(tasks)
@@ -257,18 +318,50 @@ class DaskExecutor(Executor):
         if not tasks:
             return []
         stamp = f"{getattr(func, '__name__', 'task')}-{time.time_ns()}"
-        futures = [self.client.submit(func, t, pure=False, retries=self.retries, key=f"{stamp}-{i}")
-                   for i, t in enumerate(tasks)]
-        index = {f.key: i for i, f in enumerate(futures)}
         results: dict[int, Any] = {}
-        with self.client.as_current():
-            for fut in as_completed(futures):
-                results[index[fut.key]] = fut.result()
-                report(len(results), total)
+        try:
+            futures = [self.client.submit(func, t, pure=False, retries=self.retries, key=f"{stamp}-{i}")
+                       for i, t in enumerate(tasks)]
+            index = {f.key: i for i, f in enumerate(futures)}
+            pending = list(futures)
+            alone_since = None
+            while pending:
+                try:
+                    with self.client.as_current():
+                        done, not_done = dask_wait(pending, timeout=1.0, return_when="FIRST_COMPLETED")
+                except TimeoutError:
+                    done, not_done = set(), pending
+                for fut in done:
+                    if fut.status == "error":
+                        fut.result()              # the task's own exception, as it is
+                    results[index[fut.key]] = fut.result()
+                    report(len(results), total)
+                pending = list(not_done)
+                if pending and not done:
+                    if self._worker_count() > 0:
+                        alone_since = None
+                    elif alone_since is None:
+                        alone_since = time.monotonic()
+                    elif time.monotonic() - alone_since > self.worker_wait_s:
+                        raise _cluster_error(self.address, f"lost every worker and none came back within "
+                                                           f"{self.worker_wait_s:g} s ({total - len(results)} of "
+                                                           f"{total} tasks unfinished)")
+        except ForecastError:
+            raise
+        except CancelledError as exc:       # the scheduler went away: its futures are cancelled
+            raise _cluster_error(self.address, f"stopped during the run ({total - len(results)} of {total} tasks "
+                                               "unfinished)", exc) from None
+        except Exception as exc:  # noqa: BLE001 - connection errors, KilledWorker, ...: one line
+            if type(exc).__module__.split(".")[0] in ("distributed", "dask", "tornado", "asyncio") \
+                    or isinstance(exc, (OSError, TimeoutError)):
+                raise _cluster_error(self.address, "failed during the run", exc) from None
+            raise
         return [results[i] for i in range(total)]
 
     def close(self) -> None:
-        self.client.close()
+        with contextlib.suppress(Exception):
+            self.client.close(timeout=2)
+        _restore_loggers(self._log_levels)
 
     def describe(self) -> dict[str, Any]:
         return {"executor": "dask", "scheduler": self.address, "workers": self.workers}

@@ -564,13 +564,20 @@ def experiment_from_arrays(design: Design, rate_hz: float, t: Any, tau_m: Any, t
 # --- files (the reading and writing live in experiment_io) ---------------------------
 
 
-def load_experiment(path: str | os.PathLike[str]) -> Experiment:
+def load_experiment(path: str | os.PathLike[str], *, max_samples: int | None = None,
+                    reader: str = "this command") -> Experiment:
     """Read an experiment (TOML + CSV) and check it against the format.
 
     Parameters
     ----------
     path : str or os.PathLike
         The TOML file. Its ``data`` key names the CSV file, relative to the TOML's folder.
+    max_samples : int, optional
+        Most samples accepted, checked from the file's size and line breaks before the CSV is
+        parsed (default ``experiment_io.DEFAULT_MAX_SAMPLES``, 2**24; each CLI verb states its own,
+        ``plausibility.COMPUTATION_LIMITS``).
+    reader : str
+        Who reads the log (named in the message of ``max_samples``).
 
     Returns
     -------
@@ -595,7 +602,7 @@ def load_experiment(path: str | os.PathLike[str]) -> Experiment:
     accepted CSV dialect). A CSV whose checksum differs from the one its TOML records
     (an interrupted save, a hand edit) is an error naming both files.
     """
-    files = read_experiment_files(path)
+    files = read_experiment_files(path, max_samples=max_samples, reader=reader)
     toml_label = str(files.toml_path)
     origin = _Origin(prefix=f"{files.csv_label}: ", rate_label=f"[sampling] rate_hz of {toml_label}",
                      locked_label=f"locked = true in {toml_label}", path=files.csv_label, first_line=2)

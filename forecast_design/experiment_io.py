@@ -48,7 +48,7 @@ import numpy as np
 import tomli_w
 
 from .errors import ExperimentFormatError, ParameterError
-from .fileio import Content, atomic_write_set
+from .fileio import Content, atomic_write_set, note_input
 from .controllers import controller_from_mapping
 from .params import Compensator, Design, Environment, Testbed
 
@@ -59,6 +59,11 @@ __all__ = [
     "ExperimentFiles",
     "read_csv_table",
     "read_experiment_files",
+    "parse_toml_bytes",
+    "TOML_MAX_BYTES",
+    "TOML_MAX_DEPTH",
+    "CSV_MAX_LINE_BYTES",
+    "DEFAULT_MAX_SAMPLES",
     "write_experiment_files",
 ]
 
@@ -80,6 +85,18 @@ _BOM = b"\xef\xbb\xbf"
 _NUMBER = re.compile(r"[ \t]*[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
                      r"|inf(?:inity)?|nan)[ \t]*", re.ASCII | re.IGNORECASE)
 _CHECKSUM = re.compile(rb"^# data-crc32 = ([0-9a-f]{8}), data-bytes = ([0-9]+)[ \t]*\r?$", re.M)
+_CHECKSUM_KEY = re.compile(rb"^[ \t]*#[ \t]*data-crc32\b", re.M)   # a line meant as the checksum, well-formed or not
+#: Largest TOML file read (experiments, scenarios, environment sets, testbeds) [bytes]: checked before reading.
+TOML_MAX_BYTES = 16 * 2**20
+#: Deepest nesting of tables and arrays in a TOML file read [-] (the formats need 4).
+TOML_MAX_DEPTH = 32
+#: Longest CSV line (the header included) [bytes]: a longer one is refused before it is decoded.
+CSV_MAX_LINE_BYTES = 2**16
+#: Bytes a CSV cell may take on average when a file's size is checked against a row limit [bytes].
+CSV_MAX_CELL_BYTES = 64
+#: Most samples (CSV rows) an experiment may have when the caller states no limit [-] (the
+#: longest recorded run, ``runtime.samples.MAX_RUN_SAMPLES``); each verb states its own.
+DEFAULT_MAX_SAMPLES = 2**24
 
 
 def one_line(text: Any) -> str:
@@ -110,12 +127,15 @@ def check_rate(rate_hz: Any, *, label: str, path: str | None) -> float:
 
 def read_regular_file(path: Path, label: str, *, not_found: str | None = None,
                       unreadable: str | None = None, error_path: str | None = None,
-                      error_key: str | None = None, mapped: bool = False) -> bytes | mmap.mmap:
+                      error_key: str | None = None, mapped: bool = False,
+                      max_bytes: int | None = None, what: str = "file") -> bytes | mmap.mmap:
     """The bytes of a regular file; FIFOs, devices and directories are refused unread.
 
     ``not_found`` and ``unreadable`` (with ``{reason}``) replace the default messages
     and are raised with ``error_path`` and ``error_key``. With ``mapped``, a read-only
-    memory map (no copy of the file on the heap) instead of bytes.
+    memory map (no copy of the file on the heap) instead of bytes. A file larger than
+    ``max_bytes`` is refused before anything is read (``what`` names it in the message).
+    The file is recorded as an input of the running command (:func:`~.fileio.note_input`).
     """
     try:
         info = os.stat(path)
@@ -124,11 +144,15 @@ def read_regular_file(path: Path, label: str, *, not_found: str | None = None,
     if info is not None and not stat.S_ISREG(info.st_mode):
         kind = "a directory" if stat.S_ISDIR(info.st_mode) else "not a regular file (a FIFO or device?)"
         raise ExperimentFormatError(f"{label}: {kind}; only regular files are read", path=label)
+    if info is not None and max_bytes is not None and info.st_size > max_bytes:
+        raise ExperimentFormatError(f"{label}: {info.st_size} bytes, more than a {what} may have "
+                                    f"({max_bytes} bytes); not read", path=label)
     try:
         with open(path, "rb") as fh:
+            note_input(path)
             if mapped and os.fstat(fh.fileno()).st_size > 0:
                 return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-            return fh.read()
+            data = fh.read() if max_bytes is None else fh.read(max_bytes + 1)
     except FileNotFoundError:
         if not_found is None:
             raise ExperimentFormatError(f"{label}: file not found", path=label) from None
@@ -139,27 +163,82 @@ def read_regular_file(path: Path, label: str, *, not_found: str | None = None,
             raise ExperimentFormatError(f"{label}: cannot read: {reason}", path=label) from None
         raise ExperimentFormatError(unreadable.replace("{reason}", reason), path=error_path,
                                     key=error_key) from None
+    if max_bytes is not None and len(data) > max_bytes:     # it grew after the check
+        raise ExperimentFormatError(f"{label}: more than a {what} may have ({max_bytes} bytes); not read",
+                                    path=label)
+    return data
 
 
 # --- TOML -----------------------------------------------------------------------------
 
 
-def read_toml(path: Path) -> tuple[dict[str, Any], bytes]:
-    """The parsed TOML document and its raw bytes; one-line errors naming the file."""
-    label = str(path)
-    raw = read_regular_file(path, label, not_found=f"{label}: experiment file not found",
-                            error_path=label)
+def _depth(doc: Any) -> int:
+    """Deepest nesting of tables and arrays in a parsed TOML document (iterative: no recursion)."""
+    deepest, stack = 0, [(doc, 1)]
+    while stack:
+        obj, level = stack.pop()
+        deepest = max(deepest, level)
+        if level > TOML_MAX_DEPTH:
+            break
+        children = obj.values() if isinstance(obj, dict) else obj if isinstance(obj, list) else ()
+        stack.extend((child, level + 1) for child in children if isinstance(child, (dict, list)))
+    return deepest
+
+
+def parse_toml_bytes(raw: bytes, label: str) -> dict[str, Any]:
+    """Parse a TOML file's bytes: UTF-8 (a byte-order mark is accepted), at most :data:`TOML_MAX_DEPTH` deep.
+
+    Parameters
+    ----------
+    raw : bytes
+        The file's content.
+    label : str
+        How errors name the file.
+
+    Returns
+    -------
+    dict
+        The document.
+
+    Raises
+    ------
+    ExperimentFormatError
+        One line naming the file: not UTF-8 (with the byte offset), a syntax error (with
+        its line), or nested deeper than :data:`TOML_MAX_DEPTH`.
+    """
+    start = len(_BOM) if raw[:len(_BOM)] == _BOM else 0
     try:
-        return tomllib.loads(raw.decode("utf-8")), raw
+        text = raw[start:].decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ExperimentFormatError(f"{label}: not UTF-8 text ({one_line(exc.reason)} at byte "
-                                    f"{exc.start})", path=label) from None
+                                    f"{exc.start + start})", path=label) from None
+    try:
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         match = re.search(r"line (\d+)", str(exc))
         raise ExperimentFormatError(
             f"{label}: TOML syntax error: {one_line(exc)}", path=label,
             key=f"line {match.group(1)}" if match else None,
         ) from None
+    except RecursionError:
+        doc = None
+    if doc is None or _depth(doc) > TOML_MAX_DEPTH:
+        raise ExperimentFormatError(f"{label}: tables or arrays nested more than {TOML_MAX_DEPTH} levels deep; "
+                                    "not a file of this format", path=label)
+    return doc
+
+
+def read_toml(path: Path, what: str = "experiment file") -> tuple[dict[str, Any], bytes]:
+    """The parsed TOML document and its raw bytes; one-line errors naming the file.
+
+    Every TOML file the toolbox reads comes through here: regular files only, at most
+    :data:`TOML_MAX_BYTES` (checked before reading), parsed by :func:`parse_toml_bytes`.
+    ``what`` names the kind of file in the not-found message.
+    """
+    label = str(path)
+    raw = read_regular_file(path, label, not_found=f"{label}: {what} not found",
+                            error_path=label, max_bytes=TOML_MAX_BYTES, what="TOML file")
+    return parse_toml_bytes(raw, label), raw
 
 
 def read_toml_document(path: Path) -> dict[str, Any]:
@@ -237,7 +316,7 @@ def _not_utf8(label: str, exc: UnicodeDecodeError, offset: int = 0) -> Experimen
 def parse_header(line: str, label: str, required: Iterable[str] = REQUIRED_COLUMNS,
                  role: str = "required columns") -> list[str]:
     """The column names of a header line; empty, duplicate and missing names are errors."""
-    names = [cell.strip() for cell in next(csv.reader([line]))] if line.strip() else []
+    names = [cell.strip() for cell in _csv_cells(line, label, 1)] if line.strip() else []
     seen: set[str] = set()
     for j, name in enumerate(names):
         if not name:
@@ -261,17 +340,31 @@ def parse_header(line: str, label: str, required: Iterable[str] = REQUIRED_COLUM
     return names
 
 
-def _scan_rows(lines: list[str], names: list[str], label: str, use: list[int] | None = None) -> np.ndarray:
-    """Slow path: parse row by row (the cells of columns ``use``) and name the first bad line."""
+def _csv_cells(line: str, label: str, lineno: int) -> list[str]:
+    """The cells of one CSV line; the csv module's own complaints (a NUL, a huge field) as one line."""
+    try:
+        return next(csv.reader([line]))
+    except csv.Error as exc:
+        raise ExperimentFormatError(f"{label}: line {lineno}: not a CSV line ({one_line(exc)})", path=label,
+                                    key=f"line {lineno}") from None
+
+
+def _scan_rows(lines: Iterable[str], names: list[str], label: str, use: list[int] | None = None,
+               n_rows: int | None = None) -> np.ndarray:
+    """Slow path: parse row by row (the cells of columns ``use``) and name the first bad line.
+
+    ``lines`` may be a list or an iterator (``n_rows``: at most that many, for the array).
+    """
     width = len(names)
     use = list(range(width)) if use is None else use
-    out = np.empty((len(lines), len(use)))
+    out = np.empty((len(lines) if n_rows is None else n_rows, len(use)))  # type: ignore[arg-type]
+    i = -1
     for i, line in enumerate(lines):
         lineno = i + 2
         if not line.strip():
             raise ExperimentFormatError(f"{label}: line {lineno} is empty; blank lines are only "
                                         "allowed at the end", path=label, key=f"line {lineno}")
-        row = next(csv.reader([line]))
+        row = _csv_cells(line, label, lineno)
         if len(row) != width:
             raise ExperimentFormatError(
                 f"{label}: line {lineno} has {len(row)} fields but the header (line 1) has {width} "
@@ -285,18 +378,54 @@ def _scan_rows(lines: list[str], names: list[str], label: str, use: list[int] | 
                     path=label, key=names[j],
                 )
             out[i, k] = float(cell)
-    return out
+    return out[:i + 1]
 
 
-def _header_end(raw: bytes, start: int) -> tuple[int, int]:
-    """(end of the header line, start of the first row) in ``raw``; LF, CRLF or CR."""
-    lf = raw.find(b"\n", start)
-    cr = raw.find(b"\r", start, len(raw) if lf == -1 else lf + 1)  # look no further than the LF
+def _line_breaks(raw: bytes | mmap.mmap, start: int, stop: int) -> int:
+    """Line breaks in ``raw[start:stop]`` (LF, or CR in a CR-only file), counted in bounded chunks."""
+    def count(byte: bytes) -> int:
+        return sum(raw[i:min(i + (1 << 26), stop)].count(byte) for i in range(start, stop, 1 << 26))
+
+    lf = count(b"\n")
+    return lf if lf else count(b"\r")
+
+
+def _iter_lines(raw: bytes | mmap.mmap, start: int, stop: int, label: str) -> Iterable[str]:
+    """The lines of ``raw[start:stop]`` (LF, CRLF or CR ends), each decoded alone: no copy of the whole file."""
+    pos, lineno = start, 2
+    lf = raw.find(b"\n", pos, stop)
+    while pos < stop:
+        if lf != -1 and lf < pos:
+            lf = raw.find(b"\n", pos, stop)
+        end = stop if lf == -1 else lf
+        cr = raw.find(b"\r", pos, end)
+        nxt = end + 1
+        if cr != -1:
+            end, nxt = cr, cr + 2 if cr + 1 == lf else cr + 1
+        if end - pos > CSV_MAX_LINE_BYTES:
+            raise ExperimentFormatError(f"{label}: line {lineno} is longer than {CSV_MAX_LINE_BYTES} bytes; not a "
+                                        "row of this format", path=label, key=f"line {lineno}")
+        try:
+            yield raw[pos:end].decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise _not_utf8(label, exc, pos) from None
+        pos, lineno = nxt, lineno + 1
+
+
+def _header_end(raw: bytes, start: int, limit: int | None = None) -> tuple[int, int]:
+    """(end of the header line, start of the first row) in ``raw``; LF, CRLF or CR.
+
+    With ``limit``, no further than ``limit`` bytes are looked at (a file without a line break in them
+    gives an end beyond ``start + limit``; nothing after it is touched).
+    """
+    end = len(raw) if limit is None else min(len(raw), start + limit + 2)
+    lf = raw.find(b"\n", start, end)
+    cr = raw.find(b"\r", start, end if lf == -1 else lf + 1)  # look no further than the LF
     if cr != -1 and (lf == -1 or cr < lf):
         return cr, cr + 2 if raw[cr + 1:cr + 2] == b"\n" else cr + 1
     if lf != -1:
         return lf, lf + 1
-    return len(raw), len(raw)
+    return end, end
 
 
 def _columnar(body: memoryview, width: int, use: list[int] | None = None) -> list[np.ndarray] | None:
@@ -332,7 +461,9 @@ def _columnar(body: memoryview, width: int, use: list[int] | None = None) -> lis
 
 def read_csv_table(raw: bytes | mmap.mmap, label: str, *, required: Iterable[str] = REQUIRED_COLUMNS,
                    role: str = "required columns",
-                   usecols: Iterable[str] | None = None) -> tuple[list[str], dict[str, np.ndarray]]:
+                   usecols: Iterable[str] | None = None,
+                   max_rows: int | None = None,
+                   reader: str = "this command") -> tuple[list[str], dict[str, np.ndarray]]:
     """Parse a CSV file's bytes into float64 columns.
 
     Parameters
@@ -348,6 +479,11 @@ def read_csv_table(raw: bytes | mmap.mmap, label: str, *, required: Iterable[str
     usecols : iterable of str, optional
         Convert only these columns (they must be in the header); the cells of the
         others are not checked. Default: every column.
+    max_rows : int, optional
+        Most data rows accepted (default :data:`DEFAULT_MAX_SAMPLES`): the file's size and its
+        line breaks are checked against it before anything is parsed or allocated.
+    reader : str
+        Who reads the file, for the message of ``max_rows`` (e.g. ``"diagnose"``).
 
     Returns
     -------
@@ -361,6 +497,11 @@ def read_csv_table(raw: bytes | mmap.mmap, label: str, *, required: Iterable[str
     ExperimentFormatError
         One line naming the file and the line (the header is line 1) and column.
     """
+    if max_rows is not None and (isinstance(max_rows, bool) or not isinstance(max_rows, (int, np.integer))
+                                 or max_rows < 1):
+        raise ParameterError(f"max_samples must be an integer >= 1, got {clip(repr(max_rows))}", name="max_samples",
+                             value=max_rows)
+    limit = DEFAULT_MAX_SAMPLES if max_rows is None else int(max_rows)
     start = len(_BOM) if raw[:len(_BOM)] == _BOM else 0
     stop = len(raw)
     while stop > start and raw[stop - 1] in b" \t\r\n":
@@ -370,24 +511,35 @@ def read_csv_table(raw: bytes | mmap.mmap, label: str, *, required: Iterable[str
             f"{label}: empty file; expected a header line with columns {', '.join(required)}",
             path=label, key="line 1",
         )
-    head_end, body_start = _header_end(raw, start)
+    head_end, body_start = _header_end(raw, start, CSV_MAX_LINE_BYTES)
+    if head_end - start > CSV_MAX_LINE_BYTES:
+        raise ExperimentFormatError(f"{label}: line 1 (the header) is longer than {CSV_MAX_LINE_BYTES} bytes; "
+                                    "not a CSV file of this format", path=label, key="line 1")
     try:
         header = raw[start:head_end].decode("utf-8")
     except UnicodeDecodeError as exc:
         raise _not_utf8(label, exc, start) from None
+    if "\x00" in header:
+        raise ExperimentFormatError(f"{label}: line 1 holds a NUL byte; not a CSV text file", path=label,
+                                    key="line 1")
     names = parse_header(header, label, required, role)
     if body_start >= stop:
         raise ExperimentFormatError(f"{label}: no data rows (header only)", path=label, key="line 2")
+    # bounded before anything is parsed: the size (a row's cells at most CSV_MAX_CELL_BYTES each), then the rows
+    why = f"{reader} reads at most {limit} rows (docs/reliability.md, limits of a log's size); cut the log"
+    if stop - body_start > limit * len(names) * CSV_MAX_CELL_BYTES:
+        raise ExperimentFormatError(f"{label}: {stop - body_start} bytes of rows, more than {limit} rows of "
+                                    f"{len(names)} cells can hold; {why}", path=label)
+    n_rows = _line_breaks(raw, body_start, stop) + 1
+    if n_rows > limit:
+        raise ExperimentFormatError(f"{label}: {n_rows} rows; {why}", path=label)
     use = None if usecols is None else sorted({names.index(n) for n in usecols if n in names})
     view = memoryview(raw)
     # The trimmed rows end without a line break; pyarrow reads the last row all the same.
     columns = _columnar(view[body_start:stop], len(names), use)
+    del view
     if columns is None:
-        try:
-            text = raw[body_start:stop].decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise _not_utf8(label, exc, body_start) from None
-        table = _scan_rows(text.splitlines(), names, label, use)
+        table = _scan_rows(_iter_lines(raw, body_start, stop, label), names, label, use, n_rows=n_rows)
         columns = [table[:, k] for k in range(table.shape[1])]
     kept = names if use is None else [names[j] for j in use]
     return names, dict(zip(kept, columns))
@@ -433,6 +585,11 @@ class ExperimentFiles:
 def _verify_checksum(toml_raw: bytes, csv_raw: bytes | mmap.mmap, toml_label: str, csv_label: str) -> None:
     match = _CHECKSUM.search(toml_raw)
     if match is None:
+        if _CHECKSUM_KEY.search(toml_raw):      # meant as the checksum, but garbled: never silently unchecked
+            raise ExperimentFormatError(
+                f"{toml_label}: its '# data-crc32' line is not '# data-crc32 = XXXXXXXX, data-bytes = N' (8 lowercase "
+                f"hex digits); it cannot vouch for {csv_label}: restore it, or delete it to accept the CSV as it is",
+                path=toml_label, key="data-crc32")
         return  # written by another tool: nothing to verify
     crc, size = match.group(1).decode(), int(match.group(2))
     if len(csv_raw) != size or f"{zlib.crc32(csv_raw):08x}" != crc:
@@ -443,13 +600,19 @@ def _verify_checksum(toml_raw: bytes, csv_raw: bytes | mmap.mmap, toml_label: st
             path=csv_label, key="data")
 
 
-def read_experiment_files(path: str | os.PathLike[str]) -> ExperimentFiles:
+def read_experiment_files(path: str | os.PathLike[str], *, max_samples: int | None = None,
+                          reader: str = "this command") -> ExperimentFiles:
     """Read and parse an experiment's TOML and CSV (see the module notes for what is accepted).
 
     Parameters
     ----------
     path : str or os.PathLike
         The TOML file; its ``data`` key names the CSV, relative to the TOML's folder.
+    max_samples : int, optional
+        Most samples (CSV rows) accepted, checked before the CSV is parsed (default
+        :data:`DEFAULT_MAX_SAMPLES`).
+    reader : str
+        Who reads the log, for the message of ``max_samples``.
 
     Returns
     -------
@@ -473,7 +636,7 @@ def read_experiment_files(path: str | os.PathLike[str]) -> ExperimentFiles:
         unreadable=f"{csv_label}: cannot read CSV ({{reason}}; {key_is})", error_path=toml_label,
         error_key="data", mapped=True)
     _verify_checksum(toml_raw, raw, toml_label, csv_label)
-    names, columns = read_csv_table(raw, csv_label)
+    names, columns = read_csv_table(raw, csv_label, max_rows=max_samples, reader=reader)
     del raw
     return ExperimentFiles(design=design, rate_hz=rate, description=description, data=data,
                            toml_path=toml_path, csv_label=csv_label, names=names, columns=columns)
@@ -497,9 +660,10 @@ def data_name(toml_path: Path, data: str | os.PathLike[str] | None) -> str:
     else:
         data_path = Path(data)
         if data_path.is_absolute():
-            data_path = Path(os.path.relpath(data_path, toml_path.parent.resolve()))
+            data_path = Path(os.path.relpath(data_path, os.path.realpath(toml_path.parent)))
         data_str = data_path.as_posix()
-    if toml_path.parent.resolve() / data_str == toml_path.resolve():
+    # realpath, not Path.resolve: a symlink loop is the writer's one-line error, not a RuntimeError here
+    if Path(os.path.realpath(toml_path.parent)) / data_str == Path(os.path.realpath(toml_path)):
         raise ParameterError(f"data {data_str!r} would overwrite the TOML file {toml_path}",
                              name="data", value=data_str)
     return data_str

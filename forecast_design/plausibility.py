@@ -1,20 +1,33 @@
 """Physical plausibility of fitted numbers: the one place that says when a number is *not identified*.
 
 Every fitted parameter of the friction identification and of the gap
-diagnosis passes through :func:`assess`, which gives it one of four statuses:
+diagnosis passes through :func:`assess`, which gives it one of five statuses,
+each defined by what a user may rely on:
 
 ``identified``
-    inside its plausible range, not on a bound of the solver or search grid,
-    and its 95 % interval is narrower than its distance from zero.
-``at_bound``
-    the estimate sits on a bound of the solver (a box constraint, the end of a
-    search grid, a datasheet tolerance): the data pushed it there, so the true
-    value may lie beyond and the number is not an estimate.
+    *Use the number.* It is finite, inside its plausible range, not on a bound
+    of the solver or search grid, it has a finite, positive standard deviation,
+    and its 95 % interval is no wider than +-:data:`RELATIVE_PRECISION` (10 %) of
+    the value: the number is known to within a tenth of itself, and the
+    interval (which the identification checks on independent logs to cover
+    the truth in >= 93 % of cases) says by how much more precisely.
 ``uncertain``
-    the 95 % interval is wider than the value (``1.96 std > |value|``): the
-    log does not carry the information to pin it down.
+    *Use the interval, not the number.* The log pins the value only to an
+    interval wider than +-10 % of it (the interval may include zero), or a
+    check of the fit (a richer model the residual asks for, a sensor scale the
+    log cannot separate) moves it by more than that interval.
+``at_bound``
+    *Neither.* The estimate sits on a bound of the solver (a box constraint, the
+    end of a search grid, a datasheet tolerance): the data pushed it there, so
+    the true value may lie beyond and the number is not an estimate.
 ``implausible``
-    outside the range the log and the testbed allow (below).
+    *Neither.* Outside the range the log and the testbed allow (below).
+``not_identifiable``
+    *Nothing.* The log carries no information on it: its standard deviation is
+    zero or not finite (a singular or near-singular problem; a zero standard
+    deviation there is a failure of the covariance, never certainty), a
+    direction of the regressor the excitation does not reach, or the fit as a
+    whole is not identifiable (too little sliding).
 
 Only ``identified`` numbers are reported as estimates; the others are flagged
 (JSON ``status``, a CLI warning, a report caveat).
@@ -30,15 +43,17 @@ harmonic amplitudes)      room for inertial torques at reversals.
 viscous coefficient       ``0 <= d <= 1.5 torque_max / speed_p99``: at the log's typical
                           top speed the viscous torque cannot exceed the torque range.
 Stribeck velocity         ``2 speed_resolution <= v_s <= speed_max``: below the encoder's
-                          speed resolution no curve can be resolved; above the largest
-                          speed the decay is not observed.
+                          speed resolution no curve can be resolved (``not_identifiable``);
+                          above the largest speed the decay is not observed.
 bristle stiffness sigma0  ``static / sigma0`` (presliding displacement) between one encoder
-                          step and 0.1 rad.
+                          step and 0.1 rad; below one step it is not resolved
+                          (``not_identifiable``, not implausible).
 bristle damping sigma1    ``0 <= sigma1 <= 10 * 2 sqrt(sigma0 J_m)`` (ten times critical).
 torque gain               ``0.5 <= g <= 2``: a factor beyond that is a wrong torque
                           constant, not an unmodelled effect.
 delay                     ``0 <= delay <= 0.05 s`` (100 samples at 2 kHz).
-backlash width            ``2 encoder steps <= width <= 2 deflection_max``.
+backlash width            ``2 encoder steps <= width <= 2 deflection_max`` (below two steps:
+                          not resolved, ``not_identifiable``).
 environment scales        ``0.1 <= scale <= 10`` of the declared value.
 ========================  ==============================================================
 
@@ -60,6 +75,7 @@ from .errors import ParameterError, SolverError
 
 __all__ = [
     "STATUSES",
+    "RELATIVE_PRECISION",
     "DATASHEET_TOLERANCE",
     "ENCODER_COUNTS",
     "LogScales",
@@ -71,6 +87,7 @@ __all__ = [
     "friction_bound",
     "effect_bound",
     "encoder_step_of",
+    "speed_resolution",
     "first_beyond",
     "check_signal",
     "SIGNAL_LIMITS",
@@ -80,11 +97,16 @@ __all__ = [
     "check_physical",
     "check_limit",
     "check_number",
+    "check_below_nyquist",
+    "limit_of",
     "require_no_nan",
 ]
 
 #: Statuses of a fitted number, best first.
-STATUSES = ("identified", "at_bound", "uncertain", "implausible")
+STATUSES = ("identified", "uncertain", "at_bound", "implausible", "not_identifiable")
+
+#: Largest half-width of an ``identified`` number's 95 % interval, as a fraction of its value [-].
+RELATIVE_PRECISION = 0.1
 
 #: Relative tolerance of the nominal testbed values that a re-calibration may absorb [-].
 #: ``J_m``: the reflected inertia from the rotor's datasheet inertia and the gear ratio (3 %);
@@ -137,20 +159,44 @@ class LogScales:
 
     @property
     def speed_resolution(self) -> float:
-        """Smallest speed the encoder resolves over the derivative filter's window [rad/s].
-
-        One encoder step per window of the position low-pass: ``rate / cutoff`` samples (ten at
-        the identification's and the diagnosis's default cut-off of a tenth of the rate).
-        """
-        cutoff = self.rate_hz / 10.0 if self.position_cutoff_hz is None else min(self.position_cutoff_hz,
-                                                                                  self.rate_hz / 2.0)
-        return self.encoder_step * cutoff
+        """Smallest speed the encoder resolves over the derivative filter's window [rad/s] (:func:`speed_resolution`)."""
+        return speed_resolution(self.encoder_step, self.rate_hz, self.position_cutoff_hz)
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready mapping (units in the docstring)."""
         return {"torque_max": self.torque_max, "speed_max": self.speed_max, "speed_p99": self.speed_p99,
                 "deflection_max": self.deflection_max, "angle_span": self.angle_span, "rate_hz": self.rate_hz,
                 "duration_s": self.duration_s, "encoder_step": self.encoder_step}
+
+
+def speed_resolution(encoder_step: float, rate_hz: float, position_cutoff_hz: float | None = None) -> float:
+    """Smallest speed an encoder resolves through the derivative filter [rad/s] (or [m/s]).
+
+    One encoder step per window of the position low-pass, ``encoder_step x cutoff``: the filter
+    averages the quantised position over about ``rate / cutoff`` samples, so a motor creeping
+    by less than one count per window is indistinguishable from one at rest. The RMS speed
+    noise of a quantised position through a 4th-order zero-phase Butterworth at ``cutoff`` is
+    about half of it. It is *not* one count per sample (``encoder_step x rate``), which is ten
+    times coarser at the default cut-off of a tenth of the rate and made a 16-bit encoder look
+    unable to resolve 3.8 rad/s.
+
+    Parameters
+    ----------
+    encoder_step : float
+        Position resolution [rad] (or [m]).
+    rate_hz : float
+        Sample rate [Hz].
+    position_cutoff_hz : float, optional
+        Cut-off of the position low-pass [Hz]; default a tenth of the rate (the identification's
+        and the diagnosis's default).
+
+    Returns
+    -------
+    float
+        The resolution [rad/s] (or [m/s]).
+    """
+    cutoff = rate_hz / 10.0 if position_cutoff_hz is None else min(position_cutoff_hz, rate_hz / 2.0)
+    return float(encoder_step) * float(cutoff)
 
 
 def encoder_step_of(position: np.ndarray) -> float:
@@ -230,12 +276,18 @@ class Bound:
         One line: where the range comes from.
     magnitude : bool
         Compare ``|value|`` (harmonic coefficients, offsets of either sign) instead of the value.
+    resolution : str
+        Which end is the log's *resolution* rather than physics (``"above"``, ``"below"`` or
+        ``""``): beyond it the number is not resolved by the sensors (a bristle deflection below
+        one encoder count, a Stribeck velocity below the speed resolution), so it is
+        ``not_identifiable``, not evidence against the effect it belongs to.
     """
 
     lo: float
     hi: float
     why: str
     magnitude: bool = False
+    resolution: str = ""
 
     def contains(self, value: float) -> bool:
         """True when ``value`` lies in the range (``|value|`` for a magnitude bound)."""
@@ -294,12 +346,15 @@ def _finite_or_none(x: float | None) -> float | None:
 
 
 def assess(name: str, value: float, *, std: float | None = None, bound: Bound | None = None,
-           solver_bounds: tuple[float, float] | None = None, rel_tol: float = 1e-6) -> ParameterStatus:
-    """Classify one fitted number.
+           solver_bounds: tuple[float, float] | None = None, rel_tol: float = 1e-6,
+           precision: float | None = RELATIVE_PRECISION) -> ParameterStatus:
+    """Classify one fitted number (the statuses of the module docstring).
 
     Checks, in order (the first that fails decides): finite; inside the
     plausible ``bound``; not on a ``solver_bounds`` end (within ``rel_tol`` of the
-    bound's scale); ``1.96 std < |value|`` when ``std`` is given.
+    bound's scale); when ``std`` is given: finite and positive (else
+    ``not_identifiable``), ``1.96 std < |value|`` and ``1.96 std <= precision |value|``
+    (else ``uncertain``).
 
     Parameters
     ----------
@@ -308,14 +363,18 @@ def assess(name: str, value: float, *, std: float | None = None, bound: Bound | 
     value : float
         Estimate.
     std : float, optional
-        Its standard deviation; a zero or missing std is not taken as certainty
-        when the estimate is at a solver bound.
+        Its standard deviation; a zero or non-finite std is a covariance that failed
+        (a near-singular problem), never certainty: ``not_identifiable``.
     bound : Bound, optional
         Plausible range.
     solver_bounds : (float, float), optional
         The box (or grid ends) the solver searched; ``-inf``/``inf`` for open ends.
     rel_tol : float
         Relative distance to a solver bound that counts as "at" it [-].
+    precision : float or None
+        Largest relative half-width of the 95 % interval of an ``identified`` number
+        [-] (default :data:`RELATIVE_PRECISION`); None checks only that the interval
+        excludes zero.
 
     Returns
     -------
@@ -333,6 +392,11 @@ def assess(name: str, value: float, *, std: float | None = None, bound: Bound | 
         return out("implausible", f"{name} is not finite")
     if bound is not None and not bound.contains(value):
         shown = "|" + name + "|" if bound.magnitude else name
+        v = abs(value) if bound.magnitude else value
+        if (bound.resolution == "above" and v > bound.hi) or (bound.resolution == "below" and v < bound.lo):
+            end = bound.hi if v > bound.hi else bound.lo
+            return out("not_identifiable", f"{shown} = {v:.4g} is beyond {end:.3g}, the log's resolution "
+                                           f"({bound.why}): not resolved, no evidence either way")
         return out("implausible", f"{shown} = {abs(value) if bound.magnitude else value:.4g} outside the plausible "
                                   f"range [{bound.lo:.3g}, {bound.hi:.3g}] ({bound.why})")
     if solver_bounds is not None:
@@ -343,10 +407,14 @@ def assess(name: str, value: float, *, std: float | None = None, bound: Bound | 
             if math.isfinite(end) and abs(value - end) <= tol:
                 return out("at_bound", f"{name} = {value:.4g} sits on the {word} bound {end:.4g} of the search")
     if s is not None:
-        if not math.isfinite(s):
-            return out("uncertain", f"{name} has no finite standard deviation")
+        if not (math.isfinite(s) and s > 0.0):
+            return out("not_identifiable", f"{name} has {'a zero' if s == 0.0 else 'no finite'} standard deviation: "
+                                           "the log does not determine it (a singular or near-singular problem)")
         if 1.96 * s >= abs(value):
             return out("uncertain", f"the 95 % interval of {name} ({value:.3g} +- {1.96 * s:.2g}) includes zero")
+        if precision is not None and 1.96 * s > precision * abs(value):
+            return out("uncertain", f"the 95 % interval of {name} ({value:.4g} +- {1.96 * s:.2g}) is wider than "
+                                    f"+-{100 * precision:g} % of the value: use the interval, not the number")
     return out("identified")
 
 
@@ -420,15 +488,17 @@ def friction_bound(name: str, scales: LogScales, *, static: float | None = None)
     if name == "stribeck_velocity":
         lo = 2.0 * scales.speed_resolution
         return Bound(lo, max(scales.speed_max, lo),
-                     f"Stribeck velocity between 2 encoder speed steps ({lo:.2g}) and the largest speed")
+                     f"Stribeck velocity between 2 encoder speed steps ({lo:.2g}) and the largest speed",
+                     resolution="below")
     if name == "sigma0":
         # presliding displacement static / sigma0 between one encoder step and 0.1 rad
         if static is not None and math.isfinite(static) and static > 0.0:
             return Bound(static / 0.1, static / scales.encoder_step,
                          f"presliding displacement static/sigma0 = {static:.3g}/sigma0 between one encoder "
-                         "step and 0.1 rad")
+                         "step and 0.1 rad", resolution="above")
         return Bound(T / 0.1 if T > 0 else 0.0, 1.5 * T / scales.encoder_step,
-                     "presliding displacement static/sigma0 between one encoder step and 0.1 rad")
+                     "presliding displacement static/sigma0 between one encoder step and 0.1 rad",
+                     resolution="above")
     if name == "sigma1":
         if scales.J_m is None:
             return Bound(0.0, math.inf, "bristle damping >= 0")
@@ -467,7 +537,8 @@ def effect_bound(name: str, scales: LogScales, *, static: float | None = None) -
     if name == "width_rad":
         lo = 2.0 * scales.encoder_step
         return Bound(lo, max(2.0 * scales.deflection_max, lo),
-                     "dead band between two encoder steps and twice the largest spring deflection")
+                     "dead band between two encoder steps and twice the largest spring deflection",
+                     resolution="below")
     if name == "v_s":
         return friction_bound("stribeck_velocity", scales)
     if name in ("sigma0", "sigma1"):
@@ -570,6 +641,14 @@ COMPUTATION_LIMITS: Mapping[str, tuple[int, int, str]] = {
     "simulation_samples": (1, 10_000_000, "samples of one simulation (duration_s x rate_hz)"),
     "runs": (1, 100_000, "simulated runs of one benchmark (bench-gap logs, benchmark cells x repetitions)"),
     "seed": (0, 2**63 - 1, "random seed"),
+    "repetitions": (1, 10_000, "repetitions of a scenario's [variability] or of a benchmark cell"),
+    "batch_samples": (1, 10_000_000, "simulated samples of one batch (runs x duration_s x rate_hz), "
+                                     "about 280 B each"),
+    "environments": (1, 10_000, "environments of one set (the points of every grid of a file, lists, presets)"),
+    "log_samples_check": (1, 2**23, "samples of a log check reads (70 min at 2 kHz), about 300 B each"),
+    "log_samples_identify": (1, 2**22, "samples of a log identify reads (35 min at 2 kHz), about 390 B each"),
+    "log_samples_diagnose": (1, 2**21, "samples of a log diagnose reads (17 min at 2 kHz), about 920 B each"),
+    "log_samples_benchmark": (1, 2**20, "samples of one recorded run benchmark --runs reads (8.7 min at 2 kHz)"),
 }
 
 
@@ -595,6 +674,50 @@ def check_physical(owner: str, name: str, value: float) -> float:
         raise ParameterError(f"{owner} {name} = {value!r} is outside its plausible range [{lo:g}, {hi:g}] {unit}",
                              name=name, value=value)
     return value
+
+
+def check_below_nyquist(name: str, frequency_hz: float, rate_hz: float) -> float:
+    """Refuse a filter frequency a discretisation at ``rate_hz`` cannot represent (at or above Nyquist).
+
+    Tustin folds a cutoff above ``rate_hz / 2`` onto ``(2/T) atan(w T / 2)`` below it, ZOH and
+    backward Euler place its poles near z = 0 or -1: the discrete filter is no longer the one
+    named, and the loop that runs it is not the one analysed.
+
+    Parameters
+    ----------
+    name : str
+        How the message names the frequency (e.g. ``"w_q_hz (the Q cutoff)"``).
+    frequency_hz : float
+        The filter's frequency [Hz].
+    rate_hz : float
+        The sampling rate [Hz].
+
+    Returns
+    -------
+    float
+        ``frequency_hz``.
+
+    Raises
+    ------
+    ParameterError
+        One line naming the frequency, the Nyquist frequency and the rate.
+    """
+    if math.isfinite(frequency_hz) and math.isfinite(rate_hz) and frequency_hz >= rate_hz / 2.0:
+        raise ParameterError(f"{name} = {frequency_hz:g} Hz is at or above the Nyquist frequency {rate_hz / 2.0:g} Hz "
+                             f"of rate_hz = {rate_hz:g} Hz: a discrete filter cannot represent it; choose a value "
+                             f"below {rate_hz / 2.0:g} Hz", name=name.split()[0], value=frequency_hz)
+    return frequency_hz
+
+
+def limit_of(name: str) -> int:
+    """The largest value :data:`COMPUTATION_LIMITS` allows for ``name``.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`COMPUTATION_LIMITS`.
+    """
+    return COMPUTATION_LIMITS[name][1]
 
 
 def check_limit(option: str, name: str, value: Any) -> int:

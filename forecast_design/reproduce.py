@@ -52,7 +52,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -418,6 +418,7 @@ def fig6_table(
     skew: float = 0.0,
     sigma: float | None = None,
     testbed: Any = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[MarginRow]:
     """Disk margins of the force loop with each observer, as in the paper's Fig. 6.
 
@@ -440,6 +441,8 @@ def fig6_table(
         Alias of ``skew`` (kept for existing callers).
     testbed : Testbed, str or None
         The testbed (:func:`~forecast_design.environments.resolve_testbed`); None: Table 1.
+    progress : callable, optional
+        ``progress(done, total)`` after each environment.
 
     Returns
     -------
@@ -468,7 +471,10 @@ def fig6_table(
     skew = resolve_skew(skew, sigma)
     tb = resolve_testbed(testbed)
     rows: list[MarginRow] = []
-    for env, environment in resolve_environments(environments, testbed=tb):
+    envset = list(resolve_environments(environments, testbed=tb))
+    for done, (env, environment) in enumerate(envset):
+        if progress is not None:
+            progress(done, len(envset))
         design = Design(testbed=tb, environment=environment)
         for kind in observers:
             cutoffs: Sequence[float | None] = (None,) if kind == "none" else tuple(w_q_hz)

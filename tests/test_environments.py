@@ -165,7 +165,7 @@ def test_bad_inline_specs_are_one_line_parameter_errors(spec, match):
 
 @pytest.mark.parametrize("text,match", [
     ("[[environment]]\nname = 'a'\nk_E = 1.0\n", r"\[\[environment\]\] #1 unknown key 'k_E'"),
-    ("[[environment]]\nk_e = {log = [0.1, 100], n = 1}\nJ_e = 1.0\n", "k_e n must be an integer >= 2"),
+    ("[[environment]]\nk_e = {log = [0.1, 100], n = 1}\nJ_e = 1.0\n", r"k_e n must be an integer in \[2, 10000\]"),
     ("[[environment]]\nk_e = {log = [-1, 100], n = 3}\nJ_e = 1.0\n", "log grid ends must be > 0"),
     ("[[environment]]\nk_e = {nominal = 5.0, rel = 1.5}\nJ_e = 1.0\n", r"rel must be in \[0, 1\)"),
     ("[[environment]]\nk_e = {nominal = 5.0}\nJ_e = 1.0\n", "k_e table must be"),

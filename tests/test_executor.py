@@ -204,3 +204,119 @@ def test_tune_q_on_a_dask_cluster_equals_local(cluster, serial_tuning):
         local = _tune(ex)
     assert on_dask.to_mapping() == local.to_mapping()
     assert on_dask.w_q_hz == serial_tuning.w_q_hz and on_dask.worst_ratio == serial_tuning.worst_ratio
+
+
+# --- issue 23: no hang, one line: malformed addresses, a scheduler without workers, a scheduler that dies ----------
+
+
+@pytest.mark.parametrize("address", ["http://x", "tcp://127.0.0.1", "tcp://127.0.0.1:99999", "tcp://:8786",
+                                     "127.0.0.1:8786", ""])
+def test_malformed_scheduler_addresses_are_refused_at_once_in_one_line(address, capsys):
+    from forecast_design.cli import main
+
+    t0 = time.monotonic()
+    code = main(["benchmark", "--out", "unused-folder", "--scheduler", address]) if address else 2
+    if not address:
+        with pytest.raises(ParameterError, match="tcp://HOST:PORT"):
+            DaskExecutor(address)
+        return
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "tcp://HOST:PORT (with the port)" in err[0], err
+    assert time.monotonic() - t0 < 5.0          # no client was made: nothing waits in its destructor
+    assert not os.path.exists("unused-folder")
+
+
+def test_a_scheduler_without_workers_fails_in_one_line_after_the_stated_wait(monkeypatch, capsys, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    from forecast_design import executor
+    from forecast_design.cli import main
+
+    with distributed.LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address="127.0.0.1:0") as empty:
+        t0 = time.monotonic()
+        with pytest.raises(ParameterError, match=r"has no worker after 1\.5 s; start workers"):
+            DaskExecutor(empty.scheduler_address, worker_wait_s=1.5)
+        assert 1.5 <= time.monotonic() - t0 < 30.0
+        monkeypatch.setattr(executor, "DASK_WORKER_WAIT_S", 1.0)
+        for argv in (["benchmark", "--envs", "soft", "--compensator", "none", "--repetitions", "2",
+                      "--duration", "0.2", "--out", str(tmp_path / "b")],
+                     ["tune-q", "--observer", "ea-fob", "--envs", "soft"]):
+            assert main(argv + ["--scheduler", empty.scheduler_address]) == 2
+            err = capsys.readouterr().err.strip().splitlines()
+            assert len(err) == 1 and err[0].startswith("forecast-design: error: the Dask cluster at ") \
+                and "has no worker after 1 s" in err[0], err
+
+
+@pytest.mark.slow
+def test_a_scheduler_killed_mid_benchmark_ends_the_command_in_one_line(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    dask = os.path.join(os.path.dirname(sys.executable), "dask")
+    file = tmp_path / "scheduler.json"
+    scheduler = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--dashboard-address",
+                                  "127.0.0.1:0", "--scheduler-file", str(file)],
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = bench = None
+    try:
+        deadline = time.monotonic() + 120
+        while not file.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        address = json.loads(file.read_text())["address"]
+        worker = subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--nworkers", "1"],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        with distributed.Client(address, timeout=60) as watch:
+            watch.wait_for_workers(1, timeout=120)
+            bench = subprocess.Popen([sys.executable, "-m", "forecast_design", "benchmark", "--envs",
+                                      "soft,stiff,exp-soft,locked", "--compensator", "none,ea-fob", "--repetitions",
+                                      "4", "--duration", "3", "--workers", "1", "--out", str(tmp_path / "b"),
+                                      "--scheduler", address], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True)
+            while not any(watch.processing().values()) and time.monotonic() < deadline:   # a task runs
+                time.sleep(0.1)
+        scheduler.kill()
+        scheduler.wait()
+        out, err = bench.communicate(timeout=300)
+    finally:
+        for proc in (bench, worker, scheduler):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    lines = err.strip().splitlines()
+    assert bench.returncode == 2 and len(lines) == 1, err
+    assert lines[0].startswith("forecast-design: error: the Dask cluster at ") and "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_a_cluster_that_loses_every_worker_ends_the_command_in_one_line(tmp_path, monkeypatch, capsys):
+    """The only worker (no nanny to restart it) is killed while a task runs: no hang, one line."""
+    distributed = pytest.importorskip("distributed")
+    from forecast_design import executor
+    from forecast_design.cli import main
+
+    dask = os.path.join(os.path.dirname(sys.executable), "dask")
+    monkeypatch.setattr(executor, "DASK_WORKER_WAIT_S", 3.0)
+    with distributed.LocalCluster(n_workers=0, host="127.0.0.1", dashboard_address="127.0.0.1:0") as cluster:
+        worker = subprocess.Popen([dask, "worker", cluster.scheduler_address, "--nthreads", "1", "--no-nanny"],
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            with distributed.Client(cluster.scheduler_address, timeout=60) as watch:
+                watch.wait_for_workers(1, timeout=120)
+
+                def killer():
+                    deadline = time.monotonic() + 120
+                    while not any(watch.processing().values()) and time.monotonic() < deadline:
+                        time.sleep(0.05)
+                    worker.kill()
+
+                th = threading.Thread(target=killer, daemon=True)
+                th.start()
+                t0 = time.monotonic()
+                code = main(["benchmark", "--envs", "soft,stiff,exp-soft,locked", "--compensator", "none,ea-fob",
+                             "--repetitions", "4", "--duration", "3", "--out", str(tmp_path / "b"),
+                             "--scheduler", cluster.scheduler_address])
+                th.join(10)
+        finally:
+            if worker.poll() is None:
+                worker.kill()
+            worker.wait()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "lost every worker and none came back within 3 s" in err[0] and time.monotonic() - t0 < 120

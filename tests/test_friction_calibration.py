@@ -106,12 +106,15 @@ def test_lugre_with_enough_sliding_is_recovered():
     fit = identify(exp, "lugre", holdout=0.0)
     for k in ("sigma0", "static", "coulomb", "stribeck_velocity", "viscous"):
         assert fit.params[k] == pytest.approx(true[k], rel=0.05), k
+    for k in ("static", "coulomb", "stribeck_velocity", "viscous"):
         assert fit.status[k].identified, k
     assert fit.params["sigma1"] == pytest.approx(true["sigma1"], rel=0.10)
     # the bristles relax (F_c / (sigma0 |v|) ~ 0.4 ms at the median sliding speed) within one 0.5 ms
-    # sample: sigma1's interval would not cover its few-percent bias, so it is flagged, not trusted
-    st = fit.status["sigma1"]
-    assert st.identified or (st.status == "uncertain" and "relax within one sample" in st.reason)
+    # sample: the bristle parameters' intervals would not cover their few-percent bias (sigma0 +1-2 %
+    # at 4-5 std on other logs), so they are flagged, not trusted
+    for k in ("sigma0", "sigma1"):
+        st = fit.status[k]
+        assert st.identified or (st.status == "uncertain" and "relax within one sample" in st.reason), k
 
 
 @pytest.mark.parametrize("rate_hz", [500.0, 1000.0])
@@ -139,17 +142,19 @@ def _little_sliding_log():
 
 
 def test_lugre_on_a_closed_loop_log_with_little_sliding_says_not_identifiable(tmp_path, capsys):
-    """Failure class 9, through the CLI: exit 0, one warning per parameter that is not an estimate."""
+    """Failure class 9, through the CLI: "not identifiable" is an answer (issue 25): the JSON is written, exit 3,
+    one warning per parameter that is not an estimate."""
     path = tmp_path / "little.toml"
     save_experiment(_little_sliding_log(), path)
     out = tmp_path / "fit.json"
-    assert main(["identify", str(path), "--model", "lugre", "--json", str(out)]) == 0
+    assert main(["identify", str(path), "--model", "lugre", "--json", str(out)]) == 3
     doc = json.loads(out.read_text())
     assert doc["identifiability"].startswith("not identifiable: too little sliding")
     assert not doc["identified"]
     assert set(doc["not_identified"]) == {"sigma1", "static", "coulomb", "stribeck_velocity", "viscous"}
+    assert doc["exit_code"] == 3
     for name in doc["not_identified"]:
-        assert doc["status"][name]["status"] in ("at_bound", "uncertain", "implausible")
+        assert doc["status"][name]["status"] in ("at_bound", "uncertain", "implausible", "not_identifiable")
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == len(doc["not_identified"])
     assert all(line.startswith("forecast-design: warning: ") and "not identified" in line for line in err)
@@ -162,7 +167,10 @@ def test_stribeck_static_level_is_not_reported_when_the_decay_velocity_runs_to_t
     exp, true = friction_log("stribeck", params, seed=1, duration_s=6.0, rate_hz=500.0)
     fit = identify(exp, "stribeck", holdout=0.0)
     assert not fit.status["stribeck_velocity"].identified
-    assert fit.status["static"].status == "uncertain" and "not resolved" in fit.status["static"].reason
+    # not reported: either the profile runs flat to the top of its range, or the interval is wider than
+    # +-10 % of the value (the precision an identified number promises)
+    st = fit.status["static"]
+    assert st.status == "uncertain" and ("not resolved" in st.reason or "wider than +-10 %" in st.reason)
     assert fit.params["coulomb"] == pytest.approx(true["coulomb"], rel=0.05) and fit.status["coulomb"].identified
 
 

@@ -2,6 +2,8 @@
 
 import json
 
+import math
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -170,7 +172,12 @@ def test_lugre_static_parameters_within_10_percent():
         assert fit.params[k] == pytest.approx(LUGRE[k], rel=0.05), k
     for k in ("sigma0", "sigma1", "stribeck_velocity"):
         assert fit.params[k] == pytest.approx(LUGRE[k], rel=0.15), k
-    assert fit.solver["success"] and fit.identified
+    assert fit.solver["success"]
+    # identified = a 95 % interval within +-10 % of the value (plausibility.RELATIVE_PRECISION); only the
+    # Stribeck velocity (within 7 %, interval +-11 %) is known less precisely on this log
+    assert [k for k, st in fit.status.items() if not st.identified] == ["stribeck_velocity"]
+    lo, hi = fit.interval95["stribeck_velocity"]
+    assert math.log(hi / lo) / 2 > 0.1 and "10 %" in fit.status["stribeck_velocity"].reason
 
 
 def test_unphysical_fit_is_constrained_and_matches_scipy_bounded_lsq(rng):
@@ -188,9 +195,13 @@ def test_unphysical_fit_is_constrained_and_matches_scipy_bounded_lsq(rng):
     np.testing.assert_allclose([fit.params["viscous"], fit.params["coulomb"]], ref.x, atol=1e-6)
     # held on its bound: no standard deviation, no interval, and flagged rather than reported
     assert np.isnan(fit.std["viscous"]) and np.isnan(fit.interval95["viscous"][0])
-    assert fit.status["viscous"].status == "at_bound" and fit.not_identified == ("viscous",)
+    assert fit.status["viscous"].status == "at_bound" and fit.not_identified == ("viscous", "coulomb")
+    # with viscous held at 0 against a true -0.05 the Coulomb level (0.29 for a true 0.4) is biased: the
+    # residual's speed structure says so instead of a tight interval around the wrong number
+    lo, hi = fit.interval95["coulomb"]
+    assert not lo <= 0.4 <= hi and fit.status["coulomb"].reason.startswith("model inadequate")
     doc = json.loads(json.dumps(fit.to_mapping(), allow_nan=False))
-    assert doc["std"]["viscous"] is None and doc["not_identified"] == ["viscous"]
+    assert doc["std"]["viscous"] is None and doc["not_identified"] == ["viscous", "coulomb"]
 
 
 def test_stribeck_static_below_coulomb_is_constrained():

@@ -235,8 +235,9 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     d = diagnose(exp)
     m = json.loads(json.dumps(d.to_mapping()))
     assert set(m) == {"verdict", "metric", "location", "ranking", "caveats", "isolability", "tau_s"}
-    assert set(m["verdict"]) == {"effect", "gap_before", "gap_after", "reduction", "params", "status",
+    assert set(m["verdict"]) == {"effect", "grade", "gap_before", "gap_after", "reduction", "params", "status",
                                  "secondary", "calibration"}
+    assert m["verdict"]["grade"] in ("clear", "weak", "none")
     assert set(m["location"]) == {"time_windows_s", "frequency_band_hz", "speed_band_rad_s", "summary"}
     assert m["verdict"]["effect"] in VOCAB and 0.0 <= m["verdict"]["reduction"] <= 1.0
     assert m["verdict"]["gap_after"] <= m["verdict"]["gap_before"]
@@ -249,7 +250,7 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     words = m["isolability"]["words"]
     assert words[-1] == "calibration" and len(m["isolability"]["separation"]) == len(words)
     for r in m["ranking"]:
-        assert {"effect", "gap_after", "reduction", "params", "p_value", "counts", "identified",
+        assert {"effect", "gap_after", "reduction", "params", "p_value", "counts", "weak", "identified",
                 "not_identified", "status", "reasons", "equations", "reduction_in_equations"} == set(r)
         assert r["effect"] in VOCAB - {"none"} and 0.0 <= r["reduction"] <= 1.0
         assert r["counts"] <= r["identified"]

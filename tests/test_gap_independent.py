@@ -254,7 +254,7 @@ def test_group_wald_test_on_collinear_and_unexcited_columns_equals_the_test_of_t
     assert _group_wald_p(design(x[:, None], [np.nan]), [0]) == 1.0
 
 
-def test_hac_covariance_of_a_column_never_excited_is_finite():
+def test_hac_covariance_of_a_column_never_excited_has_infinite_not_zero_variance():
     import warnings
 
     from forecast_design.friction._lsq import hac_covariance
@@ -265,4 +265,8 @@ def test_hac_covariance_of_a_column_never_excited_is_finite():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         res = hac_covariance(W, rng.normal(size=400), keep=np.arange(400) >= 200)
-    assert np.all(np.isfinite(res.covariance))
+    # no NaN and no warning; the column the data never excite has no variance (infinite), not a zero
+    # one (issue 25: a zero standard deviation is a covariance that failed), the others are finite
+    cov = res.covariance
+    assert not np.any(np.isnan(cov)) and np.isinf(cov[1, 1])
+    assert np.all(np.isfinite(np.delete(np.delete(cov, 1, 0), 1, 1)))

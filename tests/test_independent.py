@@ -384,3 +384,65 @@ def test_friction_log_uses_the_given_parameters():
     assert true == {"viscous": 0.3, "coulomb": 0.2, "sin1": 0.04, "cos1": -0.01}
     with pytest.raises(ParameterError):
         friction_log("stribeck", {"sin1": 0.1}, duration_s=1.0)
+
+
+# --- issue 25: asymmetric friction, coarse encoders, loggers that round ----------------------------------
+
+
+def test_asymmetric_friction_acts_with_its_own_level_and_viscous_coefficient_each_way():
+    exp, true = friction_log("asymmetric", {"coulomb_pos": 0.3, "coulomb_neg": 0.2, "viscous_pos": 0.3,
+                                            "viscous_neg": 0.5}, seed=2, duration_s=4.0, rate_hz=1000.0)
+    case = IndependentCase(words=(Effect.COULOMB,), environment=environment_preset("link-only"),
+                           environment_name="link-only", excitation=Excitation(kind="sweep", amplitude=1.5,
+                                                                               f_lo_hz=0.5, dither=0.03),
+                           rate_hz=1000.0, duration_s=4.0, testbed=Testbed(J_m=0.133, d_m=0.3, k=58.0),
+                           effect_params={"F_c": 0.3, "F_c_neg": 0.2, "d_neg": 0.5})
+    _, truth = simulate_independent(case)
+    w, tf, stuck = np.asarray(truth.omega), np.asarray(truth.tau_friction), np.asarray(truth.stuck)
+    pos, neg = (w > 1e-3) & ~stuck, (w < -1e-3) & ~stuck
+    assert pos.sum() > 200 and neg.sum() > 200
+    # friction beyond the testbed's d_m theta': +0.3 one way, -0.2 + (0.5 - 0.3) theta' the other
+    assert np.allclose(tf[pos], 0.3, atol=1e-9)
+    assert np.allclose(tf[neg], -0.2 + 0.2 * w[neg], atol=1e-9)
+    # stuck rows hold at most the breakaway level of the direction they would move in
+    held = tf[stuck]
+    assert np.all(held <= 0.3 + 1e-6) and np.all(held >= -0.2 - 1e-6)
+    assert true == {"viscous_pos": 0.3, "viscous_neg": 0.5, "coulomb_pos": 0.3, "coulomb_neg": 0.2}
+
+
+@pytest.mark.parametrize("counts", [2**16, 2**14])
+def test_coarse_encoders_quantise_both_angles_to_their_own_step(counts):
+    case = _case(encoder_counts=counts, duration_s=1.0)
+    exp, truth = simulate_independent(case)
+    step = 2 * math.pi / counts
+    for logged, true in ((exp.signals.theta, truth.theta), (exp.signals.q, truth.q)):
+        n = np.asarray(logged) / step
+        assert np.allclose(n, np.round(n), atol=1e-6)
+        assert np.max(np.abs(np.asarray(logged) - true)) <= 0.5 * step + 1e-12
+    assert case.encoder_step == step
+
+
+@pytest.mark.parametrize("tau_s,angles", [("decimals:4", "exact"), ("decimals:6", "decimals:8"),
+                                          ("derived:7", "digits:9")])
+def test_loggers_print_tau_s_and_the_angles_with_their_own_rounding(tau_s, angles):
+    case = _case(duration_s=1.0, tau_s_logging=tau_s, angle_logging=angles)
+    exp, truth = simulate_independent(case)
+    sig = exp.signals
+    kind, _, n = tau_s.partition(":")
+    col = np.asarray(sig.tau_s)
+    if kind == "decimals":
+        assert np.all(np.abs(col * 10 ** int(n) - np.round(col * 10 ** int(n))) < 1e-6)
+    else:
+        assert np.array_equal(col, round_significant(col, int(n)))
+    # tau_s was computed from the quantised angles before they were printed: within the printed rounding
+    th, q = np.asarray(sig.theta), np.asarray(sig.q)
+    if angles.startswith("decimals"):
+        d = int(angles.split(":")[1])
+        assert np.all(np.abs(th * 10 ** d - np.round(th * 10 ** d)) < 1e-6)
+    exact = case.testbed.k * (np.round(np.asarray(truth.theta) / ENCODER_STEP) - np.round(np.asarray(truth.q) / ENCODER_STEP)) * ENCODER_STEP
+    if kind == "decimals":
+        bound = 0.5 * 10.0 ** -int(n)
+    else:
+        mag = np.floor(np.log10(np.where(exact != 0, np.abs(exact), 1.0)))
+        bound = 0.5 * 10.0 ** (mag - int(n) + 1)
+    assert np.all(np.abs(col - exact) <= bound * (1 + 1e-9) + 1e-15)

@@ -38,7 +38,13 @@ HOSTILE = ["nan", "inf", "-inf", "-1", "0", "1e-300", "1e300", "1e309", "-0.0", 
            "123456789012345678901234567890", "random:0", "random:-1", "random:100000000", "k=nan",
            "k_e=-1,J_e=0", "J_m=1e308", "pd:nan:1", "pd:1e300:0", "square:nan:1", "sine:1:0", "step:1e300",
            "ea-fob:nan", ":", "::::", ".", "missing.toml", "run.csv", "run.toml", "s.toml", "sub/x.toml",
-           "x.xyz", "out.png", "seed:-1", "disconnect:-3", "flip:2"]
+           "x.xyz", "out.png", "seed:-1", "disconnect:-3", "flip:2",
+           # issue 23: files of the wrong kind or size, nested and limit-breaking files, unusable addresses
+           "fifo.toml", "dir.toml", "loop.toml", "dangling.json", "deep.toml", "big.toml", "nullog.toml", "bom.toml",
+           "crc.toml", "grid.toml", "reps.toml", "nyquist.toml", "dev", "tcp://127.0.0.1", "http://x", "pd:5_0:0",
+           "/proc/self/fd/1", "all", "1000000000"]
+#: The special nodes of the work folder: no case may turn one into something else (issue 23).
+NODES = {"fifo.toml": "fifo", "dir.toml": "dir", "loop.toml": "link", "dangling.json": "link", "dev": "char"}
 
 #: Options never fuzzed: they only print help/version.
 SKIP_OPTIONS = {"-h", "--help"}
@@ -113,7 +119,67 @@ def workdir(tmp_path, monkeypatch):
     import forecast_design.export.firmware
 
     monkeypatch.setattr(forecast_design.export.firmware, "build_firmware", _reached)   # export --firmware --check-arm
+    _hostile_files(tmp_path, text, monkeypatch)
     return tmp_path
+
+
+def _hostile_files(folder, scenario_text, monkeypatch):
+    """Issue 23's hostile inputs and outputs in the work folder (no test touches the real /dev)."""
+    import os
+    import stat
+
+    import forecast_design.fileio
+
+    monkeypatch.setattr(forecast_design.fileio, "FIFO_WAIT_S", 0.2)    # a FIFO nobody reads: one line, at once
+    os.mkfifo(folder / "fifo.toml")
+    (folder / "dir.toml").mkdir()
+    os.symlink("loop.toml", folder / "loop.toml")
+    os.symlink("nowhere/x.json", folder / "dangling.json")
+    if os.geteuid() == 0:
+        os.mknod(folder / "dev", stat.S_IFCHR | 0o666, os.makedev(1, 3))   # a null device, made here
+    else:
+        os.mkfifo(folder / "dev")
+        NODES["dev"] = "fifo"
+    (folder / "deep.toml").write_text("x = " + "[" * 1000 + "]" * 1000 + "\n")
+    with open(folder / "big.toml", "wb") as fh:
+        fh.truncate(2**30)                                   # sparse: refused before it is read
+    write_experiment(folder, "nullog")
+    (folder / "nullog.csv").write_bytes(b"\x00" * 4096)
+    (folder / "bom.toml").write_bytes(b"\xef\xbb\xbf" + (folder / "run.toml").read_bytes())
+    (folder / "crc.toml").write_text((folder / "run.toml").read_text() + "# data-crc32 = zz, data-bytes = 1\n")
+    (folder / "grid.toml").write_text("[environment]\nk_e = {log = [0.1, 100], n = 100}\n"
+                                      "J_e = {log = [0.001, 1], n = 100}\nd_e = {lin = [0.0, 1.0], n = 100}\n")
+    (folder / "reps.toml").write_text(scenario_text.replace("[truth]", "[variability]\nrepetitions = 1000000000\n"
+                                                                       "\n[truth]", 1))
+    (folder / "nyquist.toml").write_text(scenario_text.replace("w_q_hz = 10.0", "w_q_hz = 1500.0", 1))
+
+
+def _kind(path):
+    import os
+    import stat
+
+    info = os.lstat(path)
+    return ("link" if stat.S_ISLNK(info.st_mode) else "fifo" if stat.S_ISFIFO(info.st_mode)
+            else "dir" if stat.S_ISDIR(info.st_mode) else "char" if stat.S_ISCHR(info.st_mode) else "file")
+
+
+#: Options whose value a verb writes (everything else named in a command line is read, or not a file).
+OUTPUT_OPTIONS = ("--out", "--json", "--plot", "--report", "--work-dir")
+
+
+def _read_files(argv, folder):
+    """Regular files of the work folder a command line names as inputs (with an experiment TOML's CSV)."""
+    outputs = {argv[i + 1] for i, a in enumerate(argv[:-1]) if a in OUTPUT_OPTIONS}
+    named = [a for a in argv if a not in outputs and (folder / a).is_file() and not (folder / a).is_symlink()]
+    csvs = {a[:-5] + ".csv" for a in named if a.endswith(".toml")}
+    return set(named) | {c for c in csvs if (folder / c).exists()}
+
+
+def _snapshot(folder):
+    import hashlib
+
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in folder.iterdir()
+            if p.is_file() and not p.is_symlink() and p.stat().st_size < 2**20}
 
 
 #: A valid starting point per verb; the fuzz adds hostile options to it.
@@ -141,28 +207,39 @@ SLOW_VERBS = {"identify", "identify-csv", "diagnose", "simulate", "tune-q"}
 
 def check_properties(argv, code, out, err):
     """The properties every CLI case must have (see the module docstring)."""
-    assert code in (0, 1, 2), (argv, code, err)
+    # 3: identify's answer "not identifiable" (issue 25), an answer with its JSON, never another verb's
+    assert code in (0, 1, 2) or (code == 3 and argv[0] == "identify"), (argv, code, err)
     assert "Traceback" not in err, (argv, err)
     if code == 2:
         assert_one_line_error(code, err)
         assert err.startswith("forecast-design: error: "), (argv, err)
-    if code in (0, 1):   # a numeric warning (overflow, invalid value) on a path that answers is a missing check
+    if code in (0, 1, 3):   # a numeric warning (overflow, invalid value) on a path that answers is a missing check
         assert "RuntimeWarning" not in err, (argv, err)
-    if code == 0:
+    if code in (0, 3):
         assert not _NAN_TOKEN.search(out), (argv, out[:500])
         if "--json" in argv and argv[argv.index("--json") + 1:argv.index("--json") + 2] in ([], ["-"]) \
                 and out.strip().startswith(("{", "[")):
             json.loads(out, parse_constant=lambda token: pytest.fail(f"{argv}: {token} in JSON"))
 
 
-def _fuzz_verb(verb, data, capsys):
+def _fuzz_verb(verb, data, capsys, folder=None):
+    from pathlib import Path
+
+    folder = Path.cwd() if folder is None else folder
     argv = list(BASE[verb])
     for _ in range(data.draw(st.integers(1, 2), label="mutations")):
         argv += data.draw(_mutation(argv[0]), label="option")
     if _has_json(argv[0]) and data.draw(st.booleans(), label="json"):
         argv += ["--json", "-"]
+    before, inputs = _snapshot(folder), _read_files(argv, folder)
     code, out, err = cli(argv, capsys)
     check_properties(argv, code, out, err)
+    # nothing the user points at is destroyed: special nodes keep their kind, read files keep their bytes
+    for name, kind in NODES.items():
+        assert _kind(folder / name) == kind, (argv, name)
+    after = _snapshot(folder)
+    changed = {name for name in inputs if before.get(name) != after.get(name)}
+    assert not changed, (argv, changed)
     return code, err
 
 
@@ -516,3 +593,49 @@ def test_every_ipopt_solver_starts_from_the_quiet_options():
         text = path.read_text()
         for match in re.finditer(r"nlpsol\([^)]*\)", text):
             assert "IPOPT_OPTIONS" in text, f"{path.name}: {match.group(0)} without the quiet options"
+
+
+# --- issue 23: every hostile file as every kind of input and output --------------------------------------------
+
+_INPUT_FILES = ["fifo.toml", "dir.toml", "loop.toml", "deep.toml", "big.toml", "nullog.toml", "crc.toml", "grid.toml",
+                "reps.toml", "nyquist.toml", "bom.toml", "dev"]
+_READERS = [["check", "{f}"], ["diagnose", "{f}"], ["identify", "{f}"], ["simulate", "{f}", "--out", "o/o.toml"],
+            ["simulate", "{f}", "--out", "o/o.toml", "--repetitions", "all"], ["tf", "--env", "{f}"],
+            ["tf", "--testbed", "{f}"], ["margins", "--experiment", "{f}"], ["emulate", "--scenario", "{f}"],
+            ["benchmark", "--envs", "{f}", "--out", "b"], ["export", "--compensator", "sfm", "--friction", "{f}",
+                                                            "--out", "c"]]
+
+
+@pytest.mark.parametrize("reader", _READERS, ids=lambda r: "-".join(a for a in r if a != "{f}")[:30])
+def test_hostile_files_as_inputs_are_one_line_or_an_answer(reader, workdir, capsys):
+    for name in _INPUT_FILES:
+        argv = [a.format(f=name) for a in reader]
+        before = _snapshot(workdir)
+        code, out, err = cli(argv, capsys)
+        check_properties(argv, code, out, err)
+        if name in ("fifo.toml", "dir.toml", "loop.toml", "deep.toml", "big.toml", "dev"):
+            assert code == 2, (argv, code, err)             # never read: refused in one line, nothing hangs
+        for node, kind in NODES.items():
+            assert _kind(workdir / node) == kind, (argv, node)
+        assert {n for n in _read_files(argv, workdir) if before.get(n) != _snapshot(workdir).get(n)} == set()
+
+
+_WRITERS = [["tf", "--json", "{f}"], ["tf", "--plot", "{f}"], ["margins", "--json", "{f}"],
+            ["simulate", "s.toml", "--out", "{f}"], ["check", "run.toml", "--json", "{f}"],
+            ["export", "--out", "{f}"], ["benchmark", "--out", "{f}"]]
+_OUTPUT_FILES = ["fifo.toml", "dir.toml", "loop.toml", "dangling.json", "dev", "run.toml", "run.csv", "s.toml"]
+
+
+@pytest.mark.parametrize("writer", _WRITERS, ids=lambda w: "-".join(a for a in w if a != "{f}")[:30])
+def test_hostile_outputs_never_destroy_a_node_or_an_input(writer, workdir, capsys):
+    for name in _OUTPUT_FILES:
+        argv = [a.format(f=name) for a in writer]
+        before = _snapshot(workdir)
+        code, out, err = cli(argv, capsys)
+        check_properties(argv, code, out, err)
+        for node, kind in NODES.items():
+            assert _kind(workdir / node) == kind, (argv, node, err)
+        after = _snapshot(workdir)
+        assert {n for n in _read_files(argv, workdir) if before.get(n) != after.get(n)} == set(), argv
+        if name == "dangling.json" and code == 0:
+            assert (workdir / "nowhere" / "x.json").exists()      # written at the link's target, the link kept

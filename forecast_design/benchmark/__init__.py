@@ -17,7 +17,7 @@ through :mod:`forecast_design.executor`, cached by their inputs), :mod:`.aggrega
 grouped into cells by their TOML). Plots: :mod:`forecast_design.plotting.benchmark`.
 """
 
-from .aggregate import COLUMNS, result_rows, result_table, summary, write_summary, write_tables
+from .aggregate import COLUMNS, read_results, result_rows, result_table, summary, write_summary, write_tables
 from .metrics import METRICS, repeatability_per_run, step_metrics, tracking_bandwidth_hz
 from .recorded import find_runs, group_runs, run_recorded
 from .report import markdown_report, write_report
@@ -27,6 +27,7 @@ from .spec import BenchmarkSpec, Cell, parse_compensators, parse_controller, par
 __all__ = [
     "BenchmarkSpec", "Cell", "CellResult", "parse_controller", "parse_compensators", "parse_reference",
     "run_benchmark", "run_cell", "result_rows", "result_table", "write_tables", "summary", "write_summary",
+    "read_results",
     "markdown_report", "write_report", "step_metrics", "tracking_bandwidth_hz", "repeatability_per_run",
     "METRICS", "COLUMNS", "run_recorded", "find_runs", "group_runs",
 ]

@@ -24,12 +24,14 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from ..errors import OutputError
+
 from .metrics import HIGHER_IS_BETTER, METRICS, xcorr_se_from_per_run
-from ..fileio import atomic_open, atomic_write
+from ..fileio import atomic_open, atomic_write, verify_manifest
 from .runner import CellResult, _jsonable
 
-__all__ = ["result_rows", "result_table", "write_tables", "summary", "COLUMNS", "LABELS", "ENV_COLUMNS",
-           "STATISTICS"]
+__all__ = ["result_rows", "result_table", "write_tables", "summary", "read_results", "COLUMNS", "LABELS",
+           "ENV_COLUMNS", "STATISTICS"]
 
 #: Label columns of a cell.
 LABELS = ("controller", "compensator", "environment", "reference")
@@ -207,3 +209,37 @@ def summary(rows: Sequence[Mapping[str, Any]], spec: Mapping[str, Any], info: Ma
 def write_summary(doc: Mapping[str, Any], out: str | os.PathLike[str]) -> Path:
     """Write ``summary.json`` atomically."""
     return atomic_write(Path(out) / "summary.json", json.dumps(doc, indent=2, allow_nan=False) + "\n")
+
+
+def read_results(out: str | os.PathLike[str]) -> tuple[dict[str, Any], Any]:
+    """Read a benchmark's result folder, checked to be one complete set.
+
+    Parameters
+    ----------
+    out : path
+        The folder ``forecast-design benchmark --out`` wrote.
+
+    Returns
+    -------
+    summary : dict
+        ``summary.json``.
+    table : pandas.DataFrame
+        ``results.parquet`` (the rows of :func:`result_rows`).
+
+    Raises
+    ------
+    OutputError
+        One line when the folder is not one complete set: ``MANIFEST.sha256`` missing (a run
+        was interrupted while swapping its files in, or the folder was never written) or a
+        member differing from it (:func:`forecast_design.fileio.verify_manifest`).
+    """
+    import pandas as pd
+
+    members = verify_manifest(out)
+    for name in ("summary.json", "results.parquet"):
+        if name not in members:
+            raise OutputError(f"{Path(out) / name}: not in the folder's manifest: not a benchmark result folder",
+                              path=str(Path(out) / name))
+    doc = json.loads(members["summary.json"].read_text(encoding="utf-8"))
+    return doc, pd.read_parquet(members["results.parquet"], engine="pyarrow")
+

@@ -41,6 +41,7 @@ from ..executor import Executor, LocalExecutor
 from ..experiment import load_experiment
 from ..experiment_io import FORMAT, parse_toml, read_toml
 from ..params import Compensator
+from ..plausibility import limit_of
 from .metrics import disk_margin_of, pairwise_xcorr, repeatability_per_run, step_metrics
 from .runner import _STEP_KEYS, CellResult, _decimate, _expected_response, _run_metrics
 from .spec import compensator_label, controller_label
@@ -48,8 +49,14 @@ from .spec import compensator_label, controller_label
 __all__ = ["find_runs", "group_runs", "recorded_cell", "run_recorded", "step_of"]
 
 
-def find_runs(folder: str | os.PathLike[str]) -> list[Path]:
-    """The experiment TOML files under ``folder`` (recursively, sorted by path).
+def find_runs(folder: str | os.PathLike[str]) -> tuple[list[Path], list[str]]:
+    """The experiment TOML files under ``folder`` (recursively, sorted by path), and those that cannot be read.
+
+    Every entry named ``*.toml`` is looked at (symlinked folders are followed once, loops are not):
+    a readable TOML whose ``format`` is ``forecast-experiment/1`` is a run; a readable TOML of
+    another format (a scenario, an environment set) is left alone; anything else named ``*.toml``
+    (binary or truncated text, a directory, a FIFO or device, a dangling link or a link loop) is
+    reported, never dropped in silence.
 
     Parameters
     ----------
@@ -58,8 +65,10 @@ def find_runs(folder: str | os.PathLike[str]) -> list[Path]:
 
     Returns
     -------
-    list of Path
+    runs : list of Path
         Files whose ``format`` is ``forecast-experiment/1``.
+    unreadable : list of str
+        ``"PATH: why"`` of each ``*.toml`` entry that cannot be read.
 
     Raises
     ------
@@ -70,15 +79,30 @@ def find_runs(folder: str | os.PathLike[str]) -> list[Path]:
     if not root.is_dir():
         raise ParameterError(f"--runs {os.fspath(folder)}: not a folder of experiments", name="runs",
                              value=os.fspath(folder))
+    candidates: list[Path] = []
+    unreadable: list[str] = []
+    visited: set[tuple[int, int]] = set()
+    for here, dirs, files in os.walk(root, followlinks=True):
+        info = os.stat(here)
+        if (info.st_dev, info.st_ino) in visited:        # a symlinked folder seen before: a loop
+            dirs[:] = []
+            continue
+        visited.add((info.st_dev, info.st_ino))
+        dirs.sort()
+        for name in dirs:
+            if name.endswith(".toml"):
+                unreadable.append(f"{Path(here) / name}: a directory, not an experiment file")
+        candidates += [Path(here) / name for name in files if name.endswith(".toml")]
     out = []
-    for path in sorted(root.rglob("*.toml")):
+    for path in sorted(candidates):
         try:
             doc, _ = read_toml(path)
-        except ExperimentFormatError:
-            continue                       # not TOML at all: not an experiment
+        except ExperimentFormatError as exc:
+            unreadable.append(f"{path}: cannot be read: {str(exc).removeprefix(f'{path}: ')}")
+            continue
         if doc.get("format") == FORMAT:
             out.append(path)
-    return out
+    return out, sorted(unreadable)
 
 
 def step_of(tau_r: np.ndarray, rate_hz: float) -> tuple[float, float, float] | None:
@@ -134,7 +158,7 @@ def group_runs(paths: list[Path]) -> tuple[list[tuple[dict[str, str], tuple[Path
     labels: dict[str, dict[str, str]] = {}
     skipped = []
     for path in paths:
-        exp = load_experiment(path)
+        exp = _load_run(path)
         design, tau_r = exp.design, exp.signals.tau_r
         if design.controller is None or tau_r is None:
             skipped.append(f"{path}: open loop (no [controller] or no tau_r column)")
@@ -149,6 +173,11 @@ def group_runs(paths: list[Path]) -> tuple[list[tuple[dict[str, str], tuple[Path
         groups.setdefault(key, []).append(path)
         labels.setdefault(key, lab)
     return [(labels[k], tuple(v)) for k, v in groups.items()], skipped
+
+
+def _load_run(path: Path):
+    """One recorded run, at most ``log_samples_benchmark`` samples (checked before its CSV is parsed)."""
+    return load_experiment(path, max_samples=limit_of("log_samples_benchmark"), reader="benchmark --runs")
 
 
 def _cell_key(paths: tuple[Path, ...]) -> str:
@@ -181,7 +210,7 @@ def recorded_cell(task: tuple) -> CellResult:
     """
     key, labels, paths, *rest = task
     derivative_on = rest[0] if rest else None
-    exps = [load_experiment(p) for p in paths]
+    exps = [_load_run(p) for p in paths]
     n = min(e.n_samples for e in exps)
     rate = exps[0].rate_hz
     design = exps[0].design
@@ -238,6 +267,7 @@ def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] 
         One per group, in order of first appearance.
     info : dict
         ``runs`` (experiments found), ``cells``, ``computed``, ``reused``, ``skipped`` (why),
+        ``unreadable`` (``*.toml`` entries that cannot be read, and why: :func:`find_runs`),
         ``single_run_cells`` (labels of cells with one run: no repeatability) and the executor.
 
     Raises
@@ -247,7 +277,7 @@ def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] 
     ExperimentFormatError
         An experiment that does not load (one line naming the file and key or CSV line).
     """
-    paths = find_runs(folder)
+    paths, unreadable = find_runs(folder)
     groups, skipped = group_runs(paths)
     if not groups:
         raise ParameterError(f"--runs {os.fspath(folder)}: no closed-loop experiment (forecast-experiment/1 TOML with "
@@ -271,6 +301,7 @@ def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] 
         if store is not None:
             res.save(store)
     info = {"runs": len(paths), "cells": len(groups), "computed": len(todo), "reused": len(groups) - len(todo),
-            "skipped": skipped, "single_run_cells": [dict(lab) for lab, p in groups if len(p) < 2],
+            "skipped": skipped, "unreadable": unreadable,
+            "single_run_cells": [dict(lab) for lab, p in groups if len(p) < 2],
             **ex.describe()}
     return [found[k] for k in keys], info

@@ -14,6 +14,7 @@ differ only by what is benchmarked). Finished cells are stored as
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 import multiprocessing
@@ -24,8 +25,9 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ..errors import ParameterError
+from ..plausibility import check_limit
 from ..executor import Executor, LocalExecutor
-from ..fileio import atomic_open, atomic_write
+from ..fileio import atomic_write
 from ..params import Compensator, Design
 from ..reproduce import identify_extended_sfm
 from ..simulation import Chirp, simulate
@@ -83,26 +85,43 @@ class CellResult:
                 "disk_margin": self.disk_margin}
 
     def save(self, folder: Path) -> None:
-        """Write ``<key>.npz`` then ``<key>.json`` (the JSON last: its presence marks a finished cell)."""
-        with atomic_open(folder / f"{self.key}.npz") as fh:
-            np.savez(fh, t=self.t, tau_s=self.tau_s, expected=self.expected, tau_r=self.tau_r)
-        atomic_write(folder / f"{self.key}.json",
-                     json.dumps(_jsonable(self.to_mapping()), indent=1, allow_nan=False) + "\n")
+        """Write ``<key>.npz`` then ``<key>.json`` (the JSON last: its presence marks a finished cell).
+
+        The JSON records the key and the SHA-256 of the ``.npz``, so :meth:`load` reuses a cell only
+        when both files are the ones this key wrote.
+        """
+        import io
+
+        buffer = io.BytesIO()
+        np.savez(buffer, t=self.t, tau_s=self.tau_s, expected=self.expected, tau_r=self.tau_r)
+        traces = buffer.getvalue()
+        atomic_write(folder / f"{self.key}.npz", traces)
+        doc = {**self.to_mapping(), "npz_sha256": hashlib.sha256(traces).hexdigest()}
+        atomic_write(folder / f"{self.key}.json", json.dumps(_jsonable(doc), indent=1, allow_nan=False) + "\n")
 
     @classmethod
     def load(cls, folder: Path, key: str) -> "CellResult | None":
-        """The stored cell with this key, or None if absent or unreadable."""
+        """The stored cell with this key, or None if absent, unreadable, not this key's or not intact.
+
+        A cell is reused only when its JSON names this key and its ``.npz`` has the SHA-256 the JSON
+        records: a swapped, truncated or edited file is recomputed, never reused (and never a
+        ``BadZipFile`` traceback).
+        """
         try:
             doc = json.loads((folder / f"{key}.json").read_text(encoding="utf-8"))
-            with np.load(folder / f"{key}.npz") as npz:
+            traces = (folder / f"{key}.npz").read_bytes()
+            if not isinstance(doc, dict) or doc.get("key") != key \
+                    or doc.get("npz_sha256") != hashlib.sha256(traces).hexdigest():
+                return None
+            import io
+
+            with np.load(io.BytesIO(traces)) as npz:
                 arrays = {k: npz[k] for k in ("t", "tau_s", "expected", "tau_r")}
-        except (OSError, ValueError, KeyError):
+            runs = tuple({k: (math.nan if v is None else v) for k, v in r.items()} for r in doc["runs"])
+            return cls(key=key, labels=doc["labels"], environment=doc["environment"], runs=runs,
+                       repeatability=_num(doc["repeatability"]), disk_margin=_num(doc["disk_margin"]), **arrays)
+        except Exception:     # noqa: BLE001 - any damage (BadZipFile, EOFError, KeyError, TypeError...) means recompute
             return None
-        if doc.get("key") != key:
-            return None
-        runs = tuple({k: (math.nan if v is None else v) for k, v in r.items()} for r in doc["runs"])
-        return cls(key=key, labels=doc["labels"], environment=doc["environment"], runs=runs,
-                   repeatability=_num(doc["repeatability"]), disk_margin=_num(doc["disk_margin"]), **arrays)
 
 
 def _num(x: Any) -> float:
@@ -252,6 +271,9 @@ def run_benchmark(spec: BenchmarkSpec, *, out: str | os.PathLike[str] | None = N
     if not isinstance(spec, BenchmarkSpec):
         raise ParameterError("run_benchmark needs a BenchmarkSpec", name="spec", value=type(spec).__name__)
     cells: list[Cell] = spec.cells()
+    for c in cells:     # one cell is one batch: bounded before any is simulated (or identified)
+        check_limit(f"benchmark cell of {spec.repetitions} repetitions x {c.duration_s:g} s at {spec.rate_hz:g} Hz",
+                    "batch_samples", spec.repetitions * max(1, round(c.duration_s * spec.rate_hz)))
     if sfm_params is None and any(c.compensator.kind == "sfm" for c in cells):
         sfm_params, _, _ = identify_extended_sfm(spec.effects, seed=spec.seed, testbed=spec.testbed)
     sfm = None if sfm_params is None else {k: float(v) for k, v in sfm_params.items()}

@@ -13,8 +13,10 @@ from typing import Any, Callable, Sequence
 
 from .. import __version__
 from ..errors import ForecastError
+from ..fileio import guard_inputs
 from ..plausibility import require_no_nan
-from ..params import BREAK_POINTS, COMPENSATOR_KINDS, OBSERVER_KINDS, Q_FAMILIES
+from ..params import BREAK_POINTS, COMPENSATOR_KINDS, Q_FAMILIES
+from ..controllers.base import DISCRETIZATIONS
 
 __all__ = ["main"]
 
@@ -86,7 +88,7 @@ def _print_warnings(caught: Sequence[warnings.WarningMessage]) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; return the exit code (0 ok, 2 bad input)."""
+    """Run the command line; return the exit code (0 ok, 1 an answer that is a failure, 2 bad input, 3 not identifiable)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "handler", None):
@@ -95,9 +97,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         # Python warnings (the toolbox's own, numpy's) become one line each, printed only when the verb
         # succeeds: an error path prints its one error line and nothing else.
-        with warnings.catch_warnings(record=True) as caught:
+        with warnings.catch_warnings(record=True) as caught, guard_inputs():
             if not args.debug:
                 warnings.simplefilter("default")
+            _refuse_inputs_as_outputs(args)      # no output replaces a file the command reads
             code = int(args.handler(args) or 0)
         _print_warnings(caught)
         return code
@@ -131,10 +134,13 @@ from ._options import (  # noqa: E402  (the shared option helpers; verb modules 
     _design_from_args,
     _environments_from_args,
     _float_range,
+    _add_allow_unidentified,
+    _check_sfm_loop,
     _friction_from_file,
     _json_positional,
     _note,
     _one_environment_from_args,
+    _refuse_inputs_as_outputs,
     _testbed_from_args,
 )
 
@@ -154,7 +160,11 @@ def _cmd_tf(args: argparse.Namespace) -> int:
 
     testbed = _testbed_from_args(args)
     designs = _environments_from_args(args).designs(testbed)
-    results = [(label, transfer_functions(design)) for label, design in designs]
+    results = []
+    with _progress_bar("tf", "environment", enabled=args.json != "-" and len(designs) > 1) as progress:
+        for label, design in designs:
+            results.append((label, transfer_functions(design)))
+            progress(len(results), len(designs))
     require_no_nan({label: tfs.to_mapping() for label, tfs in results}, "tf")
     if args.plot:
         from ..plotting.bode import plot_bode
@@ -208,7 +218,9 @@ def _write_json(target: str, obj: Any) -> None:
 def _reproduce_fig6(args: argparse.Namespace) -> int:
     from ..reproduce import fig6_table
 
-    rows = fig6_table(environments=_environments_from_args(args), testbed=_testbed_from_args(args), skew=args.sigma)
+    with _progress_bar("fig6", "environment", enabled=args.json != "-") as progress:
+        rows = fig6_table(environments=_environments_from_args(args), testbed=_testbed_from_args(args),
+                          skew=args.sigma, progress=progress)
     mapping = [row.to_mapping() for row in rows]
     if args.plot:
         from ..plotting.margins import plot_fig6
@@ -297,92 +309,6 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return handler(args)
 
 
-# --- tune-q ---------------------------------------------------------------------
-
-
-def _configure_tune_q(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--compensator", "--observer", dest="observer", required=True, choices=OBSERVER_KINDS,
-                   help="the observer whose Q cutoff is tuned")
-    _add_controller_option(p)
-    _add_environment_options(p, default="soft,stiff", many=True)
-    p.add_argument("--uncertainty", type=_float_range, default=0.0, metavar="FRACTION",
-                   help="relative range of the true J, d, k_e (vertices of the box)")
-    p.add_argument("--min-ratio", type=_float_range, default=0.9,
-                   help="required disk-margin ratio observer/plant (default 0.9)")
-    p.add_argument("--band", type=_float_range, nargs=2, default=(0.5, 30.0), metavar=("LO", "HI"),
-                   help="search band of the cutoff [Hz] (default 0.5 30)")
-    p.add_argument("--q-family", default="butterworth", choices=Q_FAMILIES)
-    p.add_argument("--q-order", type=int, default=2)
-    p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
-    p.add_argument("--max-margin", metavar="W_Q_HZ", type=_float_range,
-                   help="instead: at this fixed cutoff, choose the 2nd-order Q damping that "
-                        "maximises the worst-case margin ratio")
-    p.add_argument("--seed", type=int, default=0, help="seed of random:N environment sets")
-    p.add_argument("--sampled", action="store_true",
-                   help="analyse the sampled-data loop (discretised controller/observer, ZOH plant)")
-    p.add_argument("--rate-hz", type=_float_range, default=2000.0, help="--sampled: control rate [Hz]")
-    p.add_argument("--delay-samples", type=int, default=1, help="--sampled: computation delay [samples]")
-    p.add_argument("--exact-scan", action="store_true", help="verify with a full exact scan (slow)")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
-                   help="compute the plants' margins on N local processes (large sets; default: this process)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="compute them on a Dask cluster, tcp://HOST:PORT (same answer as locally)")
-    p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write JSON to OUT (or stdout)")
-    p.add_argument("--plot", metavar="OUT.png",
-                   help="draw the trade-off: worst-case margin ratio and friction-rejection bandwidth "
-                        "against the cutoff, per observer, with the chosen cutoff (JSON key 'tradeoff')")
-
-
-@_command("tune-q", "choose the Q-filter cutoff by optimisation (casadi) over a set of environments",
-          _configure_tune_q)
-def _cmd_tune_q(args: argparse.Namespace) -> int:
-    from ..tuning import tune_q, tune_q_shape
-
-    # random:N is expanded here with --seed; the set (an EnvironmentSet) is what tune_q receives
-    args.envs = _environments_from_args(args, seed=args.seed)
-    testbed = _testbed_from_args(args)
-    controller = _controller_from_args(args)
-    with contextlib.ExitStack() as stack:
-        executor = None
-        if args.scheduler or args.workers is not None:
-            from ..executor import make_executor
-
-            executor = stack.enter_context(make_executor(args.scheduler, args.workers))
-        if args.max_margin is not None:
-            result = tune_q_shape(args.observer, args.envs, w_q_hz=args.max_margin, uncertainty=args.uncertainty,
-                                  controller=controller, break_at=args.break_at, seed=args.seed, sampled=args.sampled, rate_hz=args.rate_hz,
-                                  delay_samples=args.delay_samples, testbed=testbed, executor=executor)
-        else:
-            with _progress_bar("exact scan", "cutoff") as progress:
-                result = tune_q(args.observer, args.envs, uncertainty=args.uncertainty, min_ratio=args.min_ratio,
-                                band_hz=tuple(args.band), q_family=args.q_family, q_order=args.q_order,
-                                controller=controller, break_at=args.break_at, seed=args.seed, progress=progress, sampled=args.sampled,
-                                rate_hz=args.rate_hz, delay_samples=args.delay_samples,
-                                scan="exact" if args.exact_scan else "bounded", testbed=testbed, executor=executor)
-    mapping = require_no_nan(result.to_mapping(), "tune-q")
-    if args.plot:
-        from ._tradeoff_plot import plot_tune_q_tradeoff
-
-        mapping["tradeoff"] = plot_tune_q_tradeoff(args, result, args.envs)
-    if args.json:
-        _write_json(args.json, mapping)
-    if args.json != "-":
-        extra = f", Q damping {result.q_damping:.4g}" if result.q_damping is not None else ""
-        print(f"{result.observer}: w_q = {result.w_q_hz:.4g} Hz{extra}, worst ratio {result.worst_ratio:.4f} "
-              f"({result.worst_environment}), feasible {result.feasible}; scan best {result.scan_w_q_hz:.4g} Hz, "
-              f"agrees {result.agrees_with_scan}; {result.plants} plants, {result.evaluations} evaluations")
-    if result.at_bound:
-        option = "--band" if result.q_damping is None else "the damping range"
-        print(f"forecast-design: warning: the answer sits on the {result.at_bound}: the best value may lie "
-              f"beyond it (widen {option} to find out)", file=sys.stderr)
-    if not result.feasible:
-        print(f"forecast-design: warning: no cutoff in the band meets min-ratio {result.min_ratio:g} in every "
-              f"environment: the best of the band, {result.w_q_hz:.4g} Hz, keeps {result.worst_ratio:.3f} "
-              f"({result.worst_environment})", file=sys.stderr)
-        return 1
-    return 0
-
-
 # --- pipeline ----------------------------------------------------------------------
 
 
@@ -403,97 +329,6 @@ def _cmd_pipeline(args: argparse.Namespace) -> int:
     return 0
 
 
-# --- identify ---------------------------------------------------------------------
-
-
-def _configure_identify(p: argparse.ArgumentParser) -> None:
-    from ..friction import MODEL_NAMES
-
-    p.add_argument("log", nargs="?", metavar="LOG.toml", help="experiment in the shared format (motor side)")
-    p.add_argument("--csv", metavar="FILE", help="instead: a plain CSV of a rigid axis (with the column options)")
-    p.add_argument("--time", metavar="COL", help="--csv: time column [s]")
-    p.add_argument("--position", metavar="COL", help="--csv: position column [rad or m]")
-    p.add_argument("--force", metavar="COL", help="--csv: force/torque column [N m or N]")
-    p.add_argument("--rate-hz", type=_float_range, help="--csv: declared sample rate [Hz]")
-    p.add_argument("--scale-force", type=_float_range, default=1.0, help="--csv: factor on the force column")
-    p.add_argument("--model", default="extended-sfm", choices=MODEL_NAMES)
-    p.add_argument("--harmonics", type=int, help="angle harmonics N (default 4 where they apply)")
-    p.add_argument("--estimate-inertia", action="store_true", help="fit the inertia instead of the nominal J_m")
-    p.add_argument("--offset", action=argparse.BooleanOptionalAction, default=None,
-                   help="fit a constant offset term (default: when tau_s is a torque sensor's measurement)")
-    p.add_argument("--holdout", type=_float_range, default=0.3, help="fraction held out for fit %% (default 0.3)")
-    p.add_argument("--select-samples", choices=("auto", "on", "off"), default="auto",
-                   help="leave stops and reversals out of static fits: auto (when the log stops, default), "
-                        "on, off (plain IDIM on every sample)")
-    p.add_argument("--validate", metavar="FILE", help="second log (same kind and column mapping) to cross-test")
-    p.add_argument("--json", metavar="OUT", nargs="?", const="-", help="write the fit as JSON to OUT (or stdout)")
-    p.add_argument("--plot", metavar="OUT.png", help="measured vs estimated friction (like the paper's Fig. 9)")
-
-
-def _load_log(path: str, args: argparse.Namespace):
-    if args.csv is not None:
-        from ..friction import load_axis_csv
-
-        missing = [opt for opt in ("time", "position", "force") if getattr(args, opt) is None]
-        if missing:
-            from ..errors import ParameterError
-
-            raise ParameterError(f"--csv needs --{', --'.join(missing)} (the column names)", name=missing[0])
-        return load_axis_csv(path, time=args.time, position=args.position, force=args.force,
-                             rate_hz=args.rate_hz, scale_force=args.scale_force)
-    from ..experiment import load_experiment
-
-    return load_experiment(path)
-
-
-@_command("identify", "identify friction from a log by least squares (casadi), SFM to LuGre", _configure_identify)
-def _cmd_identify(args: argparse.Namespace) -> int:
-    from ..errors import ParameterError
-    from ..friction import identify
-
-    if (args.log is None) == (args.csv is None):
-        raise ParameterError("give exactly one of LOG.toml or --csv FILE", name="log")
-    log = _load_log(args.csv if args.csv is not None else args.log, args)
-    validation = _load_log(args.validate, args) if args.validate else None
-    fit = identify(log, args.model, harmonics=args.harmonics, offset=args.offset,
-                   estimate_inertia=args.estimate_inertia, holdout=args.holdout, validation_log=validation,
-                   selection=args.select_samples)
-    if args.plot:
-        from ..friction import fit_data
-        from ..plotting.friction import plot_friction_fit
-
-        plot_friction_fit(fit, fit_data(fit, log), args.plot, prismatic=getattr(log, "prismatic", False))
-    mapping = fit.to_mapping()
-    from ..friction.logs import parameter_unit    # units follow the log: N, m for a prismatic axis
-
-    mapping["units"] = {name: parameter_unit(name, getattr(log, "prismatic", False)) for name in mapping["params"]}
-    if args.json:
-        _write_json(args.json, mapping)
-    if args.json != "-":
-        sel = mapping["selection"]
-        used = (f", {mapping['n_samples_used']} of {mapping['n_samples']} samples (stops and reversals left out)"
-                if sel and sel["applied"] else "")
-        print(f"model {mapping['model']}: fit {mapping['fit_percent']['estimation']:.2f} % (estimation), "
-              f"{mapping['fit_percent']['holdout']:.2f} % (hold-out), condition number "
-              f"{mapping['condition_number']:.4g}{used}")
-        for name, value in mapping["params"].items():
-            std = mapping["std"].get(name)
-            shown = f"+- {std:.3g}" if std is not None else "(no interval)"
-            status = mapping["status"][name]["status"]
-            print(f"  {name:<20} {value: .6g}  {shown} {mapping['units'][name]}"
-                  + ("" if status == "identified" else f"  [{status}]"))
-        if "validation" in mapping:
-            print(f"validation: relative error {mapping['validation']['relative_error_percent']:.3f} %")
-        if mapping["identifiability"] != "identified":
-            print(mapping["identifiability"])
-    # An honest answer, not an error: one warning per number that is not an estimate (exit code stays 0).
-    for name in mapping["not_identified"]:
-        st = mapping["status"][name]
-        print(f"forecast-design: warning: {name} not identified ({st['status']}): {st.get('reason', '')}",
-              file=sys.stderr)
-    return 0
-
-
 # --- export / emulate / run -----------------------------------------------------------
 
 _COMPENSATOR_CHOICES = COMPENSATOR_KINDS
@@ -505,6 +340,7 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
     _add_environment_options(p, default="exp-soft", many=False)
     p.add_argument("--friction", metavar="F.json", help="identified friction for --compensator sfm "
                                                         "(the file identify --model sfm --json F.json writes)")
+    _add_allow_unidentified(p)
     p.add_argument("--tau-max", type=_float_range, default=float("inf"), metavar="N_M",
                    help="command saturation |tau_m| <= TAU_MAX [N m] (default: none)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz] (default 10)")
@@ -530,6 +366,12 @@ def _cmd_export(args: argparse.Namespace) -> int:
         raise ParameterError(f"--tau-max must be > 0 [N m], got {args.tau_max:g}", name="tau_max")
     _, env = _one_environment_from_args(args, "export")
     comp = _compensator_from_args(args)
+    if comp is not None and comp.kind == "sfm":
+        # the loop's stability with the compensator, before code is written for a board
+        from ..params import Design
+
+        _check_sfm_loop(Design(testbed=_testbed_from_args(args), environment=env), comp.friction_params,
+                        controller=_controller_from_args(args), rate_hz=args.rate_hz)
     if args.firmware:
         from ._firmware import _cmd_export_firmware
 
@@ -597,7 +439,8 @@ def _cmd_emulate(args: argparse.Namespace) -> int:
         scenario = load_scenario(args.scenario)
         _note(scenario.notes)
         design = scenario.design if code is None else dataclasses.replace(scenario.design, controller=code)
-        return emulate(faults=faults, design=design, effects=scenario.effects, realtime=args.realtime)
+        with scenario.naming_errors():      # e.g. an RK4 step unstable for this plant: names the scenario file
+            return emulate(faults=faults, design=design, effects=scenario.effects, realtime=args.realtime)
     design = _design_from_args(args)
     return emulate(faults=faults, design=design if code is None else dataclasses.replace(design, controller=code),
                    realtime=args.realtime)
@@ -608,6 +451,7 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
     _add_controller_option(p)
     p.add_argument("--compensator", "--observer", dest="compensator", default="none", choices=_COMPENSATOR_CHOICES)
     p.add_argument("--friction", metavar="F.json", help="identified friction for --compensator sfm (identify --json)")
+    _add_allow_unidentified(p)
     p.add_argument("--w-q-hz", type=_float_range, default=10.0)
     _add_environment_options(p, default="exp-soft", many=False)
     p.add_argument("--reference", default="square:0.2:0.5", metavar="KIND:ARGS",
@@ -621,7 +465,7 @@ def _configure_run(p: argparse.ArgumentParser) -> None:
 
 @_command("run", "upload the exported controller to a board, record a run as an experiment", _configure_run)
 def _cmd_run(args: argparse.Namespace) -> int:
-    from ..runtime import LinkError, run_on_port
+    from ..runtime import BoardError, LinkError, run_on_port
 
     try:
         comp = _compensator_from_args(args)
@@ -630,9 +474,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
                              w_q_hz=args.w_q_hz, env=_one_environment_from_args(args, "run")[1],
                              testbed=_testbed_from_args(args), timeout=args.timeout)
         summary = result.to_mapping()
-    except LinkError as exc:
+    except (LinkError, BoardError) as exc:
+        # a run that ended badly (lost link, board fault, a late write failure saved to a recovery file)
+        # still gets its --json summary, and the one error line says where it went
         if args.json and getattr(exc, "summary", None):
-            _write_json(args.json, exc.summary)
+            try:
+                _write_json(args.json, exc.summary)
+                note = "" if args.json == "-" else f"; run summary written to {args.json}"
+            except ForecastError as failed:
+                note = f"; the run summary could not be written either ({str(failed).splitlines()[0]})"
+            exc.args = (f"{str(exc).splitlines()[0]}{note}",) + exc.args[1:]
         raise
     if args.json:
         _write_json(args.json, summary)
@@ -657,7 +508,9 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from ..gap import diagnose
     from ..reporting import write_report
 
-    experiment = load_experiment(args.experiment)
+    from ..plausibility import limit_of
+
+    experiment = load_experiment(args.experiment, max_samples=limit_of("log_samples_diagnose"), reader="diagnose")
     diagnosis = diagnose(experiment)
     mapping = require_no_nan(diagnosis.to_mapping(), "diagnose")
     if args.report:
@@ -680,8 +533,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
             print(f"this log cannot tell apart: {', '.join(pairs)}")
     for row in mapping["ranking"]:
         if not row["identified"] and row["reduction"] >= diagnosis.data.options.min_reduction:
-            print(f"warning: {row['effect']} would remove {100 * row['reduction']:.0f} % of the gap but is not "
-                  f"identified on this log: {'; '.join(row['reasons'][:2])}", file=sys.stderr)
+            print(f"forecast-design: warning: {row['effect']} would remove {100 * row['reduction']:.0f} % of the gap "
+                  f"but is not identified on this log: {'; '.join(row['reasons'][:2])}", file=sys.stderr)
     if args.report and args.json != "-":
         print(f"report: {args.report}")
     return 0
@@ -737,7 +590,11 @@ def _configure_margins(p: argparse.ArgumentParser) -> None:
     p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
     p.add_argument("--sampled", action="store_true", help="sampled-data loop at --rate-hz")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0)
-    p.add_argument("--delay-samples", type=int, default=1)
+    p.add_argument("--delay-samples", type=int, default=1,
+                   help="--sampled: computation delay [samples] (default 1; the simulator and the firmware: 0)")
+    p.add_argument("--method", default=None, choices=DISCRETIZATIONS,
+                   help="--sampled: set the controller's discretization (default: the controller's own, as "
+                        "simulate runs it); the observers are discretised with tustin")
     _add_skew_option(p)
     _add_json_option(p, "the margins")
     p.add_argument("--plot", metavar="OUT.png", help="the loop at a glance: disk margin over frequency, |S| and |T|, "
@@ -759,6 +616,10 @@ def _cmd_margins(args: argparse.Namespace) -> int:
     if args.believed:
         believed_env = resolve_environments(args.believed, testbed=design.testbed).single("--believed")[1]
         believed = Design(testbed=design.testbed, environment=believed_env)
+    if not args.sampled and (args.method is not None or args.delay_samples != 1):
+        from ..errors import ParameterError
+
+        raise ParameterError("--method and --delay-samples describe the sampled loop; add --sampled", name="sampled")
     analysis = analyse_loop(design, comp, believed=believed, controller=_controller_from_args(args),
                             break_at=args.break_at, sampled=args.sampled, rate_hz=args.rate_hz,
                             delay_samples=args.delay_samples, skew=args.sigma, environment_name=env_name)

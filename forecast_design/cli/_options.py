@@ -151,24 +151,25 @@ def _json_positional(args: argparse.Namespace, name: str, suffix: str = ".toml")
 
 
 _FRICTION_MODELS = ("sfm", "extended-sfm")
+FRICTION_MAX_BYTES = 2**20   # an identify --json file is a few kB
 
 
-def _friction_from_file(path: str) -> dict[str, float]:
+def _friction_from_file(path: str, allow_unidentified: bool = False) -> dict[str, float]:
     """The identified friction of an ``identify --json F.json`` file, for an SFM compensator.
 
     Only the SFM-shaped laws (viscous, coulomb, offset, angle harmonics) drive the SFM feed-forward;
-    a fitted inertia is not friction and is left out (with a note).
+    a fitted inertia is not friction and is left out (with a note). A file whose fit says a number is
+    not identified (``not_identified``, ``identified: false``, a "not identifiable" or "model
+    inadequate" verdict) is refused unless ``allow_unidentified`` (``--allow-unidentified``).
     """
-    from pathlib import Path
-
     from ..errors import ExperimentFormatError
+    from ..experiment_io import read_regular_file
 
+    raw = read_regular_file(path, path, not_found=f"{path}: friction file not found (write it with identify --json)",
+                            error_path=path, max_bytes=FRICTION_MAX_BYTES, what="friction file")
     try:
-        doc = json.loads(Path(path).read_text())
-    except FileNotFoundError:
-        raise ExperimentFormatError(f"{path}: friction file not found (write it with identify --json)",
-                                    path=path) from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        doc = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise ExperimentFormatError(f"{path}: not an identify --json file: {str(exc).splitlines()[0]}",
                                     path=path) from None
     params = doc.get("params") if isinstance(doc, dict) else None
@@ -179,9 +180,18 @@ def _friction_from_file(path: str) -> dict[str, float]:
     if model not in _FRICTION_MODELS:
         raise ExperimentFormatError(f"{path}: model {model!r} cannot drive the SFM compensator; identify with "
                                     f"--model {' or --model '.join(_FRICTION_MODELS)}", path=path, key="model")
-    for name in doc.get("not_identified") or ():
-        print(f"forecast-design: warning: {path}: {name} was not identified; its value is used as it is",
-              file=sys.stderr)
+    lost = list(doc.get("not_identified") or ())
+    verdict = str(doc.get("identifiability") or "")
+    if lost or doc.get("identified") is False or verdict.startswith(("not identifiable", "model inadequate")):
+        shown = ", ".join(f"{n} ({(doc.get('status') or {}).get(n, {}).get('status', 'not identified')})"
+                          for n in lost) or verdict
+        if not allow_unidentified:
+            raise ExperimentFormatError(
+                f"{path}: the friction is not identified ({shown}): a compensator on numbers the log did not "
+                "determine is not written; identify a model the log identifies, or pass --allow-unidentified to "
+                "use the values as they are", path=path, key="not_identified")
+        print(f"forecast-design: warning: {path}: --allow-unidentified: using friction that is not identified "
+              f"({shown}) as it is", file=sys.stderr)
     if "inertia" in params:
         _note([f"{path}: the fitted inertia is not friction; the SFM compensator leaves it out"])
     return {k: v for k, v in params.items() if k != "inertia"}
@@ -201,9 +211,76 @@ def _compensator_from_args(args: argparse.Namespace):
     if args.compensator == "none":
         return None
     return Compensator(kind=args.compensator, w_q_hz=args.w_q_hz,
-                       friction=_friction_from_file(friction) if friction else ())
+                       friction=_friction_from_file(friction, getattr(args, "allow_unidentified", False))
+                       if friction else ())
+
+
+def _add_allow_unidentified(p: argparse.ArgumentParser) -> None:
+    """``--allow-unidentified``: use a --friction file whose numbers are not all identified."""
+    p.add_argument("--allow-unidentified", action="store_true",
+                   help="with --friction: use friction that identify did not report identified (default: refuse)")
+
+
+def _check_sfm_loop(design, friction, controller=None, rate_hz: float = 2000.0) -> None:
+    """Refuse, in one line, an SFM feed-forward that makes the sampled force loop unstable."""
+    from ..analysis import sfm_loop_check
+    from ..errors import ParameterError
+
+    check = sfm_loop_check(design, friction, controller=controller, rate_hz=rate_hz)
+    if not check.stable:
+        raise ParameterError(f"{check.message()}; no code or run is produced for it", name="friction",
+                             value=check.viscous)
 
 
 def _add_skew_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--skew", "--sigma", dest="sigma", type=_float_range, default=0.0, metavar="SKEW",
                    help="disk skew sigma (python-control/MATLAB 'skew'; 0 balanced, the paper's)")
+
+
+# --- inputs that an output must not replace ------------------------------------------------------------------------
+
+_INPUT_OPTIONS = ("experiment", "log", "scenario", "csv", "validate", "friction", "testbed", "believed", "envs")
+_RUN_OUT_VERBS = ("simulate", "run", "pil")     # --out names an experiment TOML; its CSV goes beside it
+
+
+def _experiment_data(path: str) -> str | None:
+    """The CSV an experiment TOML names, or None (not an experiment, or unreadable: the verb says why)."""
+    from pathlib import Path
+
+    from ..errors import ForecastError
+    from ..experiment_io import FORMAT, read_toml
+
+    try:
+        doc, _ = read_toml(Path(path))
+    except ForecastError:
+        return None
+    data = doc.get("data")
+    if doc.get("format") != FORMAT or not isinstance(data, str) or "\x00" in data:
+        return None
+    return str(Path(path).parent / data)
+
+
+def _refuse_inputs_as_outputs(args: argparse.Namespace) -> None:
+    """Before any work: no --json, --plot or --out file may be a file the command reads.
+
+    The inputs are every file an option names (an experiment TOML with its CSV, a scenario,
+    friction, environment and testbed files); the outputs every file the verb will write under
+    its own name (``fileio.refuse_overwriting`` compares what they resolve to). Files a verb
+    finds only while it runs are guarded when written (``fileio.guard_inputs``).
+    """
+    from ..fileio import refuse_overwriting
+
+    named = [getattr(args, name, None) for name in _INPUT_OPTIONS]
+    named += list(getattr(args, "env", None) or ())
+    inputs = [v for v in named if isinstance(v, str) and v and os.path.isfile(v)]
+    inputs += [csv for csv in map(_experiment_data, [v for v in inputs if v.endswith(".toml")]) if csv]
+    outputs = [getattr(args, "json", None), getattr(args, "plot", None)]
+    out = getattr(args, "out", None)
+    if getattr(args, "command", None) in _RUN_OUT_VERBS and isinstance(out, str) and out:
+        from pathlib import Path
+
+        toml = Path(out)
+        outputs += [toml, toml.with_suffix(".csv"), toml.with_name(toml.stem + ".truth.json"),
+                    toml.with_name(toml.stem + ".truth.csv")]
+    refuse_overwriting([o for o in outputs if o], inputs)
+

@@ -2,4 +2,6 @@
 from . import benchmark  # noqa: F401  (forecast-design benchmark)
 from . import pil  # noqa: F401  (forecast-design pil)
 from . import check  # noqa: F401  (forecast-design check)
+from . import identify  # noqa: F401  (forecast-design identify)
 from . import simulate  # noqa: F401  (forecast-design simulate)
+from . import tune_q  # noqa: F401  (forecast-design tune-q)

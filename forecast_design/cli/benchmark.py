@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import time
 
@@ -53,12 +54,16 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     from ..environments import resolve_environments, resolve_testbed
     from ..errors import ParameterError
     from ..executor import make_executor
+    from ..fileio import MANIFEST, staged_set
 
     if args.derivative_on is not None and args.derivative_on not in ("error", "measurement"):
         raise ParameterError(f"--derivative-on must be error or measurement, got {args.derivative_on!r}",
                              name="derivative_on", value=args.derivative_on)
     if not (args.duration > 0):
         raise ParameterError(f"--duration must be > 0 [s], got {args.duration}", name="duration")
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        raise ParameterError(f"--out {args.out}: not a folder (the result folder holds tables, plots and cells/)",
+                             name="out", value=args.out)
     t0 = time.perf_counter()
     if args.runs is not None:
         given = [f"--{name.replace('_', '-')}" for name in ("controller", "compensator", "envs", "reference",
@@ -71,7 +76,9 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             cells, info = run_recorded(args.runs, out=args.out, executor=executor, progress=progress,
                                        derivative_on=args.derivative_on)
         for why in info["skipped"]:
-            print(f"note: skipped {why}", file=sys.stderr)
+            print(f"forecast-design: note: skipped {why}", file=sys.stderr)
+        for why in info["unreadable"]:
+            print(f"forecast-design: warning: skipped {why}", file=sys.stderr)
         spec_doc = {"runs": args.runs, "controllers": sorted({c.labels["controller"] for c in cells}),
                     "compensators": sorted({c.labels["compensator"] for c in cells}),
                     "environments": {c.labels["environment"]: dict(c.environment) for c in cells},
@@ -81,7 +88,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         testbed = resolve_testbed(args.testbed)
         envs = resolve_environments(args.envs or "exp-soft,locked", testbed=testbed, seed=args.seed)
         for note in envs.notes:
-            print(f"note: {note}", file=sys.stderr)
+            print(f"forecast-design: note: {note}", file=sys.stderr)
         spec = BenchmarkSpec(
             controllers=tuple(c if args.derivative_on is None else with_derivative_on(c, args.derivative_on)
                               for c in (resolve_controller(x) for x in (args.controller or ["pd:5:0.1"]))),
@@ -100,24 +107,28 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     info["elapsed_s"] = round(time.perf_counter() - t0, 3)
     rows = result_rows(cells)
     df = result_table(cells)
-    paths = write_tables(df, args.out)
     plots = {}
-    if not args.no_plots:
-        from ..plotting.benchmark import plot_heatmap, plot_indicators, plot_overlays
+    # the result folder is one unit: written into a staging folder, swapped in, MANIFEST.sha256 last
+    # (read_results refuses a folder whose manifest is missing or does not match); cells/ stays a cache
+    with staged_set(args.out) as staging:
+        write_tables(df, staging)
+        if not args.no_plots:
+            from ..plotting.benchmark import plot_heatmap, plot_indicators, plot_overlays
 
-        for caption, name, draw in (("Indicators against environment stiffness", "indicators.png",
-                                     lambda p: plot_indicators(df, p)),
-                                    ("Repetition overlays", "overlays.png", lambda p: plot_overlays(cells, p)),
-                                    ("Heat map of the set", "heatmap.png", lambda p: plot_heatmap(df, p))):
-            fig = draw(paths["csv"].parent / name)
-            import matplotlib.pyplot as plt
+            for caption, name, draw in (("Indicators against environment stiffness", "indicators.png",
+                                         lambda p: plot_indicators(df, p)),
+                                        ("Repetition overlays", "overlays.png", lambda p: plot_overlays(cells, p)),
+                                        ("Heat map of the set", "heatmap.png", lambda p: plot_heatmap(df, p))):
+                fig = draw(staging / name)
+                import matplotlib.pyplot as plt
 
-            plt.close(fig)
-            plots[caption] = name
-    doc = summary(rows, spec_doc, info)
-    doc["files"] = {"parquet": "results.parquet", "csv": "results.csv", "report": "report.md", "plots": plots}
-    write_summary(doc, args.out)
-    write_report(markdown_report(rows, spec_doc, info, plots), args.out)
+                plt.close(fig)
+                plots[caption] = name
+        doc = summary(rows, spec_doc, info)
+        doc["files"] = {"parquet": "results.parquet", "csv": "results.csv", "report": "report.md", "plots": plots,
+                        "manifest": MANIFEST}
+        write_summary(doc, staging)
+        write_report(markdown_report(rows, spec_doc, info, plots), staging)
     if args.json:
         _write_json(args.json, doc)
     if args.json != "-":
@@ -133,17 +144,17 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
         where = f"{c.labels['controller']} + {c.labels['compensator']} in {c.labels['environment']}"
         runs = [r for r in c.runs if isinstance(r, dict)]
         if any(r.get("expected_diverged_at_s") is not None for r in runs):
-            print(f"warning: {where}: the frictionless expected response (nominal plant, d_m = 0) diverges: "
-                  "mae_N_m is not scored", file=sys.stderr)
+            print(f"forecast-design: warning: {where}: the frictionless expected response (nominal plant, d_m = 0) "
+                  "diverges: mae_N_m is not scored", file=sys.stderr)
         bad = [r["repetition"] for r in runs if not math.isnan(float(r.get("diverged_at_s", math.nan)))]
         if bad:
             unstable += 1
-            print(f"warning: {where}: repetitions {', '.join(map(str, bad))} diverged (unstable closed loop): "
-                  "not scored", file=sys.stderr)
+            print(f"forecast-design: warning: {where}: repetitions {', '.join(map(str, bad))} diverged (unstable "
+                  "closed loop): not scored", file=sys.stderr)
         faulted = [r for r in runs if r.get("controller_fault")]
         if faulted:
             unstable += 1
-            print(f"warning: {where}: the controller stopped with a fault in repetitions "
+            print(f"forecast-design: warning: {where}: the controller stopped with a fault in repetitions "
                   f"{', '.join(str(r['repetition']) for r in faulted)} ({faulted[0]['controller_fault']}): zero "
                   "torque from then on, not scored", file=sys.stderr)
     return 1 if unstable else 0

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from . import _add_json_option, _command, _friction_from_file, _json_positional, _note, _write_json
+from . import (_add_allow_unidentified, _add_json_option, _check_sfm_loop, _command, _friction_from_file,
+               _json_positional, _note, _progress_bar, _write_json)
 
 
 def _configure_simulate(p: argparse.ArgumentParser) -> None:
@@ -14,6 +15,7 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--friction", metavar="F.json",
                    help="identified friction (identify --model sfm --json F.json): the run's compensator becomes "
                         "an SFM on these parameters (the scenario's compensator must be none or sfm)")
+    _add_allow_unidentified(p)
     p.add_argument("--repetitions", metavar="N|all",
                    help="simulate repetitions 0..N-1 (or all) of the scenario's [variability] in one batch "
                         "(simulate_batch, one run per core) and write RUN_000.toml, RUN_001.toml, ...")
@@ -35,11 +37,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         return _simulate_repetitions(args)
     out = Path(args.out)  # save_simulation writes RUN.toml, RUN.csv, RUN.truth.json, RUN.truth.csv
     _refuse_overwriting_inputs(args, [out])
-    check_writable(out)
+    check_writable(out, stream_ok=False)   # RUN.toml names a set (RUN.csv, RUN.truth.*): never a device
     scenario = load_scenario(args.scenario)
     _note(scenario.notes)
     if args.friction:
-        scenario = scenario.with_friction(_friction_from_file(args.friction))
+        scenario = _with_checked_friction(scenario, args)
     result = scenario.run()
     paths = save_simulation(result, args.out)
     if args.plot:
@@ -55,22 +57,32 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     if args.json != "-":
         for key, value in paths.items():
             print(f"{key}: {value}")
-    return _report_faults([result])
+    return _report_faults([result.fault])
 
 
 def _controller_label(controller) -> str | None:
     return None if controller is None else controller.label
 
 
-def _report_faults(results) -> int:
-    """A controller written as code that stopped: one line each on stderr, exit 1 (the logs are written)."""
+def _report_faults(faults) -> int:
+    """A controller written as code that stopped (each run's ``fault`` or None): one line each on
+    stderr, exit 1 (the logs are written)."""
     import sys
 
-    faulted = [r for r in results if r.fault is not None]
-    for r in faulted:
-        print(f"forecast-design: controller fault at t = {r.fault['t_s']:.4g} s (period {r.fault['period']}): "
-              f"{r.fault['reason']}; the command is zero from then on", file=sys.stderr)
+    faulted = [f for f in faults if f is not None]
+    for f in faulted:
+        print(f"forecast-design: controller fault at t = {f['t_s']:.4g} s (period {f['period']}): "
+              f"{f['reason']}; the command is zero from then on", file=sys.stderr)
     return 1 if faulted else 0
+
+
+def _with_checked_friction(scenario, args: argparse.Namespace):
+    """The scenario with the --friction SFM compensator, refused when not identified or when it destabilises the loop."""
+    scenario = scenario.with_friction(_friction_from_file(args.friction, args.allow_unidentified))
+    if scenario.closed_loop:
+        _check_sfm_loop(scenario.design, scenario.design.compensator.friction_params,
+                        controller=scenario.design.controller, rate_hz=scenario.rate_hz)
+    return scenario
 
 
 def _run_files(out) -> list:
@@ -94,6 +106,9 @@ def _compensator_keys(comp) -> dict:
             "friction": None if comp is None else comp.friction_params}
 
 
+_BATCH_SAMPLES = 1_000_000   # samples simulated (and held) at once by simulate --repetitions
+
+
 def _repetition_count(text: str, available: int, source: str) -> int:
     from ..errors import ParameterError
 
@@ -114,22 +129,40 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..fileio import check_writable
+    from ..plausibility import check_limit
     from ..simulation.batch import simulate_scenario
     from ..simulation.run import save_simulation
     from ..simulation.scenario import load_scenario
 
+    check_writable(args.out, stream_ok=False)
     scenario = load_scenario(args.scenario)
     _note(scenario.notes)
     n = _repetition_count(args.repetitions, scenario.repetition_count, args.scenario)
     base = Path(args.out)
     outs = [base.with_name(f"{base.stem}_{i:03d}{base.suffix or '.toml'}") for i in range(n)]
     _refuse_overwriting_inputs(args, outs)
-    check_writable(base)
+    check_writable(base, stream_ok=False)
     if args.friction:
-        scenario = scenario.with_friction(_friction_from_file(args.friction))
-    batch = simulate_scenario(scenario, repetitions=range(n))
-    results = [batch.result(i) for i in range(n)]
-    written = [save_simulation(result, out) for result, out in zip(results, outs)]
+        scenario = _with_checked_friction(scenario, args)
+    samples = max(1, round(scenario.options["duration_s"] * scenario.rate_hz))
+    check_limit(f"--repetitions: {n} runs x {samples} samples", "batch_samples", n * samples)
+    # batches of at most 1e6 samples (about 280 MB): each is written when done (memory of one batch, not of
+    # all runs) and the bar moves; every run is bit-equal to its own simulation, whatever the batch
+    step = max(1, min(n, _BATCH_SAMPLES // samples))
+    results, written, stats, faults = [], [], [], []
+    with _progress_bar("simulate", "run", enabled=args.json != "-") as progress:
+        for start in range(0, n, step):
+            stop = min(n, start + step)
+            batch = simulate_scenario(scenario, repetitions=range(start, stop))
+            for k in range(stop - start):
+                result = batch.result(k)
+                written.append(save_simulation(result, outs[start + k]))
+                faults.append(result.fault)
+                if args.json:
+                    stats.append(result.to_mapping()["statistics"])
+                if args.plot:
+                    results.append(result)
+            progress(stop, n)
     if args.plot:
         from ..plotting.simulation import plot_simulation
 
@@ -138,10 +171,9 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
         _write_json(args.json, {**_compensator_keys(scenario.design.compensator),
                                 "controller": _controller_label(scenario.design.controller),
                                 "repetitions": [{"repetition": i, **{k: str(v) for k, v in paths.items()},
-                                                 "controller_fault": result.fault,
-                                                 "statistics": result.to_mapping()["statistics"]}
-                                                for i, (paths, result) in enumerate(zip(written, results))]})
+                                                 "controller_fault": fault, "statistics": stat}
+                                                for i, (paths, stat, fault) in enumerate(zip(written, stats, faults))]})
     if args.json != "-":
         for i, paths in enumerate(written):
             print(f"repetition {i}: {paths['experiment']}")
-    return _report_faults(results)
+    return _report_faults(faults)

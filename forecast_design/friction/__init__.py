@@ -15,6 +15,7 @@ import types
 from typing import Any
 
 _HOME = {
+    "Adequacy": "adequacy",
     "AsymmetricCoulomb": "terms",
     "AsymmetricViscous": "terms",
     "AxisLog": "logs",
@@ -39,7 +40,7 @@ _HOME = {
     "Viscous": "terms",
     "decimate_columns": "derivatives",
     "identify": "identify",
-    "log_arrays": "identify",
+    "log_arrays": "compat",
     "default_filter_settings": "derivatives",
     "differentiate": "derivatives",
     "experiment_scales": "source",
@@ -47,7 +48,7 @@ _HOME = {
     "friction_log": "source",
     "fit_data": "identify",
     "fit_friction": "identify",
-    "fit_friction_experiment": "identify",
+    "fit_friction_experiment": "compat",
     "fit_percent": "results",
     "friction_model": "terms",
     "load_axis_csv": "logs",
@@ -56,7 +57,7 @@ _HOME = {
     "prepare_identification_data": "identify",
     "stribeck_force": "terms",
     "validate": "identify",
-    "validate_experiment": "identify",
+    "validate_experiment": "compat",
     "zoh_align": "source",
 }
 

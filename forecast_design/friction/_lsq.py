@@ -11,7 +11,7 @@ import scipy.linalg
 
 from ..errors import SolverError
 
-__all__ = ["LsqSolution", "solve_lstsq", "solve_nonneg_lstsq", "ls_covariance", "hac_covariance",
+__all__ = ["LsqSolution", "solve_lstsq", "solve_nonneg_lstsq", "ls_covariance", "hac_covariance", "group_wald_p",
            "HacResult", "scaled_conditioning"]
 
 
@@ -171,6 +171,33 @@ def _bartlett_lag_sum(eps: np.ndarray, L: int) -> np.ndarray:
     return eps.T @ (window @ weights)
 
 
+#: Smallest singular value of the column-scaled regressor, relative to its largest, below which a
+#: direction counts as not determined by the data (a scaled condition number beyond 1e10) [-].
+UNRESOLVED_SINGULAR = 1e-10
+
+
+def _normal_inverse(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(X^T X)^-1`` of a column-scaled regressor from its singular values, and the unresolved parameters.
+
+    The inverse is formed as ``V diag(1 / s^2) V^T`` from the SVD of X's R factor, which stays
+    accurate to condition numbers near 1 / eps where a pseudo-inverse of the normal matrix
+    (squared condition) silently drops the weak directions and reports *zero* variance along
+    them. Directions with ``s < UNRESOLVED_SINGULAR s_max`` are left out of the inverse, and the
+    parameters that load on them (weight above 1e-3) are returned as unresolved: their variance is
+    infinite, not zero.
+    """
+    k = X.shape[1]
+    if k == 0:
+        return np.zeros((0, 0)), np.zeros(0, dtype=bool)
+    R = np.linalg.qr(X, mode="r")
+    _, sv, Vt = np.linalg.svd(R)
+    ok = sv > UNRESOLVED_SINGULAR * (sv[0] if sv.size else 0.0)
+    V = Vt.T
+    inv = (V[:, ok] / sv[ok] ** 2) @ V[:, ok].T
+    unresolved = np.any(np.abs(V[:, ~ok]) > 1e-3, axis=1) if np.any(~ok) else np.zeros(k, dtype=bool)
+    return inv, unresolved
+
+
 def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | None = None,
                    keep: np.ndarray | None = None, *, lags: int | None = None) -> HacResult:
     """Newey-West sandwich covariance of a least-squares estimate on correlated residuals.
@@ -216,8 +243,7 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
     s = _column_scale(X)
     X = X / s
     e = np.where(keep_mask, residual, 0.0)
-    A = X.T @ X
-    Ainv = np.linalg.pinv(A)
+    Ainv, unresolved = _normal_inverse(X)
     u = X * e[:, None]
     # VAR(1) prewhitening: u_t = B u_{t-1} + eps_t
     U0, U1 = u[:-1], u[1:]
@@ -238,10 +264,80 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
     C = np.linalg.pinv(np.eye(k) - B)
     S = C @ S @ C.T * (m / (m - k))
     cov_f = Ainv @ S @ Ainv / np.outer(s, s)
-    cov[np.ix_(free_mask, free_mask)] = cov_f
     sigma2 = float(e @ e) / (m - k)
-    cov_iid[np.ix_(free_mask, free_mask)] = sigma2 * Ainv / np.outer(s, s)
+    cov_i = sigma2 * Ainv / np.outer(s, s)
+    for C in (cov_f, cov_i):   # a direction the data do not determine: no variance, not a zero one
+        C[unresolved, unresolved] = np.inf
+    cov[np.ix_(free_mask, free_mask)] = cov_f
+    cov_iid[np.ix_(free_mask, free_mask)] = cov_i
     d_h, d_i = np.diag(cov_f), np.diag(cov_iid[np.ix_(free_mask, free_mask)])
-    ok = d_i > 0
+    ok = np.isfinite(d_i) & np.isfinite(d_h) & (d_i > 0)
     inflation = float(np.median(np.sqrt(np.clip(d_h[ok] / d_i[ok], 0.0, None)))) if ok.any() else 1.0
     return HacResult(cov, L, cov_iid, inflation)
+
+
+def group_wald_p(A: np.ndarray, residual: np.ndarray, coef: np.ndarray, group: Sequence[int], *,
+                 keep: np.ndarray | None = None, bound: np.ndarray | None = None) -> float:
+    """p-value of the joint Wald test that a group of least-squares coefficients is zero [-].
+
+    The test is made on the principal directions of the group's standardised columns (on the
+    fit rows) that carry at least ``1e-6`` of their variance: collinear columns (harmonics over
+    a fraction of a revolution) leave a lower-rank test of the contribution they share, which is
+    well determined even when no single coefficient is. The covariance of those directions is
+    the Newey-West sandwich (:func:`hac_covariance`) of the design re-expressed in them
+    (projecting the coefficients' covariance would cancel catastrophically). Columns never
+    excited carry no test; a direction the data do not determine gives p = 1.
+
+    Parameters
+    ----------
+    A : ndarray, shape (n, p)
+        The design (every row in time order).
+    residual : ndarray, shape (n,)
+        Residual of the fit of all p coefficients.
+    coef : ndarray, shape (p,)
+        The fitted coefficients.
+    group : sequence of int
+        Indices of the free coefficients tested.
+    keep : ndarray of bool, shape (n,), optional
+        Rows the fit used.
+    bound : ndarray of bool, shape (p,), optional
+        Coefficients held on a bound (no variance).
+
+    Returns
+    -------
+    float
+        The p-value (chi-square with as many degrees of freedom as kept directions).
+    """
+    from scipy import stats
+
+    g = np.asarray(group, dtype=int)
+    n, p = A.shape
+    rows = np.ones(n, dtype=bool) if keep is None else np.asarray(keep, dtype=bool)
+    held = np.zeros(p, dtype=bool) if bound is None else np.asarray(bound, dtype=bool)
+    coef = np.asarray(coef, dtype=float)
+    others = np.setdiff1d(np.arange(p), g)   # an unexcited group column leaves the test whole
+    norm = np.sqrt(np.sum(A[:, g][rows] ** 2, axis=0))
+    ok = np.isfinite(norm) & (norm > 0) & np.isfinite(coef[g])
+    if not np.any(ok):
+        return 1.0
+    g, norm = g[ok], norm[ok]
+    Z = A[:, g] / norm                                # standardised columns
+    C = Z[rows].T @ Z[rows]
+    try:
+        w, V = np.linalg.eigh(0.5 * (C + C.T))
+    except np.linalg.LinAlgError:
+        return 1.0
+    kept = w > 1e-6 * max(float(w.max()), 1e-300)
+    if not np.any(kept):
+        return 1.0
+    Vk = V[:, kept]
+    A_red = np.column_stack([A[:, others], Z @ Vk])
+    free = np.concatenate([~held[others], np.ones(Vk.shape[1], dtype=bool)])
+    cov = hac_covariance(A_red, residual, free=free, keep=rows).covariance
+    n_o = others.size
+    S = cov[n_o:, n_o:]
+    z = Vk.T @ (coef[g] * norm)                       # the group's estimate along the kept directions
+    if not (np.all(np.isfinite(S)) and np.all(np.isfinite(z))):
+        return 1.0
+    chi2 = float(z @ np.linalg.lstsq(0.5 * (S + S.T), z, rcond=1e-12)[0])
+    return float(stats.chi2.sf(chi2, int(Vk.shape[1]))) if np.isfinite(chi2) else 1.0

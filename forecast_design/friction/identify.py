@@ -34,10 +34,8 @@ __all__ = [
     "IdentificationData",
     "fit_friction",
     "identify",
-    "fit_friction_experiment",
     "prepare_identification_data",
     "validate",
-    "validate_experiment",
     "fit_data",
     "predict_data",
     "fit_percent",
@@ -129,6 +127,10 @@ def prepare_identification_data(t: np.ndarray, position: np.ndarray, force: np.n
     keep_raw, sel = select_samples(kin.velocity, settings, step, rule)
     e, R = settings.edge_samples, settings.decimation_factor
     keep = np.ascontiguousarray(keep_raw[e:n - e][::R])[:dec.shape[0]]
+    # what slides, whatever the rule's mode: the identifiability check runs on every path
+    sliding_raw = keep_raw if sel.applied else select_samples(
+        kin.velocity, settings, step, dataclasses.replace(rule, mode="on"))[0]
+    sliding = np.ascontiguousarray(sliding_raw[e:n - e][::R])[:dec.shape[0]]
     static_keep = None
     if model.is_dynamic and sel.applied:
         static_keep, keep = keep, np.ones(keep.size, dtype=bool)
@@ -140,7 +142,8 @@ def prepare_identification_data(t: np.ndarray, position: np.ndarray, force: np.n
                               force_filtered=dec[:, 4 + p] if dynamic else None,
                               regressor_filtered=dec[:, 5 + p:] if dynamic else None,
                               dt=settings.decimation_factor / rate, settings=settings, n_raw=n,
-                              keep=keep, selection=sel, encoder_step=step, static_keep=static_keep)
+                              keep=keep, selection=sel, encoder_step=step, static_keep=static_keep,
+                              sliding=sliding)
 
 
 def _raw_columns(force: np.ndarray, kin: Any, model: FrictionModel, settings: FilterSettings,
@@ -205,26 +208,32 @@ def _check_identifiable(model: FrictionModel, position: np.ndarray, data: Identi
             f"no motion in the log (position range {span:.3g}): friction parameters "
             f"{', '.join(lost)} are not identifiable; excite the axis in both directions")
     sel = data.selection
-    if sel is not None and sel.applied:
-        need = max(int(np.ceil(sel.rule.min_fraction * sel.n_total)), 4 * len(names))
-        if sel.n_used < need:
-            raise IdentifiabilityError(
-                f"not identifiable: only {sel.n_used} of {sel.n_total} samples slide away from stops and "
-                f"reversals (need {need}); {', '.join(names)} cannot be fitted by a static friction law. "
-                "Excite longer sliding, or fit every sample with selection='off' (CLI --select-samples off)")
-    v = data.velocity[data.used]
-    vth = 0.05 * float(np.max(np.abs(v)))
-    pos = float(np.mean(v > vth))
-    neg = float(np.mean(v < -vth))
+    sliding = data.sliding if data.sliding is not None else data.used
+    n_slide, n_total = int(np.count_nonzero(sliding)), int(sliding.size)
+    frac = sel.rule.min_fraction if sel is not None else 0.05
+    need = max(int(np.ceil(frac * n_total)), 4 * len(names))
+    if n_slide < need and not model.is_dynamic:
+        # on every path: switching the sample rule off fits the stops too, but a static law is
+        # identified only from what slides (a log that never slides gave viscous 266 for 0.3)
+        raise IdentifiabilityError(
+            f"not identifiable: only {n_slide} of {n_total} samples slide away from stops and reversals "
+            f"(need {need}); {', '.join(names)} cannot be identified by a static friction law from this log, "
+            "whichever samples are fitted. Record a log that slides longer in both directions",
+            parameters=tuple(names), reasons=(f"too little sliding: {n_slide} of {n_total} samples slide",))
+    v = data.velocity[sliding] if n_slide else data.velocity[data.used]
+    vth = 0.05 * float(np.max(np.abs(v))) if v.size else 0.0
+    pos = float(np.mean(v > vth)) if v.size else 0.0
+    neg = float(np.mean(v < -vth)) if v.size else 0.0
     directional = [n for term in model.terms if term.uses_direction for n in term.names()]
     if directional and min(pos, neg) < 0.01:
         side = "positive" if pos > neg else "negative"
         lost = directional + (["offset"] if model.has(Offset) else [])
         raise IdentifiabilityError(
-            f"the log moves in the {side} direction only ({100 * max(pos, neg):.1f} % of samples "
+            f"the log slides in the {side} direction only ({100 * max(pos, neg):.1f} % of the sliding samples "
             f"above 5 % of peak speed one way, {100 * min(pos, neg):.1f} % the other): "
             f"{', '.join(lost)} are not identifiable (a direction-dependent term cannot be told "
-            "from an offset without motion both ways)")
+            "from an offset without motion both ways)", parameters=tuple(lost),
+            reasons=(f"the log slides in the {side} direction only",))
 
 
 def _check_conditioning(names: tuple[str, ...], sol: "_lsq.LsqSolution", stacklevel: int) -> float:
@@ -368,7 +377,8 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
                  settings: FilterSettings | None = None, holdout: float = 0.0,
                  constrain: bool = True, selection: SampleSelection | str | bool | None = "auto",
                  encoder_step: float | None = None, zoh_force: bool = False,
-                 scales: LogScales | None = None, **nonlinear_options: Any) -> FrictionFit:
+                 scales: LogScales | None = None, adequacy: bool = True,
+                 **nonlinear_options: Any) -> FrictionFit:
     """Identify a friction model from one log.
 
     Parameters
@@ -417,6 +427,10 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
     scales : LogScales, optional
         The log's magnitudes for the plausible ranges; default measured from
         ``force`` and ``position`` (:func:`forecast_design.plausibility.log_scales`).
+    adequacy : bool
+        Test the residual for structure a richer model would explain (direction, speed,
+        angle) and its whiteness (:mod:`forecast_design.friction.adequacy`); a parameter
+        such a structure moves outside its interval becomes ``uncertain``.
     **nonlinear_options
         Passed to the nonlinear solver (``max_iter``, ``sigma0_init``); unknown
         keys raise ParameterError.
@@ -515,7 +529,18 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
     status = grade(model, params, dict(zip(names, std)), scales, held=held, overrides=est.overrides,
                    active=est.active)
     intervals = _intervals(names, est.params, std, m_used - len(names), est.log_scale)
+    adq = None
+    if adequacy:
+        from .adequacy import check_adequacy
+
+        adq = check_adequacy(model, params, status, intervals, data, data.force - y_hat)
+        for name, why in adq.flagged.items():
+            st = status[name]
+            status[name] = dataclasses.replace(st, status="uncertain", reason=why)
     verdict = identifiability(model, status, data, intervals)  # may downgrade statuses (too little sliding)
+    if adq is not None and not adq.adequate:
+        lead = "" if verdict.startswith("model inadequate") else "model inadequate: "
+        verdict = (verdict + "; " if verdict != "identified" else "") + lead + adq.summary()
     return FrictionFit(
         model=model,
         params=MappingProxyType(params),
@@ -543,6 +568,7 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
         hac_lags=est.lags,
         scales=scales,
         zoh_force=bool(zoh_force),
+        adequacy=adq,
     )
 
 
@@ -710,68 +736,3 @@ def _naming(source: str):
         if source not in ("arrays", "experiment") and not message.startswith(source):
             exc.args = (f"{source}: {message}",) + exc.args[1:]
         raise
-
-
-# --- deprecated entry points (kept for one release; use identify / validate / friction_log) ---
-
-
-def fit_friction_experiment(experiment: Any, model: FrictionModel | str = "extended-sfm", *,
-                            harmonics: int | None = None, offset: bool = False,
-                            estimate_inertia: bool = False, **kwargs: Any) -> FrictionFit:
-    """Deprecated alias of :func:`identify` on an experiment (no hold-out unless asked, as before).
-
-    Parameters
-    ----------
-    experiment : Experiment
-        The log.
-    model : FrictionModel or str
-        As in :func:`identify`.
-    harmonics, offset, estimate_inertia
-        As in :func:`identify`.
-    **kwargs
-        As in :func:`identify`; ``holdout`` defaults to 0.
-
-    Returns
-    -------
-    FrictionFit
-        ``identify(experiment, model, holdout=0.0, ...)``.
-    """
-    kwargs.setdefault("holdout", 0.0)
-    kwargs.setdefault("selection", "auto")
-    return identify(experiment, model, harmonics=harmonics, offset=offset, estimate_inertia=estimate_inertia,
-                    **kwargs)
-
-
-def validate_experiment(fit: FrictionFit, experiment: Any) -> FrictionValidation:
-    """Deprecated alias of :func:`validate` on an experiment.
-
-    Parameters
-    ----------
-    fit : FrictionFit
-        The fit to test.
-    experiment : Experiment
-        The second log.
-
-    Returns
-    -------
-    FrictionValidation
-        ``validate(fit, experiment)``.
-    """
-    return validate(fit, experiment)
-
-
-def log_arrays(log: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | None]:
-    """Deprecated: ``(t, position, force, inertia)`` of :func:`friction_log`.
-
-    Parameters
-    ----------
-    log : Experiment or AxisLog
-        The log.
-
-    Returns
-    -------
-    tuple
-        Time [s], position [rad or m], explained force [N m or N], nominal inertia or None.
-    """
-    data = friction_log(log)
-    return data.t, data.position, data.force, data.inertia

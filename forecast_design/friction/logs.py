@@ -114,7 +114,7 @@ class AxisLog:
 
 def load_axis_csv(path: str | os.PathLike[str], *, time: str, position: str, force: str,
                   rate_hz: float | None = None, scale_force: float = 1.0,
-                  prismatic: bool | None = None) -> AxisLog:
+                  prismatic: bool | None = None, max_samples: int | None = None) -> AxisLog:
     """Read time, position and force columns from a CSV file with a header row.
 
     Parameters
@@ -139,6 +139,9 @@ def load_axis_csv(path: str | os.PathLike[str], *, time: str, position: str, for
     prismatic : bool, optional
         A linear axis (N, m) rather than a rotary one (N m, rad); default: from the column
         names' unit suffixes (:func:`prismatic_from_columns`, e.g. EMPS' ``qm_m``, ``force_N``).
+    max_samples : int, optional
+        Most rows accepted, checked before the file is parsed (default
+        ``experiment_io.DEFAULT_MAX_SAMPLES``).
 
     Returns
     -------
@@ -155,7 +158,7 @@ def load_axis_csv(path: str | os.PathLike[str], *, time: str, position: str, for
     label = str(p)
     wanted = {"time": time, "position": position, "force": force}
     header, columns = read_csv_table(read_regular_file(p, label, mapped=True), label, required=(),
-                                     usecols=wanted.values())
+                                     usecols=wanted.values(), max_rows=max_samples, reader="identify")
     for role, name in wanted.items():
         if name not in header:
             raise ExperimentFormatError(

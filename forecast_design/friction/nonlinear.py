@@ -59,6 +59,7 @@ import numpy as np
 from scipy.optimize import least_squares, lsq_linear, minimize_scalar
 
 from ..errors import ParameterError, SolverError
+from ..plausibility import speed_resolution
 from . import _lsq
 from .derivatives import lowpass
 from .laws import clipped_exp, stribeck_decay, stribeck_level
@@ -456,8 +457,9 @@ def _fit_lugre(model: FrictionModel, data, *, max_iter: int, sigma0_init: float 
     core = np.zeros(m, dtype=bool)
     core[e:m - e] = True  # the model's own filter edges are left out
     # The bristle state at the start of the log is unknown (the simulation assumes steady sliding): the
-    # residual counts from the first gross sliding on (20 encoder speed steps, then 10 ms to settle).
-    moving = np.flatnonzero(np.abs(v) > 20.0 * data.encoder_step * settings.rate_hz)
+    # residual counts from the first gross sliding on (20 encoder speed resolutions, then 10 ms to settle).
+    moving = np.flatnonzero(np.abs(v) > 20.0 * speed_resolution(data.encoder_step, settings.rate_hz,
+                                                                settings.position_cutoff_hz))
     if moving.size and moving[0] > 0:
         core[:min(m, moving[0] + int(round(0.01 / h)))] = False
 

@@ -18,7 +18,8 @@ from .derivatives import FilterSettings
 from .selection import SelectionResult
 from .terms import FrictionModel
 
-__all__ = ["FrictionFit", "FrictionValidation", "IdentificationData", "IllConditionedWarning", "fit_percent"]
+__all__ = ["FrictionFit", "FrictionValidation", "IdentificationData", "IllConditionedWarning", "fit_percent",
+           "not_identifiable_mapping"]
 
 
 class IllConditionedWarning(UserWarning):
@@ -81,6 +82,10 @@ class IdentificationData:
     static_keep : ndarray of bool, optional
         For LuGre (which keeps every sample): the samples the static rule
         would keep, used by its Stribeck start.
+    sliding : ndarray of bool, shape (m,), optional
+        Samples that slide, away from stops and reversals: what the sample rule would keep
+        if it were on (:mod:`forecast_design.friction.selection`), whatever its mode. The
+        information a static friction law is identified from; checked on every path.
     force_filtered, regressor_filtered : ndarray, optional
         For LuGre: the force and the regressor (but the inertia column) low-passed
         by the position filter, ``lowpass(force) - inertia theta''``. The
@@ -100,6 +105,7 @@ class IdentificationData:
     selection: SelectionResult | None = None
     encoder_step: float = 0.0
     static_keep: np.ndarray | None = None
+    sliding: np.ndarray | None = None
     force_filtered: np.ndarray | None = None
     regressor_filtered: np.ndarray | None = None
 
@@ -115,6 +121,7 @@ class IdentificationData:
             acceleration=self.acceleration[:n], regressor=self.regressor[:n],
             keep=None if self.keep is None else self.keep[:n],
             static_keep=None if self.static_keep is None else self.static_keep[:n],
+            sliding=None if self.sliding is None else self.sliding[:n],
             force_filtered=None if self.force_filtered is None else self.force_filtered[:n],
             regressor_filtered=None if self.regressor_filtered is None else self.regressor_filtered[:n])
 
@@ -223,6 +230,9 @@ class FrictionFit:
         The log's magnitudes the plausible ranges came from.
     zoh_force : bool
         The force was a zero-order-hold command, averaged over consecutive samples.
+    adequacy : Adequacy or None
+        Structure left in the residual (direction, speed, angle) and its whiteness
+        (:mod:`forecast_design.friction.adequacy`); None when not tested.
     """
 
     model: FrictionModel
@@ -252,6 +262,7 @@ class FrictionFit:
     hac_lags: int = 0
     scales: LogScales | None = None
     zoh_force: bool = False
+    adequacy: Any = None
 
     @property
     def identified(self) -> bool:
@@ -300,7 +311,7 @@ class FrictionFit:
             "condition_number_unscaled", "n_samples", "n_samples_used", "n_raw_samples",
             "holdout", "filter", "selection", "covariance", "std_iid", "status",
             "not_identified", "identified", "identifiability", "scales", "zoh_force",
-            "inertia_nominal", "constrained", "active_constraints", "solver"}`` plus
+            "inertia_nominal", "constrained", "active_constraints", "solver", "adequacy"}`` plus
             ``"validation": {"relative_error_percent", ...}`` when validated. Non-finite
             numbers (the std of a parameter held on a bound) are None.
         """
@@ -332,7 +343,37 @@ class FrictionFit:
             "constrained": self.constrained,
             "active_constraints": list(self.active_constraints),
             "solver": dict(self.solver),
+            "adequacy": None if self.adequacy is None else self.adequacy.to_mapping(),
         }
         if self.validation is not None:
             out["validation"] = self.validation.to_mapping()
         return out
+
+
+def not_identifiable_mapping(model: FrictionModel, error: Any) -> dict[str, Any]:
+    """The JSON answer of a log that cannot identify a model: every parameter ``not_identifiable``, with the reasons.
+
+    Parameters
+    ----------
+    model : FrictionModel
+        The model asked for.
+    error : IdentifiabilityError
+        What the log lacks (its message, ``parameters`` and ``reasons``).
+
+    Returns
+    -------
+    dict
+        ``{"model", "identified": False, "identifiability": "not identifiable: ...", "params": {},
+        "std": {}, "interval95": {}, "status": {name: {"value": None, "std": None, "status":
+        "not_identifiable", "reason"}}, "not_identified", "reasons", "exit_code": 3}``.
+    """
+    from ..errors import EXIT_NOT_IDENTIFIABLE
+
+    message = str(error).splitlines()[0] if str(error) else "not identifiable"
+    verdict = "not identifiable: " + message.replace("not identifiable: ", "", 1)
+    reasons = list(getattr(error, "reasons", ()) or (message,))
+    names = list(model.names)
+    return {"model": model.name, "identified": False, "identifiability": verdict, "params": {}, "std": {},
+            "interval95": {}, "status": {n: {"value": None, "std": None, "status": "not_identifiable",
+                                             "reason": message} for n in names},
+            "not_identified": names, "reasons": reasons, "exit_code": EXIT_NOT_IDENTIFIABLE}

@@ -60,7 +60,7 @@ def tau_s_scale_check(log: Any, fit: FrictionFit, fm: FrictionModel, fit_frictio
     data = friction_log(encoders)
     try:
         other = fit_friction(data.t, data.position, data.force, fm,
-                             inertia=None if "inertia" in fm.names else data.inertia, **options)
+                             inertia=None if "inertia" in fm.names else data.inertia, adequacy=False, **options)
     except ForecastError:
         return fit
     status = dict(fit.status)

@@ -333,7 +333,7 @@ def _draw_effect(word: Effect, rng: np.random.Generator, environment: str) -> tu
         for name in rng.choice(options, size=int(rng.integers(1, len(options) + 1)), replace=False):
             scales[str(name)] = u(1.4, 2.0) if rng.random() < 0.5 else u(0.4, 0.7)
         return (fx.EnvironmentMismatch(**scales),)
-    raise ParameterError(f"no benchmark generator for effect {word!r}", name="word", value=word)
+    raise ParameterError(f"no benchmark generator for effect '{word}'", name="word", value=str(word))
 
 
 def _k_series(environment: str) -> float:
@@ -585,8 +585,11 @@ def make_logs(requests: Sequence[tuple]) -> list:
         pending = still
     if pending:
         word, index = requests[pending[0]][0], requests[pending[0]][1]
-        raise ParameterError(f"no identifiable scenario for {word} #{index} in {MAX_ATTEMPTS} draws "
-                             f"(last: {last[pending[0]]})", name="word", value=word)
+        # the effect words as the vocabulary spells them (a tuple of Effect printed its enum repr)
+        name = " + ".join(map(str, word)) if isinstance(word, (tuple, list)) else str(word)
+        raise ParameterError(f"no identifiable scenario for {name or 'none'} #{index} in {MAX_ATTEMPTS} draws "
+                             f"(last: {last[pending[0]]}); a longer --duration gives the effects room",
+                             name="word", value=name)
     return done
 
 

@@ -216,6 +216,15 @@ def _structures(effect: Effect, data: GapData) -> list[_Structure]:
     return data.cache[key]
 
 
+def _decimate_grid(data: GapData, column: Callable[[float], np.ndarray], grid: np.ndarray) -> np.ndarray:
+    """``data.decimate_many`` of one raw-rate column per grid point, a few points per filter pass.
+
+    All 30 grid points at once held 30 raw-rate columns and their filter copies, the peak
+    memory of a long log (about 1.7 kB per sample); rows are bit-equal either way.
+    """
+    return np.concatenate([data.decimate_many([column(g) for g in grid[i:i + 3]]) for i in range(0, grid.size, 3)])
+
+
 def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
     c = data.columns
     opts = data.options
@@ -227,26 +236,41 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         out.append(_Structure([_Coef("c", data.stack({"motor": c["u"]}), -np.inf, 1.0)],
                               lambda p: {"gain": float(1.0 - p[0])}, n_params=1))
     elif effect is Effect.COULOMB:
-        sgn = data.decimate(_sign(data))
-        out.append(_Structure([_Coef("F_c", data.stack({"motor": sgn}), 0.0)],
-                              lambda p: {"F_c": float(p[0])}, level=lambda p: p[0], n_params=1))
+        sign = _sign(data)
+        pos, neg = data.decimate_many([np.maximum(sign, 0.0), np.minimum(sign, 0.0)])
+        # a level per direction of motion (friction often differs by direction), both >= 0: a constant
+        # torque, which would need a negative level one way, is not friction
+        out.append(_Structure([_Coef("F_c", data.stack({"motor": pos}), 0.0),
+                               _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+                              lambda p: {"F_c": float(p[0]), "F_c_neg": float(p[1])},
+                              level=lambda p: max(p[0], p[1]), n_params=2, tests=((0, 1),)))
     elif effect is Effect.STICTION:
         # LuGre-type friction: presliding (bristle) direction state s in [-1, 1] with
         # presliding displacement x_p, a Stribeck bump of width v_s and bristle damping.
         v = data.raw["v"]
         dt = 1.0 / data.experiment.rate_hz
-        x_grid, v_grid = np.geomspace(1e-4, 1e-2, 5), np.geomspace(1e-3, 0.3, 6)
-        bumps = [np.exp(-(v / v_s) ** 2) for v_s in v_grid]
+        # searches bounded by the log: a Stribeck bump narrower than twice the speed resolution, or a
+        # presliding displacement below one encoder count, is not resolved and would only fit noise
+        scales = gap_log_scales(data)
+        v_lo = max(1e-3, 2.0 * scales.speed_resolution)
+        x_lo = max(1e-4, scales.encoder_step)
+        x_grid, v_grid = np.geomspace(x_lo, max(1e-2, 10 * x_lo), 5), np.geomspace(v_lo, max(0.3, 10 * v_lo), 6)
         for x_p in x_grid:
             s = _dahl(v, dt, x_p)
-            sgn, damp, *dec_bumps = data.decimate_many([s, np.gradient(s, dt) * x_p] + [s * b for b in bumps])
+            # the raw-rate columns made three at a time (see _decimate_grid): the bumps are recomputed per x_p
+            # rather than held, 8 B per sample each
+            columns = [lambda: np.maximum(s, 0.0), lambda: np.gradient(s, dt) * x_p, lambda: np.minimum(s, 0.0)] + \
+                [lambda v_s=v_s: s * np.exp(-(v / v_s) ** 2) for v_s in v_grid]
+            pos, damp, neg, *dec_bumps = _decimate_grid(data, lambda k: columns[int(k)](), np.arange(len(columns)))
             for v_s, bump in zip(v_grid, dec_bumps):
                 out.append(_Structure(
-                    [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
-                     _Coef("sigma1", data.stack({"motor": damp}), 0.0)],
+                    [_Coef("F_c", data.stack({"motor": pos}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
+                     _Coef("sigma1", data.stack({"motor": damp}), 0.0),
+                     _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
                     lambda p, v_s=v_s, x_p=x_p: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
-                                                 "sigma0": float((p[0] + p[1]) / x_p), "sigma1": float(p[2])},
-                    level=lambda p: p[0] + p[1], n_params=5, tests=((0, 1),),
+                                                 "sigma0": float((p[0] + p[1]) / x_p), "sigma1": float(p[2]),
+                                                 "F_c_neg": float(p[3])},
+                    level=lambda p: max(p[0], p[3]) + p[1], n_params=6, tests=((0, 1, 3),),
                     grid=(("v_s", float(v_s), float(v_grid[0]), float(v_grid[-1])),
                           ("x_p", float(x_p), float(x_grid[0]), float(x_grid[-1])))))
         # Static (switched) Stribeck friction without presliding, x_p -> 0: the Coulomb candidate's
@@ -254,12 +278,16 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         # It nests coulomb (dF = 0), so stiction is never worse than coulomb on the fit blocks,
         # whatever the hardware's sticking mechanism (bristles or a true stick-slip switch).
         sign = _sign(data)
-        sgn, *dec_bumps = data.decimate_many([sign] + [sign * b for b in bumps])
+        columns = [lambda: np.maximum(sign, 0.0), lambda: np.minimum(sign, 0.0)] + \
+            [lambda v_s=v_s: sign * np.exp(-(v / v_s) ** 2) for v_s in v_grid]
+        pos, neg, *dec_bumps = _decimate_grid(data, lambda k: columns[int(k)](), np.arange(len(columns)))
         for v_s, bump in zip(v_grid, dec_bumps):
             out.append(_Structure(
-                [_Coef("F_c", data.stack({"motor": sgn}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0)],
-                lambda p, v_s=v_s: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s)},
-                level=lambda p: p[0] + p[1], n_params=3, tests=((0, 1),),
+                [_Coef("F_c", data.stack({"motor": pos}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
+                 _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+                lambda p, v_s=v_s: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
+                                    "F_c_neg": float(p[2])},
+                level=lambda p: max(p[0], p[2]) + p[1], n_params=4, tests=((0, 1, 2),),
                 grid=(("v_s", float(v_s), float(v_grid[0]), float(v_grid[-1])),)))
     elif effect in (Effect.COGGING, Effect.POSITION_FRICTION):
         th = data.raw["theta"]
@@ -296,7 +324,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         tau_m = data.raw["tau_m"]
         rate = data.experiment.rate_hz
         d_grid = np.geomspace(0.1e-3, opts.max_delay_s, 30)
-        delayed = data.decimate_many([delayed_input(tau_m, delay, rate) for delay in d_grid])
+        delayed = _decimate_grid(data, lambda delay: delayed_input(tau_m, delay, rate), d_grid)
         for delay, dec in zip(d_grid, delayed):
             col = u - dec
             out.append(_Structure([_Coef("c", data.stack({"motor": col}), 0.0, 1.5)],
@@ -305,10 +333,12 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
     elif effect is Effect.BACKLASH:
         x = data.raw["x"]
         span = float(np.percentile(np.abs(x), 99))
-        if span <= 0.0:
+        step = gap_log_scales(data).encoder_step
+        if span <= 2.0 * step:
             return out
-        h_grid = np.geomspace(max(span * 1e-4, 1e-6), 0.8 * span, 30)
-        clipped = data.decimate_many([np.clip(x, -half, half) for half in h_grid])
+        # a dead band below an encoder count is not resolved: the search starts there
+        h_grid = np.geomspace(max(span * 1e-4, 1e-6, step), 0.8 * span, 30)
+        clipped = _decimate_grid(data, lambda half: np.clip(x, -half, half), h_grid)
         for half, dec in zip(h_grid, clipped):
             clip = tb.k * dec
             if data.tau_s_measured:

@@ -9,9 +9,10 @@ probability or scales with the information in the log; none is tuned to one gene
    blocks, models are fitted on the even blocks and scored on the odd ones.
 2. The reference is the calibrated nominal model: ``J_m`` and the spring torque
    scale within the datasheet tolerance ``calibration_tolerance`` (3 %), ``d_m >= 0``.
-3. A candidate counts when, on the equations where its physics acts
+3. A candidate counts when it lowers the total held-out gap (all equations: explaining one equation
+   while the others get worse is no verdict) and, on the equations where its physics acts
    (:func:`~.candidates.effect_rows`), (a) its held-out reduction is at least
-   ``min_reduction``, (b) the torque it explains, ``sqrt(gap_before^2 - gap_after^2)``,
+   ``min_reduction`` of the gap above the encoders' quantisation floor (:mod:`.grading`), (b) the torque it explains, ``sqrt(gap_before^2 - gap_after^2)``,
    is at least ``min_effect_fraction`` (0.1 %) of the RMS command (the motor's torque
    accuracy), (c) a one-sided paired t-test of the log ratio of squared errors over
    held-out *test units* gives p < ``alpha / n_candidates`` (Bonferroni) -- units are
@@ -27,7 +28,8 @@ probability or scales with the information in the log; none is tuned to one gene
    family-wise level ``alpha`` (one planned comparison) and removes at least
    ``min_reduction / 2`` of ``coulomb``'s held-out gap; the same rule applies to the
    two-effect path and to the second effect.
-6. No candidate counts: the verdict is ``none``.
+6. No candidate counts: the verdict is the best candidate that passes every test but the
+   reduction, graded ``weak`` (:mod:`.grading`), or ``none`` when there is none.
 7. A second effect (forward selection, one step): every other candidate is fitted
    *together with* the winner; the best one by held-out BIC is reported as a
    secondary effect when it passes the same test against the winner alone, is
@@ -78,6 +80,7 @@ from .identifiability import CALIBRATION, EffectAssessment, Isolability, assess_
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
+from .grading import explainable_reduction, noise_floor
 from .residuals import GapData, GapOptions, prepare_gap_data, gap_log_scales
 
 __all__ = ["Diagnosis", "RankedCandidate", "diagnose", "held_out_test", "test_units", "correlation_length"]
@@ -110,6 +113,9 @@ class RankedCandidate:
         ``min_reduction``) [-].
     equations : tuple of str
         Those equations.
+    weak : bool
+        Passes every test but removes less than ``min_reduction`` of the explainable gap
+        (:mod:`.grading`): a weak effect.
     """
 
     effect: Effect
@@ -122,6 +128,7 @@ class RankedCandidate:
     assessment: EffectAssessment | None = None
     reduction_own: float = float("nan")
     equations: tuple[str, ...] = ()
+    weak: bool = False
 
     @property
     def identified(self) -> bool:
@@ -140,7 +147,7 @@ class RankedCandidate:
         """
         out = {"effect": str(self.effect), "gap_after": float(self.gap_after),
                "reduction": float(self.reduction), "params": _jsonable(self.params),
-               "p_value": float(self.p_value), "counts": bool(self.significant),
+               "p_value": float(self.p_value), "counts": bool(self.significant), "weak": bool(self.weak),
                "equations": list(self.equations),
                "reduction_in_equations": None if math.isnan(self.reduction_own) else float(self.reduction_own)}
         if self.assessment is not None:
@@ -201,6 +208,12 @@ class Diagnosis:
         Which pairs of effect words this log can tell apart.
     calibration : Mapping[str, ParameterStatus]
         The baseline's re-calibrated ``J_m``, ``spring_scale`` (and ``k``) with ``at_bound`` flags.
+    reading : Mapping or None
+        When the ``tau_s`` column's reading was uncertain: the other reading's ``source``, ``effect``
+        and ``reduction``, and the reading ``chosen`` (JSON ``tau_s.alternative``).
+    grade : str
+        ``clear`` (the effect removes ``min_reduction`` of the explainable gap), ``weak`` (it passes
+        every other test but removes less) or ``none`` (:mod:`.grading`).
     """
 
     effect: Effect
@@ -220,6 +233,8 @@ class Diagnosis:
     replay: ReplayCheck | None = None
     isolability: Isolability | None = None
     calibration: Mapping[str, ParameterStatus] = field(default_factory=dict)
+    reading: Mapping[str, Any] | None = None
+    grade: str = "clear"
 
     @property
     def identified(self) -> bool:
@@ -254,7 +269,8 @@ class Diagnosis:
         """
         loc = self.location.to_mapping()
         loc["summary"] = self.summary
-        verdict: dict[str, Any] = {"effect": str(self.effect), "gap_before": float(self.gap_before),
+        verdict: dict[str, Any] = {"effect": str(self.effect), "grade": self.grade if self.effect is not Effect.NONE
+                                   else "none", "gap_before": float(self.gap_before),
                                    "gap_after": float(self.gap_after), "reduction": float(self.reduction),
                                    "params": _jsonable(self.params)}
         top = self.ranking[0] if self.ranking and self.effect is not Effect.NONE else None
@@ -276,6 +292,7 @@ class Diagnosis:
             out["isolability"] = self.isolability.to_mapping()
         if self.data is not None:
             out["tau_s"] = self.data.tau_s_source.to_mapping()
+            out["tau_s"]["alternative"] = None if self.reading is None else dict(self.reading)
         return out
 
 
@@ -390,8 +407,9 @@ def _metric_text(data: GapData) -> str:
             f"parameters fitted on the even blocks and the gap measured on the odd ones. tau_s column: "
             f"{data.tau_s_source.source}. gap_before is the nominal model with J_m and the spring torque scale "
             f"re-calibrated within the datasheet tolerance +-{100 * o.calibration_tolerance:g} % and d_m >= 0. "
-            f"An effect counts when, on the equations where it acts, it removes >= {100 * o.min_reduction:g} % of "
-            f"the held-out gap and explains >= {100 * o.min_effect_fraction:g} % of the RMS command, a one-sided "
+            f"An effect counts when it lowers the total held-out gap and, on the equations where it acts, it removes "
+            f">= {100 * o.min_reduction:g} % of the held-out gap above the encoders' quantisation floor (an effect "
+            f"that passes every other test but removes less is the verdict graded weak when none counts) and explains >= {100 * o.min_effect_fraction:g} % of the RMS command, a one-sided "
             f"t-test on the log ratio of squared errors over held-out units of twice the residual's correlation "
             f"length gives p < {o.alpha:g}/n_candidates (Bonferroni), and it is identified (defining coefficients "
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
@@ -436,7 +454,31 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
     # only adds hand-offs, and on a busy machine its spinning threads made the diagnosis 3-8x
     # slower (issue 16); one BLAS thread also makes the numbers independent of the core count.
     with threadpool_limits(1, user_api="blas"):
-        return _diagnose(experiment, options, joint)
+        diag = _diagnose(experiment, options, joint)
+        src = diag.data.tau_s_source
+        if src.uncertain and diag.data.options.tau_s_reading == "auto":
+            # the column sits between a logger's rounding and a quiet sensor: try the other reading too
+            # and keep the one whose verdict explains more of its gap (what the data support)
+            other = "derived" if src.measured else "measured"
+            alt = _diagnose(experiment, dataclasses.replace(diag.data.options, tau_s_reading=other), joint)
+            diag = _choose_reading(diag, alt)
+        return diag
+
+
+def _choose_reading(first: Diagnosis, second: Diagnosis) -> Diagnosis:
+    """Of two readings of an uncertain ``tau_s`` column, the diagnosis the data support, with a caveat naming both."""
+    def score(d: Diagnosis) -> float:
+        return d.reduction if d.effect is not Effect.NONE else 0.0
+
+    keep, drop = (second, first) if score(second) > score(first) else (first, second)
+    a, b = keep.data.tau_s_source, first.data.tau_s_source
+    note = (f"Caution: the tau_s column is between a logger's rounding and a quiet sensor ({100 * (b.beyond_rounding or 0):.2g} % "
+            f"of the rows beyond the rounding their printed digits allow): read as {a.source}, the verdict is "
+            f"'{keep.effect}' ({100 * keep.reduction:.0f} % of the gap); read as {drop.data.tau_s_source.source}, "
+            f"'{drop.effect}' ({100 * drop.reduction:.0f} %). The data support the {a.source} reading.")
+    alternative = {"source": drop.data.tau_s_source.source, "effect": str(drop.effect),
+                   "reduction": float(drop.reduction), "chosen": a.source}
+    return dataclasses.replace(keep, caveats=(note,) + tuple(keep.caveats), reading=alternative)
 
 
 def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -> Diagnosis:
@@ -451,12 +493,14 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
     ranked = []
     held_rows = data.stacked(data.held_out)
     tau_rms = data.command_rms
+    floor = noise_floor(data)
     for fit in fits:
         red = 1.0 - fit.gap_held_out / gap0 if gap0 > 0 else 0.0
         # judged on the equations where the effect acts: a quiet equation's gap is not diluted by
-        # another equation's noise (an environment mismatch next to a noisy motor equation)
+        # another equation's noise (an environment mismatch next to a noisy motor equation), and on the
+        # part of it above the encoders' quantisation, which no effect explains (grading.noise_floor)
         own = effect_rows(data, fit)
-        red_own = _reduction(base, fit, held_rows & own)
+        red_own = explainable_reduction(base, fit, held_rows & own, floor)
         if _explained_rms(base, fit, held_rows & own) < opts.min_effect_fraction * tau_rms:
             red_own = 0.0   # below the motor's torque accuracy: not an effect
         units = test_units(data, fit)
@@ -471,7 +515,9 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
                                       equations=tuple(eq for k, eq in enumerate(data.equations)
                                                       if own[k * data.t.size]),
                                       significant=bool(red_own >= opts.min_reduction and p < alpha
-                                                       and assessment.identified)))
+                                                       and assessment.identified and red > 0.0),
+                                      weak=bool(0.0 < red_own < opts.min_reduction and p < alpha
+                                                and assessment.identified and red > 0.0)))
     ranked.sort(key=lambda r: (not r.significant, r.bic))
     by_effect = {str(f.effect): f for f in fits}
     winner = ranked[0] if ranked and ranked[0].significant else None
@@ -521,6 +567,25 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
                 winner, secondary = alone, dataclasses.replace(secondary, effect=winner.effect)
             ranked.remove(winner)
             ranked.insert(0, winner)
+    grade = "none" if winner is None else "clear"
+    if winner is None:
+        # an effect the log resolves (held-out test, identified, the torque accuracy, the total gap lowered)
+        # but that explains less than min_reduction: the verdict, graded weak
+        weak = sorted((r for r in ranked if r.weak and _weak_is_distinct(data, r, by_effect[str(r.effect)], base, iso)),
+                      key=lambda r: r.bic)
+        if weak and weak[0].effect in (Effect.STICTION, Effect.POSITION_FRICTION):
+            coul = next((r for r in weak if r.effect is Effect.COULOMB), None)
+            if coul is not None and not _richer_law_justified(data, by_effect[str(weak[0].effect)],
+                                                              by_effect[str(Effect.COULOMB)], held_blocks):
+                weak.remove(coul)
+                weak.insert(0, coul)
+        if weak:
+            winner, grade = weak[0], "weak"
+            ranked.remove(winner)
+            ranked.insert(0, winner)
+            caveats.append(f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above "
+                           f"the encoders' noise floor, below the {100 * opts.min_reduction:g} % of a clear verdict, "
+                           f"but passes the held-out test (p = {winner.p_value:.2g}) and is identified.")
     if winner is None:
         eff, gap_after, params = Effect.NONE, gap0, {}
     else:
@@ -536,16 +601,31 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
     return Diagnosis(effect=eff, gap_before=gap0, gap_after=gap_after, reduction=reduction, params=params,
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
-                     replay=replay, isolability=iso, calibration=calibration_status(data, base))
+                     replay=replay, isolability=iso, calibration=calibration_status(data, base), grade=grade)
 
 
-def _reduction(reference: CandidateFit, candidate: CandidateFit, rows: np.ndarray) -> float:
-    """``1 - RMS(candidate) / RMS(reference)`` over the given stacked rows, clipped to [0, 1] [-]."""
-    if not np.any(rows):
-        return 0.0
-    a = float(np.sqrt(np.mean(reference.residual[rows] ** 2)))
-    b = float(np.sqrt(np.mean(candidate.residual[rows] ** 2)))
-    return float(min(max(1.0 - b / a, 0.0), 1.0)) if a > 0 else 0.0
+def _weak_is_distinct(data: GapData, weak: RankedCandidate, fit: CandidateFit, base: CandidateFit,
+                      iso: Isolability) -> bool:
+    """A weak effect is named only when nothing the nominal model already has looks the same.
+
+    It must be isolable from the re-calibration of J_m, d_m and k (:func:`.identifiability.isolability`;
+    a torque gain, which never is, only when the re-calibration sits on its datasheet bound), and a
+    cogging must remove more than a constant motor torque does (over part of a revolution the
+    harmonics make a constant: a driver's offset, a sensor's zero left over).
+    """
+    if weak.effect is Effect.TORQUE_GAIN:
+        # a gain lies in the span of the re-calibration by construction; only the calibration's datasheet
+        # bound tells them apart, so a weak gain counts when the re-calibration sits on that bound
+        return any(st.status == "at_bound" for st in calibration_status(data, base).values())
+    if CALIBRATION in iso.confusable_with(str(weak.effect)):
+        return False
+    if weak.effect is Effect.COGGING and base.gap_held_out > 0:
+        const = fit_constant_torque(data)
+        r_cog = 1.0 - fit.gap_held_out / base.gap_held_out
+        r_const = 1.0 - const.gap_held_out / base.gap_held_out
+        if r_const >= CONSTANT_TORQUE_SHARE * r_cog:
+            return False
+    return True
 
 
 def _explained_rms(reference: CandidateFit, candidate: CandidateFit, rows: np.ndarray) -> float:

@@ -12,7 +12,7 @@ written for one generator:
   bound or a grid parameter at a grid end is ``at_bound``). An effect counts only
   when its defining coefficients differ from zero by a Wald test at 5 % (e.g. the
   torque gain's ``1 - gain``, the harmonics of cogging jointly, tested on the feature
-  directions the log's excitation resolves: :func:`_group_wald_p`) and none of its
+  directions the log's excitation resolves: :func:`forecast_design.friction._lsq.group_wald_p`) and none of its
   parameters is implausible (a bristle stiffness by its presliding displacement
   ``F_s / sigma0``; collinear harmonics by the torque they make together); an
   environment scaled alike in J, d and k_e within the datasheet tolerance is the
@@ -48,7 +48,7 @@ from scipy import stats
 
 from ..effects import Effect
 from ..plausibility import ParameterStatus, assess, effect_bound
-from ..friction._lsq import hac_covariance
+from ..friction._lsq import group_wald_p, hac_covariance
 from .candidates import CandidateFit, _calibration, _fit_rows as _candidate_fit_rows
 from .residuals import GapData, gap_log_scales
 
@@ -61,6 +61,8 @@ ISOLABILITY_THRESHOLD = 0.3
 CALIBRATION = "calibration"
 #: Wald-test level of an effect's defining coefficients [-].
 WALD_ALPHA = 0.05
+#: Largest ratio of a friction candidate's levels for the two directions of motion [-].
+ASYMMETRY_MAX_RATIO = 3.0
 
 
 def _fit_rows(data: GapData, fit: CandidateFit) -> np.ndarray:
@@ -109,52 +111,8 @@ class _Design:
 
 
 def _group_wald_p(design: _Design, group: Sequence[int]) -> float:
-    """p-value of the joint Wald test that a group of coefficients is zero [-].
-
-    The test is made on the principal directions of the group's standardised feature columns
-    (on the fit rows) that carry at least ``1e-6`` of their variance, the rule of
-    :func:`isolability`: collinear columns (harmonics over a fraction of a revolution) leave a
-    lower-rank test of the contribution they share, which is well determined even when no single
-    coefficient is. The covariance of those directions is computed on the design re-expressed in
-    them (projecting the coefficients' covariance would cancel catastrophically). Columns never
-    excited carry no test.
-
-    Parameters
-    ----------
-    design : _Design
-        The fit's design (:func:`_coefficient_covariance`).
-    group : sequence of int
-        Indices into all coefficients (calibration first) of the free coefficients tested.
-    """
-    g = np.asarray(group, dtype=int)
-    A, rows = design.A, design.rows
-    others = np.setdiff1d(np.arange(A.shape[1]), g)   # an unexcited group column leaves the test whole
-    Ag = A[:, g]
-    norm = np.sqrt(np.sum(Ag[rows] ** 2, axis=0))
-    ok = np.isfinite(norm) & (norm > 0) & np.isfinite(design.coef[g])
-    if not np.any(ok):
-        return 1.0
-    g, norm = g[ok], norm[ok]
-    Z = A[:, g] / norm                                # standardised columns
-    C = Z[rows].T @ Z[rows]
-    try:
-        w, V = np.linalg.eigh(0.5 * (C + C.T))
-    except np.linalg.LinAlgError:
-        return 1.0
-    keep = w > 1e-6 * max(float(w.max()), 1e-300)
-    if not np.any(keep):
-        return 1.0
-    Vk = V[:, keep]
-    A_red = np.column_stack([A[:, others], Z @ Vk])
-    free = np.concatenate([~design.bound[others], np.ones(Vk.shape[1], dtype=bool)])
-    cov = hac_covariance(A_red, design.residual, free=free, keep=rows).covariance
-    n_o = others.size
-    S = cov[n_o:, n_o:]
-    z = Vk.T @ (design.coef[g] * norm)                # the group's estimate along the kept directions
-    if not (np.all(np.isfinite(S)) and np.all(np.isfinite(z))):
-        return 1.0
-    chi2 = float(z @ np.linalg.lstsq(0.5 * (S + S.T), z, rcond=1e-12)[0])
-    return float(stats.chi2.sf(chi2, int(Vk.shape[1]))) if math.isfinite(chi2) else 1.0
+    """p-value of the joint Wald test that a group of coefficients is zero (:func:`group_wald_p`)."""
+    return group_wald_p(design.A, design.residual, design.coef, group, keep=design.rows, bound=design.bound)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -239,6 +197,13 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         if nm in grid:
             _, value, lo, hi = grid[nm]
             st = assess(nm, base[nm], bound=effect_bound(nm, scales, static=base.get("F_s")), solver_bounds=(lo, hi))
+            resolution = _RESOLUTION_END.get(nm, lambda _: 0.0)(scales)
+            if st.status == "at_bound" and math.isclose(base[nm], lo, rel_tol=1e-6) and lo <= resolution * (1 + 1e-9):
+                # the search starts at the log's resolution (candidates bound it there): a value on that end
+                # is not resolved by the sensors, which is no evidence against the effect
+                st = ParameterStatus(name=nm, value=base[nm], std=None, status="not_identifiable",
+                                     reason=f"{nm} = {base[nm]:.4g} is at the log's resolution ({resolution:.3g}): "
+                                            "not resolved, no evidence either way", plausible=st.plausible)
         elif np.any(depends & bound_eff):
             c = s.coefs[int(np.flatnonzero(depends & bound_eff)[0])]
             st = assess(nm, base[nm], bound=effect_bound(nm, scales, static=base.get("F_s")))
@@ -249,7 +214,12 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         else:
             bnd = effect_bound(nm, scales, static=base.get("F_s"))
             st = assess(nm, base[nm], std=float(std[i]), bound=bnd)
-            if st.status == "implausible" and _is_harmonic(nm) and bnd is not None and math.isfinite(std[i]) \
+            if st.status == "implausible" and _is_harmonic(nm) and bnd is not None and not math.isfinite(std[i]):
+                # a harmonic on a direction the log does not resolve (collinear over part of a revolution)
+                st = ParameterStatus(name=nm, value=base[nm], std=None, status="not_identifiable",
+                                     reason=f"|{nm}| = {abs(base[nm]):.4g} lies on a direction of the harmonics this "
+                                            "log does not resolve", plausible=st.plausible)
+            elif st.status == "implausible" and _is_harmonic(nm) and bnd is not None \
                     and abs(base[nm]) - 1.96 * float(std[i]) <= bnd.hi:
                 # collinear harmonics (part of a revolution) trade large coefficients that cancel;
                 # a coefficient whose interval reaches the plausible range is unresolved, not
@@ -258,11 +228,6 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                                      reason=f"|{nm}| = {abs(base[nm]):.4g} is beyond {bnd.hi:.3g} but its 95 % interval "
                                             f"(+- {1.96 * float(std[i]):.2g}) reaches the plausible range: not resolved",
                                      plausible=st.plausible)
-            if st.status == "uncertain":
-                # a parameter whose zero is not "no effect" (gain 1, environment scale 1, sigma0)
-                # is judged by the Wald tests below, not by its distance from zero
-                st = ParameterStatus(name=nm, value=base[nm], std=float(std[i]), status="identified",
-                                     plausible=st.plausible) if not _zero_means_absent(nm) else st
         status[nm] = st
     # With a presliding (bristle) state the sticking behaviour, not the Stribeck decay, tells
     # stiction from coulomb: an unresolved v_s is then flagged but does not decide.
@@ -311,19 +276,34 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
     for nm, g in grid.items():
         if nm in status and nm not in secondary and status[nm].status == "at_bound" \
                 and nm in ("delay_s", "width_rad", "v_s"):
-            reasons.append(status[nm].reason)
+            reasons.append(f"{status[nm].reason}: a search that stops at its bound has not found the value")
+    if "F_c_neg" in base and max(base["F_c"], base["F_c_neg"]) > 0 and \
+            min(base["F_c"], base["F_c_neg"]) < ASYMMETRY_MAX_RATIO ** -1 * max(base["F_c"], base["F_c_neg"]):
+        # a drive's friction differs by direction by tens of percent; a level near zero one way is a constant
+        # torque (a driver's offset, cogging over part of a revolution), not friction
+        reasons.append(f"friction levels {base['F_c']:.3g} / {base['F_c_neg']:.3g} N m (positive / negative motion) "
+                       f"differ by more than a factor {ASYMMETRY_MAX_RATIO:g}: a constant torque, not friction")
+    if "gain" in base and abs(base["gain"] - 1.0) <= data.options.calibration_tolerance and not any(
+            st_.status == "at_bound" for st_ in calibration_status(data, fit).values()):
+        # a common rescaling of J_m, d_m and k within their datasheet tolerance, which the re-calibration
+        # (not on its bound) could have absorbed, is a re-calibration (a gain beyond what the bounded
+        # re-calibration absorbed stays a gain)
+        reasons.append(f"gain {base['gain']:.4g} is within the re-calibration's datasheet tolerance "
+                       f"(+-{100 * data.options.calibration_tolerance:g} %): a rescaling of J_m, d_m and k, not an effect")
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
     data.cache[key] = (fit, out)
     return out
 
 
+#: The resolution of the log where a candidate's grid search starts (:func:`.candidates._build_structures`):
+#: a Stribeck bump twice the speed resolution wide, a presliding displacement or a dead band of one count.
+_RESOLUTION_END = {"v_s": lambda sc: max(1e-3, 2.0 * sc.speed_resolution),
+                   "x_p": lambda sc: max(1e-4, sc.encoder_step),
+                   "width_rad": lambda sc: 2.0 * sc.encoder_step}
+
+
 def _is_harmonic(name: str) -> bool:
     return len(name) > 1 and name[0] in "ab" and name[1:].isdigit()
-
-
-def _zero_means_absent(name: str) -> bool:
-    return not (name in ("gain", "J", "d", "k_e", "sigma0", "v_s", "x_p", "delay_s", "width_rad")
-                or name.endswith("_scale"))
 
 
 def calibration_status(data: GapData, fit: CandidateFit) -> dict[str, ParameterStatus]:

@@ -77,8 +77,11 @@ class Location:
             f"and at motor speeds {self.speed_band_rad_s[0]:.2g}-{self.speed_band_rad_s[1]:.2g} rad/s.",
             f"Motor-angle harmonics explain {100 * self.angle_fraction:.0f} % of the motor-side residual "
             f"(angle span {self.angle_span_rad:.2f} rad); a multiple of the command explains "
-            f"{100 * self.torque_fraction:.0f} %; the residual near the {self.n_reversals} direction "
-            f"reversals is {self.reversal_ratio:.2g} times its RMS elsewhere.",
+            f"{100 * self.torque_fraction:.0f} %; " + (
+                f"the residual near the {self.n_reversals} direction reversals is {self.reversal_ratio:.2g} times "
+                "its RMS elsewhere." if np.isfinite(self.reversal_ratio) else
+                f"{self.n_reversals} direction reversals, too few (or too close together) to compare the residual "
+                "near them with the rest."),
         ]
         return " ".join(parts + list(self.notes))
 

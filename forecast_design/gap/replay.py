@@ -77,11 +77,18 @@ class ReplayCheck:
 
     def summary(self, effect: str) -> str:
         """One sentence for the location summary and the report."""
+        if not all(np.isfinite([self.tau_s_error_before, self.theta_error_before, self.relative_before])):
+            return (f"Output-error replay ({self.n_windows} windows of {self.window_s:g} s): the nominal model "
+                    "cannot be replayed on this log (its discretisation at the log's rate overflows or the log's "
+                    "tau_s has no spread): no replay comparison.")
+        after_ok = np.isfinite([self.tau_s_error_after, self.theta_error_after, self.relative_after]).all()
         text = (f"Output-error replay ({self.n_windows} windows of {self.window_s:g} s, each started from the "
                 f"measured state and driven by the recorded tau_m): the nominal model misses tau_s by "
                 f"{self.tau_s_error_before:.3g} N m RMS ({100 * self.relative_before:.1f} % of its "
                 f"{self.tau_s_rms:.3g} N m RMS) and theta by {self.theta_error_before:.3g} rad")
-        if effect != "none":
+        if effect != "none" and not after_ok:
+            text += f"; with {effect} added, the replay cannot be evaluated"
+        elif effect != "none":
             text += (f"; with {effect} added, {self.tau_s_error_after:.3g} N m "
                      f"({100 * self.relative_after:.1f} %) and {self.theta_error_after:.3g} rad")
         return text + "."

@@ -32,6 +32,7 @@ in ``r_m``; environment mismatch in ``r_e``; backlash in ``r_m`` and ``r_e`` whe
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
@@ -96,6 +97,10 @@ class GapOptions:
         Smallest RMS torque an effect must explain on held-out data, as a fraction of the RMS
         motor command [-]: a model error below 0.1 % of the torque is below any motor's torque
         accuracy (current sensing is good to about 1 %) and is not blamed on an effect.
+    tau_s_reading : str
+        ``auto`` (decide from the data, :func:`forecast_design.tau_s_source.classify_tau_s`),
+        ``derived`` or ``measured`` (force a reading of a logged ``tau_s`` column; the diagnosis
+        tries both itself when the decision is uncertain).
     """
 
     position_cutoff_hz: float | None = None
@@ -109,6 +114,7 @@ class GapOptions:
     stick_velocity: float = 2e-3
     max_delay_s: float = 0.02
     min_effect_fraction: float = 1e-3
+    tau_s_reading: str = "auto"
 
     def __post_init__(self) -> None:
         for name in ("decimated_rate_hz", "calibration_tolerance", "alpha", "stick_velocity", "max_delay_s",
@@ -118,6 +124,9 @@ class GapOptions:
                 continue
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ParameterError(f"GapOptions {name} must be > 0, got {value!r}", name=name, value=value)
+        if self.tau_s_reading not in ("auto", "derived", "measured"):
+            raise ParameterError(f"GapOptions tau_s_reading must be auto, derived or measured, got {self.tau_s_reading!r}",
+                                 name="tau_s_reading", value=self.tau_s_reading)
         if not (0.0 <= self.min_reduction < 1.0):
             raise ParameterError(f"GapOptions min_reduction must lie in [0, 1), got {self.min_reduction!r}",
                                  name="min_reduction", value=self.min_reduction)
@@ -568,6 +577,9 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
             name="n_blocks", value=options.n_blocks)
 
     tau_s_source = classify_tau_s(sig.tau_s_derived, tau_s, theta, q)
+    if options.tau_s_reading != "auto" and tau_s_source.source != "absent":
+        # a reading forced by the caller (the diagnosis tries both when the decision is uncertain)
+        tau_s_source = dataclasses.replace(tau_s_source, source=options.tau_s_reading)
     if not tau_s_source.measured:
         # a column the logger derived from the encoders carries nothing beyond k (theta - q):
         # use the encoders (the TOML's k) so that backlash and spring errors act where they

@@ -40,10 +40,11 @@ event-located integration), :mod:`.draw` (random cases and their identifiability
 """
 
 from .draw import draw_independent_case, identifiability, make_independent_log
-from .friction_logs import friction_log
+from .friction_logs import FRICTION_EXCITATIONS, friction_log
 from .model import (
     ANGLE_WORDS,
     COUNTS_PER_REV,
+    ENCODER_COUNTS,
     ENCODER_STEP,
     EXCITATION_KINDS,
     FRICTION_LAWS,
@@ -59,6 +60,7 @@ from .signals import excitation_signal, one_line_fraction, round_significant
 
 __all__ = [
     "COUNTS_PER_REV",
+    "ENCODER_COUNTS",
     "ENCODER_STEP",
     "MAX_ATTEMPTS",
     "RATES_HZ",
@@ -77,6 +79,7 @@ __all__ = [
     "identifiability",
     "make_independent_log",
     "friction_log",
+    "FRICTION_EXCITATIONS",
 ]
 
 #: Encoder resolution of the Forecast testbed (paper section 7) [counts/rev].

@@ -14,7 +14,7 @@ from ..errors import IdentifiabilityError, ParameterError, SolverError
 from ..controllers import PD
 from ..params import Environment, Testbed, environment_preset
 from ..plausibility import DATASHEET_TOLERANCE
-from .model import (ANGLE_WORDS, ENCODER_STEP, MAX_ATTEMPTS, RATES_HZ, _WORDS, Excitation, IndependentCase,
+from .model import (ANGLE_WORDS, MAX_ATTEMPTS, RATES_HZ, _WORDS, Excitation, IndependentCase,
                     IndependentLog, IndependentTruth, _word)
 from .signals import excitation_signal, one_line_fraction
 from .plant import simulate_independent
@@ -184,7 +184,7 @@ def _draw_excitation(rng: np.random.Generator, word: Effect, closed: bool, tb: T
 
 
 def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitude_scale: float = 1.0,
-                          attempt: int = 0) -> IndependentCase:
+                          attempt: int = 0, setups: bool = True) -> IndependentCase:
     """Draw one case for an effect word, deterministically in the arguments.
 
     Parameters
@@ -199,6 +199,10 @@ def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitud
         Fraction of the typical magnitude (1, 0.5, 0.25 ...), > 0 [-].
     attempt : int
         Redraw number, >= 0 (see :func:`make_independent_log`).
+    setups : bool
+        Also draw the set-ups of :func:`_draw_setup` (another SEA, 16/14-bit encoders, loggers
+        printing with fixed decimals, asymmetric friction), from their own random stream: with
+        False every case is the one drawn before they existed.
 
     Returns
     -------
@@ -252,7 +256,43 @@ def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitud
         # a torque sensor's zero and scale are never exact; drawn last, so the rest of the draw is unchanged
         case = replace(case, sensor_offset=float(rng.uniform(-SENSOR_OFFSET_N_M, SENSOR_OFFSET_N_M)),
                        sensor_gain=float(1.0 + rng.uniform(-SENSOR_GAIN_ERROR, SENSOR_GAIN_ERROR)))
+    if setups:
+        case = _draw_setup(case, effect, np.random.default_rng(np.random.SeedSequence(
+            [int(seed), int(index), int(attempt), _WORDS.index(effect), int(round(scale * 1e6)), 0x25])))
     return case
+
+
+#: The other SEA of the set-ups (a stiffer spring, a lighter motor) [N m/rad], [kg m^2].
+OTHER_SEA = {"k": 145.0, "J_m": 0.053}
+
+
+def _draw_setup(case: IndependentCase, effect: Effect, rng: np.random.Generator) -> IndependentCase:
+    """Set-ups beyond the testbed's (issue 25), from their own random stream.
+
+    A fifth of the logs come from another SEA (k 145 N m/rad, J_m 0.053 kg m^2); a fifth have
+    16-bit and a tenth 14-bit encoders; a derived ``tau_s`` is printed with fixed decimals
+    (3-6) in half the logs; a third of the loggers print the angles with 9-12 significant
+    digits or 7-9 decimals; Coulomb friction and stiction differ by direction (the negative
+    levels 0.7-1.3 times the positive) in a third of their logs.
+    """
+    changes: dict[str, Any] = {}
+    if rng.random() < 0.2:
+        changes["testbed"] = Testbed(J_m=OTHER_SEA["J_m"], d_m=case.testbed.d_m, k=OTHER_SEA["k"])
+    r = rng.random()
+    if r < 0.3:
+        changes["encoder_counts"] = 2**16 if r < 0.2 else 2**14
+    if case.tau_s_logging.startswith("derived:") and rng.random() < 0.5:
+        changes["tau_s_logging"] = f"decimals:{int(rng.integers(3, 7))}"
+    if rng.random() < 0.3:
+        changes["angle_logging"] = (f"digits:{int(rng.integers(9, 13))}" if rng.random() < 0.5
+                                    else f"decimals:{int(rng.integers(7, 10))}")
+    if effect in (Effect.COULOMB, Effect.STICTION) and rng.random() < 1.0 / 3.0:
+        p = dict(case.effect_params)
+        p["F_c_neg"] = p["F_c"] * float(rng.uniform(0.7, 1.3))
+        if "F_s" in p:
+            p["F_s_neg"] = p["F_c_neg"] + (p["F_s"] - p["F_c"])
+        changes["effect_params"] = p
+    return replace(case, **changes) if changes else case
 
 
 # --------------------------------------------------------------------------------------
@@ -278,6 +318,47 @@ def _breakaways(stuck: np.ndarray) -> int:
             count += int(e + 1 - start >= 2)
             start = None
     return count
+
+
+#: Band of the equation errors an effect must show in [Hz] (the gap diagnosis keeps 40 Hz at its default
+#: 100 Hz decimated rate) and how far above the encoders' quantisation its torque must be [-].
+VISIBLE_BAND_HZ, VISIBLE_FACTOR = 40.0, 2.0
+
+
+def quantisation_floor(case: IndependentCase) -> float:
+    """RMS torque [N m] the encoders' quantisation puts into the motor equation in the visible band.
+
+    White quantisation of one step ``s`` (variance ``s^2 / 12`` up to Nyquist) enters ``J_m theta''``
+    twice differentiated, ``J_m (s / sqrt 12) sqrt((2 pi)^4 f^5 / (5 rate / 2))``, and the spring torque
+    ``k (theta - q)`` of two encoders as is, ``k (s / sqrt 12) sqrt(2 f / (rate / 2))``, both kept up to
+    ``f`` = :data:`VISIBLE_BAND_HZ`.
+    """
+    s, f, nyq = case.encoder_step, VISIBLE_BAND_HZ, case.rate_hz / 2.0
+    tb = case.true_testbed
+    inertial = tb.J_m * s / math.sqrt(12.0) * math.sqrt((2.0 * math.pi) ** 4 * f ** 5 / (5.0 * nyq))
+    spring = tb.k * s / math.sqrt(12.0) * math.sqrt(2.0 * f / nyq)
+    return float(math.hypot(inertial, spring))
+
+
+def _signature(case: IndependentCase, truth: IndependentTruth, word: Effect) -> float:
+    """RMS torque [N m] the effect adds to the equation it acts in (from the truth)."""
+    if word in (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION):
+        x = np.asarray(truth.tau_friction)
+    elif word is Effect.COGGING:
+        x = np.asarray(truth.tau_cogging)
+    elif word in (Effect.DELAY, Effect.TORQUE_GAIN):
+        x = np.asarray(truth.tau_applied) - np.asarray(truth.command)
+    elif word is Effect.BACKLASH:
+        x = np.asarray(truth.tau_spring) - truth.testbed.k * (np.asarray(truth.theta) - np.asarray(truth.q))
+    elif word is Effect.ENVIRONMENT_MISMATCH:
+        true, nominal = truth.environment, case.environment
+        v = np.asarray(truth.v)
+        a = np.gradient(v, 1.0 / case.rate_hz)
+        x = (true.J - nominal.J) * a + (true.d - nominal.d) * v + (true.k_e - nominal.k_e) * np.asarray(truth.q)
+    else:
+        return math.inf
+    return float(np.sqrt(np.mean(np.square(x - np.mean(x))))) if word is Effect.COGGING else \
+        float(np.sqrt(np.mean(np.square(x))))
 
 
 def identifiability(case: IndependentCase, truth: IndependentTruth) -> str | None:
@@ -309,7 +390,10 @@ def identifiability(case: IndependentCase, truth: IndependentTruth) -> str | Non
     (:data:`forecast_design.plausibility.DATASHEET_TOLERANCE`), within which it is a
     common rescaling of the nominal model.
     Every log must also keep its command below the torque limit most of the
-    time (closed loop) and its motor below 10^4 rad.
+    time (closed loop) and its motor below 10^4 rad, and the effect's torque in the
+    equation it acts in must be at least :data:`VISIBLE_FACTOR` times the encoders'
+    quantisation floor (:func:`quantisation_floor`: the log must carry it above the
+    resolution of its sensors; only coarse encoders make this bind).
     """
     th, w = np.asarray(truth.theta), np.asarray(truth.omega)
     if not (np.all(np.isfinite(th)) and np.max(np.abs(th)) < 1e4):
@@ -318,7 +402,12 @@ def identifiability(case: IndependentCase, truth: IndependentTruth) -> str | Non
         sat = float(np.mean(np.abs(truth.command) >= case.torque_limit * (1 - 1e-6)))
         if sat > 0.05:
             return f"the command saturates {100 * sat:.0f} % of the time"
+    floor = quantisation_floor(case)
     for word in case.words:
+        sig = _signature(case, truth, word)
+        if sig < VISIBLE_FACTOR * floor:
+            return (f"{word}: its torque ({sig:.2g} N m RMS) is below {VISIBLE_FACTOR:g} x the encoders' quantisation "
+                    f"floor ({floor:.2g} N m at {case.encoder_counts} counts)")
         rev = _reversals(w)
         if word in (Effect.COULOMB, Effect.STICTION, *ANGLE_WORDS) and rev < 2:
             return f"{word}: {rev} velocity reversal(s), needs >= 2"
@@ -357,14 +446,14 @@ def identifiability(case: IndependentCase, truth: IndependentTruth) -> str | Non
             if case.environment.locked:
                 return "environment_mismatch: the output is locked"
             travel = float(np.ptp(truth.q))
-            if travel < 100 * ENCODER_STEP:
-                return (f"environment_mismatch: the output moves {travel / ENCODER_STEP:.0f} counts, "
+            if travel < 100 * case.encoder_step:
+                return (f"environment_mismatch: the output moves {travel / case.encoder_step:.0f} counts, "
                         "needs >= 100")
     return None
 
 
 def make_independent_log(word: Effect | str, index: int, seed: int, *,
-                         magnitude_scale: float = 1.0) -> IndependentLog:
+                         magnitude_scale: float = 1.0, setups: bool = True) -> IndependentLog:
     """Draw, simulate and redraw (attempt 0, 1, ...) until the log is identifiable.
 
     Parameters
@@ -377,6 +466,8 @@ def make_independent_log(word: Effect | str, index: int, seed: int, *,
         Seed, >= 0.
     magnitude_scale : float
         Fraction of the typical magnitude, > 0 [-].
+    setups : bool
+        Draw the set-ups of issue 25 too (see :func:`draw_independent_case`).
 
     Returns
     -------
@@ -390,7 +481,8 @@ def make_independent_log(word: Effect | str, index: int, seed: int, *,
     """
     rejected: list[str] = []
     for attempt in range(MAX_ATTEMPTS):
-        case = draw_independent_case(word, index, seed, magnitude_scale=magnitude_scale, attempt=attempt)
+        case = draw_independent_case(word, index, seed, magnitude_scale=magnitude_scale, attempt=attempt,
+                                     setups=setups)
         try:
             exp, truth = simulate_independent(case)
         except SolverError as exc:
@@ -409,6 +501,9 @@ def make_independent_log(word: Effect | str, index: int, seed: int, *,
 
 
 _FRICTION_DEFAULTS: Mapping[str, Mapping[str, float]] = MappingProxyType({
+    "sfm": MappingProxyType({"viscous": 0.3, "coulomb": 0.3}),
+    "asymmetric": MappingProxyType({"viscous_pos": 0.3, "viscous_neg": 0.25, "coulomb_pos": 0.3,
+                                    "coulomb_neg": 0.22}),
     "extended-sfm": MappingProxyType({"viscous": 0.3, "coulomb": 0.3, "sin1": 0.05, "cos1": 0.02,
                                       "sin2": 0.0, "cos2": 0.03, "sin3": 0.01, "cos3": 0.0,
                                       "sin4": 0.0, "cos4": 0.01}),

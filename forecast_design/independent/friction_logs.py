@@ -11,10 +11,16 @@ import numpy as np
 from ..effects import Effect
 from ..errors import ParameterError
 from ..experiment import Experiment
+from ..controllers import PD
 from ..params import Testbed, environment_preset
-from .model import Excitation, FRICTION_LAWS, IndependentCase
+from .model import COUNTS_PER_REV, Excitation, FRICTION_LAWS, IndependentCase
 from .plant import simulate_independent
 from .draw import _FRICTION_DEFAULTS, _motor_gain, _static_friction
+
+#: Excitations of :func:`friction_log`: open loop (``sliding``, ``little-sliding``) or the force
+#: reference of a closed loop (``multisine``, ``square``).
+FRICTION_EXCITATIONS = ("sliding", "little-sliding", "presliding", "multisine", "square")
+
 
 def _friction_names(law: str, params: Mapping[str, float]) -> tuple[str, ...]:
     if law == "extended-sfm":
@@ -23,22 +29,45 @@ def _friction_names(law: str, params: Mapping[str, float]) -> tuple[str, ...]:
     return tuple(_FRICTION_DEFAULTS[law])
 
 
+def _effect_params(law: str, true: Mapping[str, float]) -> tuple[dict[str, Any], tuple[Effect, ...], float]:
+    """The plant's effect parameters, the effect words and the true d_m of a friction law's parameters."""
+    if law == "extended-sfm":
+        n_h = (len(true) - 2) // 2
+        eff: dict[str, Any] = {"F_c": true["coulomb"],
+                               "cog_a": tuple(true[f"sin{i}"] for i in range(1, n_h + 1)),
+                               "cog_b": tuple(true[f"cos{i}"] for i in range(1, n_h + 1))}
+        return eff, (Effect.COULOMB, Effect.COGGING), true["viscous"]
+    if law == "sfm":
+        return {"F_c": true["coulomb"]}, (Effect.COULOMB,), true["viscous"]
+    if law == "asymmetric":
+        eff = {"F_c": true["coulomb_pos"], "F_c_neg": true["coulomb_neg"], "d_neg": true["viscous_neg"]}
+        return eff, (Effect.COULOMB,), true["viscous_pos"]
+    eff = {"F_c": true["coulomb"], "F_s": true["static"], "v_s": true["stribeck_velocity"]}
+    if law == "lugre":
+        eff.update(sigma0=true["sigma0"], sigma1=true["sigma1"])
+    return eff, (Effect.STICTION,), true["viscous"]
+
+
 def friction_log(law: str, params: Mapping[str, float] | None = None, *, duration_s: float = 20.0,
-                 rate_hz: float = 2000.0, seed: int = 0,
-                 excitation: str = "sliding") -> tuple[Experiment, dict[str, float]]:
-    """An open-loop link-only log with a known friction law, for identification tests.
+                 rate_hz: float = 2000.0, seed: int = 0, excitation: str = "sliding", loop: str = "open",
+                 environment: str = "link-only", controller: PD | None = None,
+                 encoder_counts: int = COUNTS_PER_REV, testbed: Testbed | None = None,
+                 tau_s_logging: str = "omitted", encoder_noise_counts: float = 0.0) -> tuple[Experiment, dict[str, float]]:
+    """A log with a known friction law, for identification tests.
 
     Parameters
     ----------
     law : str
-        ``extended-sfm`` (viscous + Coulomb + angle harmonics, with true
-        sticking), ``stribeck`` (event-based stick/slip on the Stribeck curve)
+        ``sfm`` (viscous + Coulomb with true sticking), ``extended-sfm`` (and angle
+        harmonics), ``asymmetric`` (Coulomb level and viscous coefficient differ by
+        direction of motion), ``stribeck`` (event-based stick/slip on the Stribeck curve)
         or ``lugre`` (LuGre bristle dynamics).
     params : Mapping[str, float], optional
         True parameters named as :func:`forecast_design.friction.friction_model`
-        names them (``viscous``, ``coulomb``, ``sin1``, ``cos1`` ...;
-        ``static``, ``stribeck_velocity``; ``sigma0``, ``sigma1``); missing
-        names take typical values. ``viscous`` is the motor's ``d_m``.
+        names them (``viscous``, ``coulomb``, ``sin1``, ``cos1`` ...; ``viscous_pos``,
+        ``viscous_neg``, ``coulomb_pos``, ``coulomb_neg``; ``static``,
+        ``stribeck_velocity``; ``sigma0``, ``sigma1``); missing names take typical values.
+        ``viscous`` (``viscous_pos``) is the motor's ``d_m``.
     duration_s : float
         Log length [s].
     rate_hz : float
@@ -46,25 +75,47 @@ def friction_log(law: str, params: Mapping[str, float] | None = None, *, duratio
     seed : int
         Seed of the excitation's dither and the initial angle.
     excitation : str
-        ``sliding``: slow sweeps over several revolutions (extended SFM) or slow
-        triangles through the breakaway level (Stribeck, LuGre), with dither:
-        plenty of sliding and slow breakaways. ``little-sliding``: the command
-        barely exceeds the breakaway level, in one direction only.
+        Open loop: ``sliding`` (slow sweeps over several revolutions for the SFM laws,
+        slow triangles through the breakaway level for Stribeck and LuGre, with
+        dither), ``little-sliding`` (the command barely exceeds the breakaway level,
+        in one direction only) or ``presliding`` (a slow sine with dither that stays
+        below the breakaway level both ways: the motor never slides; LuGre bristles
+        deflect). Closed loop: the force reference, ``multisine`` (0.1-5 Hz) or ``square``.
+    loop : str
+        ``open`` (the command is the excitation) or ``closed`` (a PD force controller
+        tracks the excitation on the measured ``tau_s``).
+    environment : str
+        Environment preset (default ``link-only``).
+    controller : PD, optional
+        Closed loop: the PD gains (default P 5, D 0.1).
+    encoder_counts : int
+        Counts per revolution of the encoders [-].
+    testbed : Testbed, optional
+        The SEA (``J_m``, ``k``; its ``d_m`` is replaced by the viscous coefficient);
+        default the Forecast testbed.
+    tau_s_logging : str
+        How the logger writes ``tau_s`` (:class:`IndependentCase`), default omitted.
+    encoder_noise_counts : float
+        Standard deviation of the encoders' noise before quantisation [counts].
 
     Returns
     -------
     experiment : Experiment
-        The log (``tau_s`` omitted, so derived as ``k (theta - q)``; the TOML
-        testbed is the simulated one).
+        The log (the TOML testbed is the simulated one).
     params : dict
         The true parameters, one per name of the law's model.
     """
     if law not in FRICTION_LAWS:
         raise ParameterError(f"friction law must be one of {', '.join(FRICTION_LAWS)}, got {law!r}",
                              name="law", value=law)
-    if excitation not in ("sliding", "little-sliding"):
-        raise ParameterError(f"excitation must be 'sliding' or 'little-sliding', got {excitation!r}",
+    if excitation not in FRICTION_EXCITATIONS:
+        raise ParameterError(f"excitation must be one of {', '.join(FRICTION_EXCITATIONS)}, got {excitation!r}",
                              name="excitation", value=excitation)
+    if loop not in ("open", "closed"):
+        raise ParameterError(f"loop must be 'open' or 'closed', got {loop!r}", name="loop", value=loop)
+    if (loop == "closed") != (excitation in ("multisine", "square")):
+        raise ParameterError(f"excitation {excitation!r} does not apply to a {loop} loop (open: sliding, "
+                             "little-sliding; closed: multisine, square)", name="excitation", value=excitation)
     given = dict(params or {})
     base = dict(_FRICTION_DEFAULTS[law])
     if law == "extended-sfm" and any(re.match(r"^(sin|cos)\d+$", k) for k in given):
@@ -76,33 +127,39 @@ def friction_log(law: str, params: Mapping[str, float] | None = None, *, duratio
         raise ParameterError(f"unknown {law} parameter(s) {', '.join(unknown)}; expected {', '.join(names)}",
                              name=unknown[0])
     true = {n: float(base.get(n, 0.0)) for n in names}
-    if law == "extended-sfm":
-        n_h = (len(names) - 2) // 2
-        eff: dict[str, Any] = {"F_c": true["coulomb"],
-                               "cog_a": tuple(true[f"sin{i}"] for i in range(1, n_h + 1)),
-                               "cog_b": tuple(true[f"cos{i}"] for i in range(1, n_h + 1))}
-        words: tuple[Effect, ...] = (Effect.COULOMB, Effect.COGGING)
-    else:
-        eff = {"F_c": true["coulomb"], "F_s": true["static"], "v_s": true["stribeck_velocity"]}
-        if law == "lugre":
-            eff.update(sigma0=true["sigma0"], sigma1=true["sigma1"])
-        words = (Effect.STICTION,)
-    tb = Testbed(J_m=Testbed.nominal().J_m, d_m=true["viscous"], k=Testbed.nominal().k)
-    env = environment_preset("link-only")
-    holding = _static_friction(eff)
+    eff, words, d_m = _effect_params(law, true)
+    nominal = Testbed.nominal() if testbed is None else testbed
+    tb = Testbed(J_m=nominal.J_m, d_m=d_m, k=nominal.k)
+    env = environment_preset(environment)
+    holding = _static_friction({**eff, "F_s": max(eff.get("F_s", 0.0), eff.get("F_c_neg", 0.0), eff.get("F_c", 0.0))})
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xF1C]))
-    if excitation == "little-sliding":
+    ctrl = None
+    if loop == "closed":
+        ctrl = controller if controller is not None else PD(P=5.0, D=0.1)
+        level = max(holding, 0.1)
+        if excitation == "multisine":
+            ex = Excitation(kind="multisine", amplitude=float(rng.uniform(2.0, 3.0)) * level, f_lo_hz=0.1,
+                            f_hi_hz=5.0, lines=16, periods=2, tilt=0.5)
+        else:
+            ex = Excitation(kind="square", amplitude=float(rng.uniform(2.0, 3.0)) * level,
+                            period_s=duration_s / float(rng.uniform(8.0, 12.0)))
+    elif excitation == "little-sliding":
         level = max(holding, 0.05)
         ex = Excitation(kind="sweep", amplitude=0.52 * level, offset=0.5 * level, f_lo_hz=3.0 / duration_s)
-    elif law == "extended-sfm":
+    elif excitation == "presliding":
+        level = min(eff.get("F_c", 0.0), eff.get("F_c_neg", eff.get("F_c", 0.0)))
+        ex = Excitation(kind="sweep", amplitude=0.6 * level, f_lo_hz=3.0 / duration_s, dither=0.1 * level)
+    elif law in ("sfm", "extended-sfm", "asymmetric"):
         f = float(rng.uniform(1.5, 2.0)) / duration_s
         amp = min(2.0 * math.pi / _motor_gain(tb, env, f) + 1.5 * holding, 3.5)
         ex = Excitation(kind="sweep", amplitude=amp, f_lo_hz=f, dither=0.1 * max(holding, 0.1))
     else:
         ex = Excitation(kind="triangle", amplitude=2.5 * max(holding, 0.1),
                         period_s=duration_s / float(rng.uniform(3.5, 5.0)), dither=0.05 * max(holding, 0.1))
-    case = IndependentCase(words=words, environment=env, environment_name="link-only", excitation=ex,
-                           rate_hz=rate_hz, duration_s=duration_s, testbed=tb, effect_params=eff,
-                           initial_angle=0.0, seed=int(rng.integers(0, 2**62)), tau_m_digits=9)
+    case = IndependentCase(words=words, environment=env, environment_name=environment, excitation=ex,
+                           closed_loop=loop == "closed", controller=ctrl, rate_hz=rate_hz, duration_s=duration_s,
+                           testbed=tb, effect_params=eff, initial_angle=0.0, seed=int(rng.integers(0, 2**62)),
+                           tau_m_digits=9, encoder_counts=int(encoder_counts), tau_s_logging=tau_s_logging,
+                           encoder_noise_counts=float(encoder_noise_counts))
     exp, _ = simulate_independent(case)
     return exp, true

@@ -26,15 +26,18 @@ RATES_HZ = (1000.0, 2000.0)
 #: Excitation kinds (open-loop commands or closed-loop force references).
 EXCITATION_KINDS = ("multisine", "square", "chirp", "sweep", "triangle", "constant")
 #: Friction laws of :func:`friction_log`, named like :func:`forecast_design.friction.friction_model`.
-FRICTION_LAWS = ("extended-sfm", "stribeck", "lugre")
+FRICTION_LAWS = ("sfm", "extended-sfm", "asymmetric", "stribeck", "lugre")
 #: Words whose effect depends on the motor angle (need a revolution of travel).
 ANGLE_WORDS = (Effect.POSITION_FRICTION, Effect.COGGING)
 
 _WORDS = tuple(Effect)
 _FRICTION_WORDS = (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION)
 _PARAM_KEYS = ("F_c", "F_s", "v_s", "sigma0", "sigma1", "pos_a", "pos_b", "cog_a", "cog_b",
-               "width", "delay_s", "gain", "J_factor", "d_factor", "k_e_factor")
-_TAU_S_RE = re.compile(r"^(omitted|sensor|derived:(\d+))$")
+               "width", "delay_s", "gain", "J_factor", "d_factor", "k_e_factor", "F_c_neg", "F_s_neg", "d_neg")
+_TAU_S_RE = re.compile(r"^(omitted|sensor|derived:(\d+)|decimals:(\d+))$")
+_ANGLE_RE = re.compile(r"^(exact|digits:(\d+)|decimals:(\d+))$")
+#: Encoder resolutions the loggers may have [counts/rev]: the testbed's, 16 and 14 bit.
+ENCODER_COUNTS = (COUNTS_PER_REV, 2**16, 2**14)
 
 # Integration tolerances and switching hysteresis (far below one encoder count, 3.1e-6 rad).
 _RTOL = 1e-10
@@ -146,13 +149,23 @@ class IndependentCase:
     t0_s : float
         Time of the first row [s].
     tau_s_logging : str
-        ``omitted``, ``derived:<digits>`` (printed ``k_nominal (theta - q)``)
-        or ``sensor`` (independent torque sensor with noise, printed at 7
-        significant digits; the controller then feeds back the sensor).
+        ``omitted``, ``derived:<digits>`` (printed ``k_nominal (theta - q)`` at
+        1-17 significant digits), ``decimals:<n>`` (the same printed with a fixed
+        number 0-12 of decimal places, ``%.<n>f``: small torques keep fewer
+        significant digits than large ones) or ``sensor`` (independent torque
+        sensor with noise, printed at 7 significant digits; the controller then
+        feeds back the sensor).
     tau_m_digits : int
         Significant digits of the printed ``tau_m`` (and ``tau_r``).
     encoder_noise_counts : float
         Standard deviation of encoder noise before quantisation [counts].
+    encoder_counts : int
+        Counts per revolution of both encoders [-] (2,000,000 on the testbed; 65,536 or
+        16,384 for 16- and 14-bit encoders).
+    angle_logging : str
+        How the logger prints ``theta`` and ``q``: ``exact`` (every digit of the quantised
+        angle), ``digits:<n>`` (n = 4-17 significant digits) or ``decimals:<n>`` (n = 3-12
+        decimal places). A derived ``tau_s`` is computed from the angles before printing.
     sensor_noise : float
         Standard deviation of the torque-sensor noise [N m].
     sensor_offset : float
@@ -171,6 +184,9 @@ class IndependentCase:
         absolute motor angle) [N m], ``width`` (full dead band) [rad],
         ``delay_s`` [s], ``gain`` [-], ``J_factor``, ``d_factor``,
         ``k_e_factor`` (true / declared) [-].
+        ``F_c_neg``, ``F_s_neg`` [N m] and ``d_neg`` [N m s/rad]: asymmetric friction,
+        the Coulomb and static levels and the viscous coefficient for negative motion
+        (``F_c``, ``F_s`` and the testbed's ``d_m`` then act for positive motion).
     initial_angle : float
         Absolute motor angle at the first row (phase of the angle effects) [rad].
     seed : int
@@ -196,6 +212,8 @@ class IndependentCase:
     tau_s_logging: str = "omitted"
     tau_m_digits: int = 8
     encoder_noise_counts: float = 0.0
+    encoder_counts: int = COUNTS_PER_REV
+    angle_logging: str = "exact"
     sensor_noise: float = 0.0
     sensor_offset: float = 0.0
     sensor_gain: float = 1.0
@@ -211,10 +229,20 @@ class IndependentCase:
         words = tuple(_word(w) for w in self.words)
         object.__setattr__(self, "words", tuple(w for w in words if w is not Effect.NONE))
         m = _TAU_S_RE.match(str(self.tau_s_logging))
-        if m is None or (m.group(2) is not None and not 1 <= int(m.group(2)) <= 17):
-            raise ParameterError("tau_s_logging must be 'omitted', 'sensor' or 'derived:<1..17>', "
-                                 f"got {self.tau_s_logging!r}", name="tau_s_logging",
+        if m is None or (m.group(2) is not None and not 1 <= int(m.group(2)) <= 17) \
+                or (m.group(3) is not None and not 0 <= int(m.group(3)) <= 12):
+            raise ParameterError("tau_s_logging must be 'omitted', 'sensor', 'derived:<1..17>' or "
+                                 f"'decimals:<0..12>', got {self.tau_s_logging!r}", name="tau_s_logging",
                                  value=self.tau_s_logging)
+        a = _ANGLE_RE.match(str(self.angle_logging))
+        if a is None or (a.group(2) is not None and not 4 <= int(a.group(2)) <= 17) \
+                or (a.group(3) is not None and not 3 <= int(a.group(3)) <= 12):
+            raise ParameterError("angle_logging must be 'exact', 'digits:<4..17>' or 'decimals:<3..12>', "
+                                 f"got {self.angle_logging!r}", name="angle_logging", value=self.angle_logging)
+        c = self.encoder_counts
+        if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not 64 <= int(c) <= 10**9:
+            raise ParameterError(f"encoder_counts must be an integer in [64, 1e9], got {c!r}",
+                                 name="encoder_counts", value=c)
         if self.rate_hz <= 0.0 or self.duration_s <= 0.0:
             raise ParameterError("rate_hz and duration_s must be > 0", name="rate_hz", value=self.rate_hz)
         if self.closed_loop and self.controller is None:
@@ -234,6 +262,11 @@ class IndependentCase:
         object.__setattr__(self, "effect_params", MappingProxyType(params))
         object.__setattr__(self, "nominal_errors",
                            MappingProxyType({k: float(v) for k, v in self.nominal_errors.items()}))
+
+    @property
+    def encoder_step(self) -> float:
+        """One count of the case's encoders [rad]."""
+        return 2.0 * math.pi / int(self.encoder_counts)
 
     @property
     def true_testbed(self) -> Testbed:

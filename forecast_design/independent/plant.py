@@ -10,7 +10,7 @@ from scipy.integrate import ode, solve_ivp
 
 from ..errors import ParameterError, SolverError
 from ..experiment import Experiment, experiment_from_arrays
-from .model import (ENCODER_STEP, IndependentCase, IndependentTruth, _ATOL, _BAND, _FREE, _LINEAR,
+from .model import (IndependentCase, IndependentTruth, _ATOL, _BAND, _FREE, _LINEAR,
                     _MAX_EVENTS_PER_INTERVAL, _RTOL, _STUCK, _TOL_D, _TOL_N, _TOL_W)
 from .signals import _harmonic, _to_log_frame, excitation_signal, round_significant
 
@@ -32,9 +32,15 @@ class _Plant:
         self.F_c = float(p.get("F_c", 0.0))
         self.F_s = float(p.get("F_s", self.F_c))
         self.v_s = float(p.get("v_s", 1.0))
-        self.stribeck = self.F_s != self.F_c
-        if self.F_s < self.F_c:
+        # asymmetric friction: the levels and the viscous coefficient for negative motion
+        self.F_c_neg = float(p.get("F_c_neg", self.F_c))
+        self.F_s_neg = float(p.get("F_s_neg", self.F_c_neg + (self.F_s - self.F_c)))
+        self.d_neg = float(p.get("d_neg", self.d_m))
+        self.stribeck = self.F_s != self.F_c or self.F_s_neg != self.F_c_neg
+        if self.F_s < self.F_c or self.F_s_neg < self.F_c_neg:
             raise ParameterError(f"stiction needs F_s >= F_c, got {self.F_s} < {self.F_c}", name="F_s")
+        if min(self.F_c_neg, self.d_neg) < 0.0:
+            raise ParameterError("asymmetric friction needs F_c_neg, d_neg >= 0", name="F_c_neg")
         self.pos = [(i, a, b) for i, (a, b) in enumerate(zip(p.get("pos_a", ()), p.get("pos_b", ())), 1)
                     if a or b]
         self.cog = [(i, a, b) for i, (a, b) in enumerate(zip(p.get("cog_a", ()), p.get("cog_b", ())), 1)
@@ -49,7 +55,7 @@ class _Plant:
         self.delay = float(p.get("delay_s", 0.0))
         self.gain = float(p.get("gain", 1.0))
         self.phi0 = float(case.initial_angle)
-        self.sticking = (not self.lugre) and (self.F_s > 0.0 or bool(self.pos))
+        self.sticking = (not self.lugre) and (self.F_s > 0.0 or self.F_s_neg > 0.0 or bool(self.pos))
         self.switching = self.sticking or self.h > 0.0
         self.u = 0.0                      # applied torque g tau_m(t - delay) [N m]
         self.motor = _STUCK if self.sticking else _FREE
@@ -70,17 +76,28 @@ class _Plant:
     def cogging(self, angle: float) -> float:
         return _harmonic(self.cog, angle) if self.cog else 0.0
 
-    def level(self, angle: float, w: float) -> float:
-        """Friction magnitude when sliding at w (Stribeck curve + position part)."""
-        lv = self.F_c
+    def level(self, angle: float, w: float, direction: int = 0) -> float:
+        """Friction magnitude when sliding at w (Stribeck curve + position part).
+
+        ``direction`` (+1 / -1) picks the positive or negative levels of an asymmetric law
+        (default: the sign of w, positive at rest).
+        """
+        neg = direction < 0 or (direction == 0 and w < 0.0)
+        f_c, f_s = (self.F_c_neg, self.F_s_neg) if neg else (self.F_c, self.F_s)
+        lv = f_c
         if self.stribeck:
-            lv += (self.F_s - self.F_c) * math.exp(-((w / self.v_s) ** 2))
+            lv += (f_s - f_c) * math.exp(-((w / self.v_s) ** 2))
         if self.pos:
             lv += _harmonic(self.pos, angle)
         return lv
 
-    def static_level(self, angle: float) -> float:
-        return self.F_s + (_harmonic(self.pos, angle) if self.pos else 0.0)
+    def static_level(self, angle: float, direction: int = 1) -> float:
+        """Breakaway level towards positive (``direction`` 1) or negative (-1) motion [N m]."""
+        return (self.F_s if direction >= 0 else self.F_s_neg) + (_harmonic(self.pos, angle) if self.pos else 0.0)
+
+    def viscous(self, w: float, direction: int = 0) -> float:
+        """Viscous coefficient of the sliding direction (``d_neg`` for negative motion) [N m s/rad]."""
+        return self.d_neg if (direction < 0 or (direction == 0 and w < 0.0)) else self.d_m
 
     def net(self, x) -> float:
         """Torque on the motor apart from friction and viscous damping [N m]."""
@@ -105,8 +122,9 @@ class _Plant:
         elif m == _FREE:
             tf = 0.0
         else:
-            tf = m * self.level(ang, w)
-        dw = (self.u - ts - self.d_m * w - tf - self.cogging(ang)) / self.J_m
+            tf = m * self.level(ang, w, m)
+        d_m = self.d_m if self.lugre else self.viscous(w, m if m in (1, -1) else 0)
+        dw = (self.u - ts - d_m * w - tf - self.cogging(ang)) / self.J_m
         return [w, dw, dq, dv, dz]
 
     def forces(self, x) -> tuple[float, float, float]:
@@ -121,9 +139,10 @@ class _Plant:
         elif self.motor == _STUCK:
             tf = self.u - ts - tc
         elif self.motor == _FREE:
-            tf = 0.0
+            tf = (self.viscous(w) - self.d_m) * w
         else:
-            tf = self.motor * self.level(ang, w)
+            m = self.motor
+            tf = m * self.level(ang, w, m) + (self.viscous(w, m) - self.d_m) * w
         return ts, tf, tc
 
     # ---- modes
@@ -149,8 +168,8 @@ class _Plant:
             out.append(m * x[1] + _TOL_W)
         elif m == _STUCK:
             n = self.net(x)
-            fs = self.static_level(x[0] + self.phi0)
-            out += [fs - n + _TOL_N, fs + n + _TOL_N]
+            ang = x[0] + self.phi0
+            out += [self.static_level(ang, 1) - n + _TOL_N, self.static_level(ang, -1) + n + _TOL_N]
         s = self.spring
         if s != _LINEAR:
             d = x[0] - x[2]
@@ -164,7 +183,8 @@ class _Plant:
 
     def _stick_or_slip(self, x) -> None:
         n = self.net(x)
-        if abs(n) <= self.static_level(x[0] + self.phi0):
+        ang = x[0] + self.phi0
+        if -self.static_level(ang, -1) <= n <= self.static_level(ang, 1):
             self.motor = _STUCK
         else:
             self.motor = 1 if n > 0.0 else -1
@@ -202,7 +222,8 @@ class _Plant:
                 m = self.motor
                 if m == _STUCK:
                     n = self.net(x)
-                    if abs(n) > self.static_level(x[0] + self.phi0) + _TOL_N:
+                    ang = x[0] + self.phi0
+                    if n > self.static_level(ang, 1) + _TOL_N or -n > self.static_level(ang, -1) + _TOL_N:
                         self.motor = 1 if n > 0.0 else -1
                         changed = True
                 elif m * x[1] < -_TOL_W:    # a reversal the interval check missed
@@ -290,7 +311,8 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
     rate, n = float(case.rate_hz), case.n_samples
     T = 1.0 / rate
     rng = np.random.default_rng(np.random.SeedSequence([int(case.seed), 0x10660]))
-    enc_noise = rng.standard_normal((n, 2)) * (case.encoder_noise_counts * ENCODER_STEP)
+    step = case.encoder_step
+    enc_noise = rng.standard_normal((n, 2)) * (case.encoder_noise_counts * step)
     sens_noise = rng.standard_normal(n) * case.sensor_noise
     k_nom = case.testbed.k
     digits = int(case.tau_m_digits)
@@ -328,8 +350,8 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
     for k in range(n):
         t_k = k * T
         # measurement at t_k
-        th_meas = round((x[0] + enc_noise[k, 0]) / ENCODER_STEP) * ENCODER_STEP
-        q_meas = 0.0 if plant.locked else round((x[2] + enc_noise[k, 1]) / ENCODER_STEP) * ENCODER_STEP
+        th_meas = round((x[0] + enc_noise[k, 0]) / step) * step
+        q_meas = 0.0 if plant.locked else round((x[2] + enc_noise[k, 1]) / step) * step
         theta_m[k], q_m[k] = th_meas, q_meas
         if tau_s_mode == "sensor":
             tau_meas = float(format(case.sensor_gain * plant.spring_torque(x[0] - x[2]) + case.sensor_offset
@@ -367,10 +389,21 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
             raise SolverError(f"the state left any physical range at t = {t_k + T} s")
 
     t = np.round(case.t0_s + np.arange(n) * T, 9)
+    if case.angle_logging != "exact":     # the logger prints the angles (tau_s was computed before)
+        kind, _, places = case.angle_logging.partition(":")
+        if kind == "digits":
+            theta_m, q_m = round_significant(theta_m, int(places)), round_significant(q_m, int(places))
+        else:
+            fixed = f".{int(places)}f"
+            theta_m = np.array([float(format(v, fixed)) for v in theta_m.tolist()])
+            q_m = np.array([float(format(v, fixed)) for v in q_m.tolist()])
     if tau_s_mode == "omitted":
         tau_s_col = None
     elif tau_s_mode == "sensor":
         tau_s_col = tau_s_log
+    elif tau_s_mode.startswith("decimals:"):
+        fixed = f".{int(tau_s_mode.split(':')[1])}f"     # a logger printing %.<n>f
+        tau_s_col = np.array([float(format(v, fixed)) for v in tau_s_log.tolist()])
     else:
         tau_s_col = round_significant(tau_s_log, int(tau_s_mode.split(":")[1]))
     words = ", ".join(str(w) for w in case.words) or "none"

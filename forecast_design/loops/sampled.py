@@ -142,6 +142,27 @@ class SampledForceLoop:
         return disk_margin_from_polynomials(proxy, num / f, den / f, sigma, stable)
 
 
+#: Widest spread of the characteristic polynomial's coefficients the exact analysis trusts [decades]:
+#: each delay sample multiplies it by 2/T (3.6 decades at 2 kHz); beyond about 300 decades double
+#: precision loses the roots (a stable loop read as unstable, then LinAlgError), and up to 290 the
+#: margins were checked against a dense frequency grid and the poles against a state-space model.
+MAX_COEFFICIENT_DECADES = 250.0
+
+
+def _check_resolvable(chi: np.ndarray, delay_samples: int, rate_hz: float) -> None:
+    """Refuse a loop whose characteristic polynomial double precision cannot resolve (issue 23)."""
+    magnitudes = np.abs(chi[chi != 0.0])
+    finite = bool(np.all(np.isfinite(chi)))
+    decades = float(np.log10(magnitudes.max() / magnitudes.min())) if finite and magnitudes.size else math.inf
+    if decades > MAX_COEFFICIENT_DECADES:
+        spread = f"{decades:.0f} decades" if math.isfinite(decades) else "more decades than a float holds"
+        raise ParameterError(f"delay_samples = {delay_samples} at rate_hz = {rate_hz:g} Hz: the sampled loop's "
+                             f"characteristic polynomial spans {spread}, more than double precision "
+                             f"resolves ({MAX_COEFFICIENT_DECADES:g} decades; each delay sample adds "
+                             f"{math.log10(2.0 * rate_hz):.1f}); give fewer delay samples",
+                             name="delay_samples", value=delay_samples)
+
+
 def _deflate_w(p: np.ndarray, what: str) -> np.ndarray:
     """p(w) / w for the exact rigid-body root w = 0, checking it is there up to rounding."""
     p = np.asarray(p, float)
@@ -411,6 +432,7 @@ def sampled_force_loop(
     Lw, chi = close_loop(observed, C_w, break_at)
     Lw = Lw.named("L_w")
     order = (len(C_w.den) - 1) + (len(D) - 1) + (len(E) - 1) + d + 1
+    _check_resolvable(chi, d, rate_hz)
     roots = np.roots(chi) if len(chi) > 1 else np.zeros(0, dtype=complex)
     stable = len(chi) - 1 == order and bool(
         np.all(roots.real < -STABILITY_TOLERANCE * np.maximum(1.0, np.abs(roots))))

@@ -186,7 +186,7 @@ def check_writable(out: str | Path) -> Path:
         raise ParameterError(f"--out {str(out)!r}: expected a file name such as run.toml", name="out", value=str(out))
     for target in (path, path.with_suffix(".csv")):
         try:
-            fileio.check_writable(target)   # the probe every output uses
+            fileio.check_writable(target, stream_ok=False)   # the probe every output uses; a set needs files
         except OutputError as exc:
             raise ParameterError(f"--out {exc}", name="out", value=str(out)) from None
     return path

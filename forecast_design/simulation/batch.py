@@ -32,6 +32,7 @@ import numpy as np
 from ..discrete import njit, prange
 from ..errors import ParameterError
 from ..params import Design
+from ..plausibility import check_limit
 from .plant import history_length
 from .run import _MEAS, _TRUTH, SimulationResult, _check_kernel_cache, _loop, _prepare, _Prepared, run_code
 from .scenario import Scenario
@@ -237,6 +238,9 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
                                  name="threads", value=threads)
     prepared: list[_Prepared] = []
     for i, run in enumerate(runs):
+        if i == 1:      # the first run gave the samples per run: bound the whole batch before the others
+            check_limit(f"batch of {len(runs)} runs x {prepared[0].n} samples", "batch_samples",
+                        len(runs) * prepared[0].n)
         if not isinstance(run, BatchRun):
             raise ParameterError(f"run {i} must be a BatchRun, got {type(run).__name__}", name="runs", value=i)
         ref = run.reference if run.reference is not None else reference
@@ -352,7 +356,8 @@ def simulate_scenario(scenario: Scenario, *, threads: int | None = None,
         ``result(k)`` equals ``scenario.run(repetitions[k])`` (``scenario.run(k)`` for all).
     """
     opts = {k: v for k, v in scenario.options.items() if k not in ("seed", "initial_angle", "duration_s", "substeps")}
-    return simulate_batch(scenario_runs(scenario, repetitions), duration_s=scenario.options["duration_s"],
-                          reference=scenario.reference, rate_hz=scenario.rate_hz,
-                          substeps=scenario.options.get("substeps", 10), closed_loop=scenario.closed_loop,
-                          threads=threads, **opts)
+    with scenario.naming_errors():      # an error names the scenario file, as every scenario error does
+        return simulate_batch(scenario_runs(scenario, repetitions), duration_s=scenario.options["duration_s"],
+                              reference=scenario.reference, rate_hz=scenario.rate_hz,
+                              substeps=scenario.options.get("substeps", 10), closed_loop=scenario.closed_loop,
+                              threads=threads, **opts)

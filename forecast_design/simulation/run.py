@@ -262,8 +262,12 @@ class SimulationResult:
 
         at = self.diverged_at_s
         if at is not None:
+            comp = self.design.compensator
+            check = ("the SFM feed-forward's velocity feedback is checked by forecast_design.analysis.sfm_loop_check "
+                     "(margins does not take friction)" if comp is not None and comp.kind == "sfm"
+                     else "check it with `forecast-design margins`")
             raise SolverError(f"the simulation diverged at t = {at:.4g} s (|theta| > 1e6 rad or |tau| > 1e6 N m): "
-                              "the closed loop is unstable on this plant; check it with `forecast-design margins`")
+                              f"the closed loop is unstable on this plant; {check}")
 
         description = self.description
         if self.fault is not None:

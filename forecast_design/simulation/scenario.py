@@ -80,13 +80,13 @@ Omitted optional keys take the defaults of :func:`~.run.simulate`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -159,6 +159,7 @@ class Variability:
         if isinstance(self.repetitions, bool) or not isinstance(self.repetitions, int) or self.repetitions < 1:
             raise ParameterError(f"variability repetitions must be an integer >= 1, got {self.repetitions!r}",
                                  name="repetitions", value=self.repetitions)
+        check_limit("repetitions", "repetitions", self.repetitions)   # before any array of them is made
         if self.initial_angle not in ("random", "fixed"):
             raise ParameterError(f"variability initial_angle must be 'random' or 'fixed', got "
                                  f"{self.initial_angle!r}", name="initial_angle", value=self.initial_angle)
@@ -329,8 +330,25 @@ class Scenario:
         (:meth:`repetition`)."""
         rep = self.repetition(repetition)
         opts = {**self.options, "seed": rep.seed, "initial_angle": rep.initial_angle}
-        return simulate(self.design, reference=self.reference, effects=rep.effects, rate_hz=self.rate_hz,
-                        closed_loop=self.closed_loop, description=rep.description, **opts)
+        with self.naming_errors():
+            return simulate(self.design, reference=self.reference, effects=rep.effects, rate_hz=self.rate_hz,
+                            closed_loop=self.closed_loop, description=rep.description, **opts)
+
+    @contextlib.contextmanager
+    def naming_errors(self) -> Iterator[None]:
+        """Within the block, a ``ParameterError`` of the simulation (an unstable RK4 step for this plant, a
+        value no load check covers) names the scenario file first, as every scenario error does.
+
+        Yields
+        ------
+        None
+        """
+        try:
+            yield
+        except ParameterError as exc:
+            if not self.source or str(exc).startswith(f"{self.source}: "):
+                raise
+            raise ExperimentFormatError(f"{self.source}: {exc}", path=self.source, key=exc.name) from None
 
     def runs(self) -> list[SimulationResult]:
         """Every repetition of the scenario (one run without ``[variability]``)."""
@@ -541,6 +559,10 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
                                                 "([[truth.effects]])", path=source, key="truth.effects")
                 effects = [effect_from_mapping(e, source=source, where=f"truth.effects[{i}]")
                            for i, e in enumerate(value)]
+                words = [str(getattr(e, "effect", type(e).__name__)) for e in effects]
+                for word in dict.fromkeys(w for w in words if words.count(w) > 1):
+                    raise ExperimentFormatError(f"{prefix}[truth] effect '{word}' is given {words.count(word)} "
+                                                "times; give each effect once", path=source, key="truth.effects")
             elif key == "initial_angle":
                 if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                     raise ExperimentFormatError(f"{prefix}[truth] initial_angle must be a number [rad]",
@@ -593,6 +615,9 @@ def _check_simulation(options: Mapping[str, Any], rate: float, prefix: str, sour
     def fail(key: str, message: str) -> ExperimentFormatError:
         return ExperimentFormatError(f"{prefix}[simulation] {key} {message}", path=source, key=f"simulation.{key}")
 
+    if "encoder_counts" in options and not options["encoder_counts"] >= 0:
+        raise fail("encoder_counts", f"must be an integer >= 0 [counts/rev] (0: exact angles), got "
+                                     f"{options['encoder_counts']!r}")
     nyquist = rate / 2.0
     bounds = {"duration_s": (0.0, None, False), "process_noise_std": (0.0, 100.0, True),
               "torque_limit": (0.0, None, False), "sfm_deadband": (0.0, None, True),
@@ -640,12 +665,10 @@ def load_scenario(path: str | os.PathLike[str]) -> Scenario:
     ExperimentFormatError
         Invalid TOML or any rule of the format (naming file and key).
     """
+    from ..experiment_io import read_toml
+
     p = Path(path)
-    try:
-        with open(p, "rb") as fh:
-            doc = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise ExperimentFormatError(f"{p}: invalid TOML: {exc}", path=str(p)) from None
+    doc, _ = read_toml(p, "scenario file")   # size, nesting, UTF-8 (with or without BOM) checked there
     return scenario_from_mapping(doc, source=str(p))
 
 
