@@ -31,7 +31,7 @@ from .errors import ExperimentFormatError, ParameterError
 from .experiment_io import FORMAT
 from .experiment_io import parse_toml as _parse_toml
 from .experiment_io import read_toml_document as _read_toml
-from .plausibility import check_limit, limit_of
+from .limits import check_limit, limit_of
 from .params import (
     ENVIRONMENT_PRESETS,
     Design,

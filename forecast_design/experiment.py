@@ -575,7 +575,7 @@ def load_experiment(path: str | os.PathLike[str], *, max_samples: int | None = N
     max_samples : int, optional
         Most samples accepted, checked from the file's size and line breaks before the CSV is
         parsed (default ``experiment_io.DEFAULT_MAX_SAMPLES``, 2**24; each CLI verb states its own,
-        ``plausibility.COMPUTATION_LIMITS``).
+        ``limits.COMPUTATION_LIMITS``).
     reader : str
         Who reads the log (named in the message of ``max_samples``).
 

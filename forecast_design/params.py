@@ -13,7 +13,7 @@ from typing import Any, ClassVar, Mapping
 
 from .controllers import Controller, resolve_controller
 from .errors import ExperimentFormatError, ParameterError
-from .plausibility import check_limit, check_number, check_physical
+from .limits import check_limit, check_number, check_physical
 
 __all__ = [
     "Testbed",
@@ -101,7 +101,7 @@ class Testbed:
         object.__setattr__(self, "J_m", _number("[testbed]", "J_m", self.J_m, positive=True))
         object.__setattr__(self, "d_m", _number("[testbed]", "d_m", self.d_m))
         object.__setattr__(self, "k", _number("[testbed]", "k", self.k, positive=True))
-        for name in ("J_m", "d_m", "k"):   # documented plausible ranges (plausibility.PHYSICAL_RANGES)
+        for name in ("J_m", "d_m", "k"):   # documented plausible ranges (limits.PHYSICAL_RANGES)
             check_physical("[testbed]", name, getattr(self, name))
 
     def spring_torque(self, theta: Any, q: Any) -> Any:

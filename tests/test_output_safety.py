@@ -267,11 +267,20 @@ def _experiment(folder: Path) -> Path:
     (["simulate", "{scenario}", "--out", "{scenario}"], "scenario"),
     (["diagnose", "{toml}", "--json", "{link}"], "toml"),            # through a symlink
     (["diagnose", "{toml}", "--json", "{hard}"], "toml"),            # through a hard link
+    (["export", "--controller", "{c_code}", "--json", "{c_code}", "--out", "{dir}"], "c_code"),   # controllers as code
+    (["benchmark", "--controller", "{py_code}:GainScheduledPID", "--envs", "soft", "--repetitions", "2",
+      "--duration", "0.05", "--out", "{dir}", "--no-plots", "--json", "{py_code}"], "py_code"),
+    (["margins", "--controller", "{py_code}:GainScheduledPID", "--plot", "{py_code}"], "py_code"),
 ])
 def test_no_verb_overwrites_a_file_it_reads(tmp_path, capsys, argv, victim):
     toml = _experiment(tmp_path)
     files = {"toml": toml, "csv": toml.with_suffix(".csv"), "friction": tmp_path / "F.json",
-             "env": tmp_path / "env.toml", "testbed": tmp_path / "tb.toml", "scenario": tmp_path / "S.toml"}
+             "env": tmp_path / "env.toml", "testbed": tmp_path / "tb.toml", "scenario": tmp_path / "S.toml",
+             "c_code": tmp_path / "ctrl.c", "py_code": tmp_path / "ctrl.py"}
+    from forecast_design.controllers.examples import example_path
+
+    files["c_code"].write_bytes(example_path("gain_scheduled_pid.c").read_bytes())
+    files["py_code"].write_bytes(example_path("gain_scheduled_pid.py").read_bytes())
     files["friction"].write_text(json.dumps({"model": "sfm", "params": {"viscous": 0.1, "coulomb": 0.1}}))
     files["env"].write_text("[environment]\nk_e = 20.0\nJ_e = 0.02\nd_e = 1.0\n")
     files["testbed"].write_text("[testbed]\nk = 40.0\n")

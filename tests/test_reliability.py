@@ -22,7 +22,7 @@ from forecast_design.cli import main
 from forecast_design.errors import ExperimentFormatError, ForecastError, ParameterError
 from forecast_design.controllers import PD
 from forecast_design.params import Compensator, Design, Environment, Testbed
-from forecast_design.plausibility import COMPUTATION_LIMITS, PHYSICAL_RANGES, require_no_nan
+from forecast_design.limits import COMPUTATION_LIMITS, PHYSICAL_RANGES, require_no_nan
 
 FUZZ = settings(derandomize=True, max_examples=25, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture])

@@ -358,7 +358,7 @@ def _call_hostile(name, param, value, folder):
         pytest.fail(f"{name}({param}={value!r}) raised {type(exc).__name__}: {exc}")
     mapping = getattr(result, "to_mapping", None)
     if callable(mapping) and not inspect.isclass(result):
-        from forecast_design.plausibility import require_no_nan
+        from forecast_design.limits import require_no_nan
 
         try:
             summary = mapping()
@@ -403,7 +403,7 @@ def test_run_pipeline_refuses_an_out_dir_of_the_wrong_type(value, tmp_path, monk
 
 def _in_range(name):
     """Log-uniform over the plausible range of ``name`` (zero included where the range starts at 0)."""
-    from forecast_design.plausibility import PHYSICAL_RANGES
+    from forecast_design.limits import PHYSICAL_RANGES
 
     lo, hi, _ = PHYSICAL_RANGES[name]
     inner = st.floats(math.log10(max(lo, 1e-6)), math.log10(hi)).map(lambda e: float(10.0 ** e))

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from test_reliability import assert_one_line_error, cli, write_experiment
 
-from forecast_design.plausibility import COMPUTATION_LIMITS, limit_of
+from forecast_design.limits import COMPUTATION_LIMITS, limit_of
 
 SCENARIO_TEXT = (resources.files("forecast_design") / "data" / "example_scenario.toml").read_text()
 
@@ -219,7 +219,8 @@ def _state_space_max_pole(env: str, kind: str | None, d: int, rate: float = 2000
     terms = ["u"]
     if kind is not None:
         comp = Compensator(kind=kind, w_q_hz=10.0)
-        gm, gs, gt = compensator_strategy(comp).discrete_filters(comp, design, rate)
+        filters = compensator_strategy(comp).discrete_filters(comp, design, rate)
+        gm, gs, gt = filters.from_tau_m, filters.from_tau_s, filters.from_theta
         blocks += [ss([1.0], [1.0, 0.0], "c", "cp"), ss(gm.num, gm.den, "cp", "hm"), ss(gs.num, gs.den, "tau_s", "hs")]
         terms += ["hm", "hs"]
         if gt is not None:
@@ -460,3 +461,51 @@ def test_run_writes_its_json_summary_after_a_late_write_failure_and_says_so(tmp_
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["samples"] + summary["lost"] == 100
     assert list(tmp_path.glob("forecast-run-recovery-*.toml"))
+
+
+# --- long loops show progress -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("argv, done", [
+    (["simulate", "{scenario}", "--repetitions", "3", "--out", "{tmp}/r.toml"], "3/3"),
+    (["benchmark", "--controller", "pd:5:0.1", "--envs", "soft,stiff", "--compensator", "none", "--repetitions", "2",
+      "--duration", "0.05", "--reference", "step:0.2", "--out", "{tmp}/b", "--no-plots", "--workers", "1"], "2/2"),
+])
+def test_long_loops_show_progress_on_a_terminal(tmp_path, argv, done):
+    """On a terminal (a pseudo-terminal here) the loop's bar reaches its total on stderr; piped, it stays silent."""
+    import fcntl
+    import pty
+    import select
+    import struct
+    import termios
+
+    text = SCENARIO_TEXT.replace("[reference]", "[variability]\nrepetitions = 3\n\n[reference]", 1) \
+        if "repetitions =" not in SCENARIO_TEXT else SCENARIO_TEXT
+    (tmp_path / "s.toml").write_text(re.sub(r"(?m)^duration_s = .*$", "duration_s = 0.05", text))
+    args = [a.format(scenario=tmp_path / "s.toml", tmp=tmp_path) for a in argv]
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))   # a terminal has a width
+    proc = subprocess.Popen([sys.executable, "-m", "forecast_design", *args], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=slave, cwd=tmp_path)
+    os.close(slave)
+    seen = b""
+    while True:
+        ready, _, _ = select.select([master], [], [], 1.0)
+        if ready:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:         # the child closed the terminal
+                break
+            if not chunk:
+                break
+            seen += chunk
+        elif proc.poll() is not None:
+            break
+    proc.stdout.read()
+    proc.stdout.close()
+    assert proc.wait() == 0, seen.decode(errors="replace")
+    os.close(master)
+    assert done in seen.decode(errors="replace"), seen[-500:]
+    piped = subprocess.run([sys.executable, "-m", "forecast_design", *args], capture_output=True, text=True,
+                           cwd=tmp_path)
+    assert piped.returncode == 0 and done not in piped.stderr, piped.stderr

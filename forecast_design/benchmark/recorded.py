@@ -41,7 +41,7 @@ from ..executor import Executor, LocalExecutor
 from ..experiment import load_experiment
 from ..experiment_io import FORMAT, parse_toml, read_toml
 from ..params import Compensator
-from ..plausibility import limit_of
+from ..limits import limit_of
 from .metrics import disk_margin_of, pairwise_xcorr, repeatability_per_run, step_metrics
 from .runner import _STEP_KEYS, CellResult, _decimate, _expected_response, _run_metrics
 from .spec import compensator_label, controller_label

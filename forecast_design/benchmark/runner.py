@@ -25,7 +25,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from ..errors import ParameterError
-from ..plausibility import check_limit
+from ..limits import check_limit
 from ..executor import Executor, LocalExecutor
 from ..fileio import atomic_write
 from ..params import Compensator, Design

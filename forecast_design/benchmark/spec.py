@@ -22,7 +22,7 @@ from typing import Any, Sequence
 
 from ..effects import effects_to_mappings
 from ..errors import ParameterError
-from ..plausibility import check_limit
+from ..limits import check_limit
 from ..controllers import Controller, parse_controller
 from ..params import COMPENSATOR_KINDS, Compensator, Environment, Testbed
 from ..reproduce import TABLE3_TRUTH

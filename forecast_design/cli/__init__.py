@@ -14,7 +14,7 @@ from typing import Any, Callable, Sequence
 from .. import __version__
 from ..errors import ForecastError
 from ..fileio import guard_inputs
-from ..plausibility import require_no_nan
+from ..limits import require_no_nan
 from ..params import BREAK_POINTS, COMPENSATOR_KINDS, Q_FAMILIES
 from ..controllers.base import DISCRETIZATIONS
 
@@ -508,7 +508,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
     from ..gap import diagnose
     from ..reporting import write_report
 
-    from ..plausibility import limit_of
+    from ..limits import limit_of
 
     experiment = load_experiment(args.experiment, max_samples=limit_of("log_samples_diagnose"), reader="diagnose")
     diagnosis = diagnose(experiment)

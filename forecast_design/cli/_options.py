@@ -260,6 +260,20 @@ def _experiment_data(path: str) -> str | None:
     return str(Path(path).parent / data)
 
 
+def _controller_files(spellings) -> list[str]:
+    """The files controllers written as code name (``FILE.c``, ``FILE.py:Class``): inputs of the verb."""
+    if spellings is None:
+        return []
+    out = []
+    for text in [spellings] if isinstance(spellings, str) else spellings:
+        for part in str(text).split(","):
+            if part.endswith(".c"):
+                out.append(part)
+            elif ".py:" in part:
+                out.append(part.rsplit(":", 1)[0])
+    return out
+
+
 def _refuse_inputs_as_outputs(args: argparse.Namespace) -> None:
     """Before any work: no --json, --plot or --out file may be a file the command reads.
 
@@ -272,6 +286,7 @@ def _refuse_inputs_as_outputs(args: argparse.Namespace) -> None:
 
     named = [getattr(args, name, None) for name in _INPUT_OPTIONS]
     named += list(getattr(args, "env", None) or ())
+    named += _controller_files(getattr(args, "controller", None))
     inputs = [v for v in named if isinstance(v, str) and v and os.path.isfile(v)]
     inputs += [csv for csv in map(_experiment_data, [v for v in inputs if v.endswith(".toml")]) if csv]
     outputs = [getattr(args, "json", None), getattr(args, "plot", None)]

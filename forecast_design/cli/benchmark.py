@@ -99,7 +99,7 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             viscous_drift=args.viscous_drift, testbed=testbed)
         for label, model in spec.to_mapping()["controller_models"].items():
             if model.startswith("code"):
-                print(f"note: controller {label} is {model}", file=sys.stderr)
+                print(f"forecast-design: note: controller {label} is {model}", file=sys.stderr)
         with make_executor(args.scheduler, args.workers) as executor, \
                 _progress_bar("benchmark", "cell", enabled=args.json != "-") as progress:
             cells, info = run_benchmark(spec, out=args.out, executor=executor, progress=progress)

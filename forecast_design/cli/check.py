@@ -25,7 +25,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
         toml = Path(args.experiment)
         refuse_overwriting([args.json], [toml, toml.with_suffix(".csv")])
-    from ..plausibility import limit_of
+    from ..limits import limit_of
 
     summary = load_experiment(args.experiment, max_samples=limit_of("log_samples_check"), reader="check").summary()
     if args.json:

@@ -40,7 +40,7 @@ def _configure_identify(p: argparse.ArgumentParser) -> None:
 
 
 def _load_log(path: str, args: argparse.Namespace):
-    from ..plausibility import limit_of
+    from ..limits import limit_of
 
     limit = limit_of("log_samples_identify")
     if args.csv is not None:

@@ -129,7 +129,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ..fileio import check_writable
-    from ..plausibility import check_limit
+    from ..limits import check_limit
     from ..simulation.batch import simulate_scenario
     from ..simulation.run import save_simulation
     from ..simulation.scenario import load_scenario

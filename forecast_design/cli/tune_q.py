@@ -8,7 +8,7 @@ import math
 import sys
 
 from ..params import BREAK_POINTS, OBSERVER_KINDS, Q_FAMILIES
-from ..plausibility import require_no_nan
+from ..limits import require_no_nan
 from . import (_add_controller_option, _add_environment_options, _command, _controller_from_args,
                _environments_from_args, _float_range, _progress_bar, _testbed_from_args, _write_json)
 

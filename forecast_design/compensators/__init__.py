@@ -246,7 +246,7 @@ class _Observer(CompensatorStrategy):
 
     def discrete_filters(self, compensator: Compensator, believed: Design, rate_hz: float) -> DiscreteFilters:
         from ..discrete import discretize
-        from ..plausibility import check_below_nyquist
+        from ..limits import check_below_nyquist
 
         check_below_nyquist("w_q_hz (the Q cutoff)", compensator.w_q_hz, rate_hz)
         filters = observer_filters(compensator, believed)

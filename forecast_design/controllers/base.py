@@ -43,7 +43,7 @@ import numpy as np
 
 from ..errors import ExperimentFormatError, ParameterError
 from ..lti import RationalTF
-from ..plausibility import check_number, check_physical
+from ..limits import check_number, check_physical
 
 if TYPE_CHECKING:   # discrete (numba) loads when a law is asked for, not with the package
     from ..discrete import DiscreteTF

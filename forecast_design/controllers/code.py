@@ -222,6 +222,10 @@ class PythonController(CodeController):
         if not path.endswith(".py"):
             spec = importlib.util.find_spec(self.source)
             path = spec.origin if spec is not None and spec.origin else ""
+        from ..fileio import note_input
+
+        if path:
+            note_input(path)      # an output of this command must not replace it
         try:
             return hashlib.sha256(Path(path).read_bytes()).hexdigest()
         except OSError:
@@ -266,6 +270,9 @@ class CController(CodeController):
 
     def read_source(self) -> bytes:
         """The file's bytes (a one-line error when it cannot be read)."""
+        from ..fileio import note_input
+
+        note_input(self.source)   # an output of this command must not replace it
         try:
             return Path(self.source).read_bytes()
         except OSError as exc:

@@ -14,7 +14,7 @@ from typing import Any, ClassVar, Mapping
 
 from ..errors import ParameterError
 from ..lti import RationalTF
-from ..plausibility import check_number
+from ..limits import check_number
 from .base import DiscreteLaw, LawChannel, LinearController, _coefficients, format_number, parse_number
 
 __all__ = ["TFController", "DiscreteController"]

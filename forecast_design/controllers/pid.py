@@ -13,7 +13,7 @@ from typing import Any, ClassVar
 
 from ..errors import ParameterError
 from ..lti import RationalTF
-from ..plausibility import check_number, check_physical
+from ..limits import check_number, check_physical
 from .base import (
     ANTI_WINDUP,
     DERIVATIVE_ON,

@@ -18,7 +18,8 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..experiment import Experiment
-from ..plausibility import LogScales, check_signal, log_scales
+from ..plausibility import LogScales, log_scales
+from ..limits import check_signal
 from .logs import AxisLog
 
 __all__ = ["FrictionLog", "experiment_scales", "friction_log", "zoh_align"]

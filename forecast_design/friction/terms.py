@@ -16,7 +16,7 @@ from typing import ClassVar, Mapping
 import numpy as np
 
 from ..errors import ParameterError
-from ..plausibility import check_limit
+from ..limits import check_limit
 from .laws import clipped_exp, stribeck_level
 
 __all__ = [

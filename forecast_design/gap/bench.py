@@ -57,7 +57,7 @@ from ..errors import ParameterError
 from ..executor import available_workers, make_executor
 from ..controllers import PAPER_PD
 from ..params import Design, environment_preset
-from ..plausibility import check_limit
+from ..limits import check_limit
 
 __all__ = ["BenchCase", "BenchResult", "benchmark", "draw_case", "run_case", "make_log", "make_logs", "simulate_cases",
            "identifiability", "BENCH_WORDS", "PAIRS", "MAX_ATTEMPTS", "available_workers"]

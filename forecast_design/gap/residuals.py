@@ -42,7 +42,8 @@ import numpy as np
 from ..errors import ExperimentFormatError, IdentifiabilityError, ParameterError
 from ..experiment import Experiment
 from ..tau_s_source import TauSSource, classify_tau_s, significant_digits
-from ..plausibility import DATASHEET_TOLERANCE, SIGNAL_LIMITS, LogScales, encoder_step_of, first_beyond, log_scales
+from ..plausibility import DATASHEET_TOLERANCE, LogScales, encoder_step_of, log_scales
+from ..limits import SIGNAL_LIMITS, first_beyond
 from scipy import signal
 
 from ..friction.derivatives import (FilterSettings, butterworth, decimate_columns, default_filter_settings,

@@ -22,7 +22,7 @@ from ..margins import STABILITY_TOLERANCE, DiskMargin, check_skew, disk_margin_f
 from ..compensators import compensator_strategy
 from ..controllers import PAPER_PD, Controller, DiscreteLaw, controller_law, resolve_controller
 from ..params import Compensator, Design
-from ..plausibility import check_limit, check_physical
+from ..limits import check_limit, check_physical
 from .closing import BREAK_POINTS, ObservedPlant, close_loop
 
 __all__ = ["SampledForceLoop", "sampled_force_loop", "ZohPlant", "zoh_plant", "to_w", "law_in_w"]

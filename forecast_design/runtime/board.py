@@ -16,7 +16,7 @@ import numpy as np
 from .. import fileio
 from ..errors import ForecastError, OutputError, ParameterError
 from ..params import Design
-from ..plausibility import PHYSICAL_RANGES
+from ..limits import PHYSICAL_RANGES
 from . import protocol as pr
 from .link import BoardError, Link, LinkError
 

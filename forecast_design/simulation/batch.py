@@ -32,7 +32,7 @@ import numpy as np
 from ..discrete import njit, prange
 from ..errors import ParameterError
 from ..params import Design
-from ..plausibility import check_limit
+from ..limits import check_limit
 from .plant import history_length
 from .run import _MEAS, _TRUTH, SimulationResult, _check_kernel_cache, _loop, _prepare, _Prepared, run_code
 from .scenario import Scenario

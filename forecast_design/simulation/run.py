@@ -41,7 +41,7 @@ from ..discrete import check_kernel_cache, njit as _njit
 from ..compensators import DEFAULT_VELOCITY_CUTOFF_HZ
 from ..controllers import PAPER_PD
 from ..params import Compensator, Design, Environment
-from ..plausibility import SIGNAL_LIMITS, check_limit, check_physical, first_beyond
+from ..limits import SIGNAL_LIMITS, check_limit, check_physical, first_beyond
 from ..program import ControllerProgram, build_program, program_step
 from .plant import PlantModel, PlantStepper, advance_period, build_plant, history_length, stability_check
 

@@ -96,7 +96,7 @@ from ..errors import ExperimentFormatError, ParameterError
 from ..compensators import friction_feedforward
 from ..controllers import PAPER_PD, controller_from_mapping
 from ..params import Compensator, Design, Environment, Testbed
-from ..plausibility import check_limit, check_physical
+from ..limits import check_limit, check_physical
 from .references import reference_from_mapping
 from .run import SimulationResult, save_simulation, simulate
 

@@ -14,7 +14,7 @@ from ..loops.response import LoopResponse, loop_response, observer_responses, q_
 from ..executor import Executor
 from ..margins import disk_margin, disk_margins
 from ..errors import ParameterError
-from ..plausibility import check_limit, check_physical
+from ..limits import check_limit, check_physical
 from ..environments import resolve_environments, resolve_testbed
 from ..params import Compensator, Design, Environment
 from ..controllers import PAPER_PD, Controller, resolve_controller

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..executor import Executor
 from ..errors import ParameterError, SolverError
-from ..plausibility import check_physical
+from ..limits import check_physical
 from ..params import Compensator
 from ..controllers import PAPER_PD, Controller, resolve_controller
 from .nlp import _casadi_abs2_G, _ipopt, _solve_max_cutoff
