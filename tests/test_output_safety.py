@@ -309,3 +309,13 @@ def test_an_input_found_while_running_is_guarded_when_written(tmp_path, capsys):
     assert env.read_bytes() == before
     # outside a command (library use), saving over a file read earlier stays possible
     atomic_write(env, before)
+
+
+@needs_root
+def test_a_block_device_output_is_refused_in_one_line_and_stays_a_device(tmp_path, capsys):
+    """A disk node (made here with the loop device's numbers, never opened) is no output: one line, untouched."""
+    node = tmp_path / "disk"
+    os.mknod(node, stat.S_IFBLK | 0o600, os.makedev(7, 0))
+    code, out, err = _cli(capsys, "tf", "--json", node)
+    _one_line_error(code, err, "disk", "a block device")
+    assert stat.S_ISBLK(os.lstat(node).st_mode)

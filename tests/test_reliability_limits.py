@@ -327,6 +327,13 @@ def test_replay_and_location_texts_say_what_they_cannot_evaluate():
     check = ReplayCheck(window_s=0.5, n_windows=3, tau_s_error_before=math.nan, tau_s_error_after=math.nan,
                         theta_error_before=math.nan, theta_error_after=math.nan, tau_s_rms=0.1, worst_windows_s=())
     assert "cannot be replayed" in check.summary("coulomb") and "nan" not in check.summary("coulomb")
+    from forecast_design.gap.locate import Location
+
+    where = Location(time_windows_s=(), frequency_band_hz=(0.1, 2.0), speed_band_rad_s=(0.0, 1.0), angle_span_rad=0.5,
+                     n_reversals=1, angle_fraction=0.1, reversal_ratio=math.nan, torque_fraction=0.2,
+                     equation_share={"motor": 1.0}, notes=())
+    text = where.summary()
+    assert "too few" in text and "nan" not in text.lower()
 
 
 def test_benchmark_runs_reports_every_unreadable_experiment_file(tmp_path, capsys):
