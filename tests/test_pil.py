@@ -23,6 +23,9 @@ PIL_BOUND_N_M = 1e-7
 #: Firmware commands vs the float64 design controller on the same inputs, relative to max |u| [-].
 FLOAT64_BOUND_REL = 1e-6
 SFM = {"viscous": 0.05, "coulomb": 0.02, "offset": 0.001}
+#: Edges at k = 150, 250, 300, 350 where the host's float64 t / period rounds below the half period:
+#: the software in the loop must use the firmware's own reference generator to match it.
+REFERENCE = "square:0.2:0.05"
 CASES = [("none", None), ("sfm", SFM), ("ea-fob", None), ("lo-dob", None), ("ld-dob", None), ("motor-fob", None)]
 
 
@@ -31,14 +34,14 @@ CASES = [("none", None), ("sfm", SFM), ("ea-fob", None), ("lo-dob", None), ("ld-
 def test_pil_matches_the_python_closed_loop(tmp_path, compensator, sfm):
     opts = FirmwareOptions()
     res = run_pil(compensator=compensator, env="exp-soft", w_q_hz=10.0, sfm_params=sfm,
-                  reference="square:0.2:0.125", duration=0.2, out=tmp_path / "run.toml", work_dir=tmp_path / "fw",
+                  reference=REFERENCE, duration=0.2, out=tmp_path / "run.toml", work_dir=tmp_path / "fw",
                   options=opts)
     assert res.fault is None and res.samples == res.expected == 400
     from forecast_design.export.firmware import export_firmware
 
     fw = export_firmware(out_dir=tmp_path / "fw2", compensator=compensator, env="exp-soft", w_q_hz=10.0,
                          sfm_params=sfm, options=opts)
-    py = python_closed_loop(fw.program, fw.design, "square:0.2:0.125", res.samples, options=opts)
+    py = python_closed_loop(fw.program, fw.design, REFERENCE, res.samples, options=opts)
     for name in ("tau_m", "theta", "q", "tau_s", "tau_r", "u", "tau_frc_hat"):
         assert np.max(np.abs(res.arrays[name] - py[name])) <= PIL_BOUND_N_M, name
     assert np.any(res.arrays["theta"] != 0.0)                 # the loop moved the motor

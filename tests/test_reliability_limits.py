@@ -131,7 +131,9 @@ def _peak_rss_bytes(argv: list[str]) -> int:
     proc.returncode = os.waitstatus_to_exitcode(status)
     err = proc.stderr.read().decode()
     proc.stderr.close()
-    assert proc.returncode == 0, err[-500:]
+    # identify's answer on this log (a sine through a spring, no friction term to speak of) is
+    # "not identifiable", exit 3, after the whole fit: the peak is the same path's
+    assert proc.returncode in (0, 3), err[-500:]
     return usage.ru_maxrss * 1024
 
 

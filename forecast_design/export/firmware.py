@@ -28,7 +28,7 @@ from .c import c_float_literal, export_controller
 from .toolchain import ARM_CFLAGS, M4_CLOCK_HZ, USER_ARM_CFLAGS
 
 __all__ = ["BOARDS", "OUTPUT_STAGES", "FirmwareOptions", "FirmwareResult", "export_firmware", "build_firmware",
-           "sensor_counts", "firmware_measurements", "TEMPLATE_FILES", "code_cycle_check", "CYCLE_WARNING_FRACTION"]
+           "sensor_counts", "firmware_measurements", "firmware_reference", "TEMPLATE_FILES", "code_cycle_check", "CYCLE_WARNING_FRACTION"]
 
 #: Static sources copied verbatim from ``templates/firmware``.
 TEMPLATE_FILES = ("Makefile", "stm32f446re.ld", "startup.c", "fd_app.c", "fd_drivers.c", "fd_drivers.h",
@@ -377,6 +377,51 @@ def build_firmware(out_dir: str | Path, target: str = "board", *, timeout: float
 def sensor_counts(angle: float, rad_per_count: float) -> int:
     """The encoder count of a quantised angle (the virtual testbed's encoders give whole counts) [-]."""
     return int(math.floor(angle / rad_per_count + 0.5))
+
+
+def firmware_reference(reference: Any, n: int, rate_hz: float) -> np.ndarray:
+    """The force reference of periods ``0..n-1`` exactly as the firmware generates it (float32).
+
+    ``fd_reference_value`` in fd_reference.c counts whole periods when the reference's period is a
+    whole number of samples (a square's edges then fall on exact indices) and otherwise works on
+    ``t = index / rate`` in float32; the host's float64 signal can put an edge one sample apart
+    (``0.075 / 0.05`` is 1.4999999999999998). Software in the loop uses these values so that it
+    and the firmware see the same reference (a sine's ``sinf`` may still differ by one float32
+    step between libms).
+
+    Parameters
+    ----------
+    reference : forecast_design.runtime.protocol.Reference
+        ``kind`` (step, square, sine), ``amplitude`` [N m], ``period`` [s], ``offset`` [N m].
+    n : int
+        Number of periods.
+    rate_hz : float
+        Control rate [Hz].
+
+    Returns
+    -------
+    ndarray of float32, shape (n,)
+        tau_r [N m] per period.
+    """
+    f = np.float32
+    index = np.arange(n, dtype=np.uint32)
+    rate, period = f(rate_hz), f(reference.period)
+    amplitude, offset = f(reference.amplitude), f(reference.offset)
+    per = f(period * rate)
+    whole = np.uint32(f(per + f(0.5)))
+    samples = int(whole) if abs(f(per - f(whole))) < f(1.0e-3) else 0
+    t = index.astype(f) / rate
+    if reference.kind == "square":
+        if samples > 0:
+            high = 2 * (index % np.uint32(samples)) < samples
+        else:
+            cycles = t / period
+            high = (cycles - cycles.astype(np.uint32).astype(f)) < f(0.5)
+        return np.where(high, f(offset + amplitude), f(offset - amplitude)).astype(f)
+    if reference.kind == "sine":
+        return (offset + amplitude * np.sin(f(6.28318531) * (t / period))).astype(f)
+    on = index >= samples if (samples > 0 or period == 0.0) else t >= period
+    return np.where(on, f(offset + amplitude), offset).astype(f)
 
 
 def firmware_measurements(count_m: int, count_e: int, rad_per_count: float, k: float,

@@ -404,51 +404,60 @@ def identifiability(case: IndependentCase, truth: IndependentTruth) -> str | Non
             return f"the command saturates {100 * sat:.0f} % of the time"
     floor = quantisation_floor(case)
     for word in case.words:
+        why = _structural_reason(case, truth, word, th, w)
+        if why:
+            return why
         sig = _signature(case, truth, word)
         if sig < VISIBLE_FACTOR * floor:
             return (f"{word}: its torque ({sig:.2g} N m RMS) is below {VISIBLE_FACTOR:g} x the encoders' quantisation "
                     f"floor ({floor:.2g} N m at {case.encoder_counts} counts)")
-        rev = _reversals(w)
-        if word in (Effect.COULOMB, Effect.STICTION, *ANGLE_WORDS) and rev < 2:
-            return f"{word}: {rev} velocity reversal(s), needs >= 2"
-        if word in ANGLE_WORDS:
-            travel = float(th.max() - th.min())
-            if travel < 2.0 * math.pi:
-                return f"{word}: motor travel {travel:.2f} rad, needs >= 2 pi"
-        if word is Effect.STICTION and not case.effect_params.get("sigma0"):
-            b = _breakaways(np.asarray(truth.stuck))
-            if b < 2:
-                return f"stiction: {b} breakaway(s) after sticking, needs >= 2"
-            # the drop from F_s to F_c is seen only where the motor slides well beyond v_s
-            fast = float(np.mean(np.abs(w) > 2.0 * float(case.effect_params["v_s"])))
-            if fast < 0.05:
-                return (f"stiction: the motor slides faster than 2 v_s in {100 * fast:.1f} % of the log, "
-                        "needs >= 5 % to show the Stribeck decay")
-        if word in (Effect.DELAY, Effect.TORQUE_GAIN):
-            frac = one_line_fraction(truth.command)
-            if frac >= 0.95:
-                return f"{word}: {100 * frac:.1f} % of the command variance is one spectral line"
-        if word is Effect.TORQUE_GAIN:
-            # a gain is a common rescaling of J_m, d_m and k: inside the datasheet tolerance that a
-            # re-calibration may absorb it is a nominal error, not a distinguishable effect
-            g = float(case.effect_params["gain"])
-            if abs(g - 1.0) <= DATASHEET_TOLERANCE["J_m"]:
-                tol = DATASHEET_TOLERANCE["J_m"]
-                return (f"torque_gain: |gain - 1| = {abs(g - 1.0):.3f} within the {tol:.0%} "
-                        "datasheet tolerance of the re-calibration")
-        if word is Effect.BACKLASH:
-            sides = np.asarray(truth.spring_mode)
-            sides = sides[(sides == 1) | (sides == -1)]
-            passes = int(np.count_nonzero(np.diff(sides))) if sides.size else 0
-            if passes < 2:
-                return f"backlash: {passes} passage(s) through the dead band, needs >= 2"
-        if word is Effect.ENVIRONMENT_MISMATCH:
-            if case.environment.locked:
-                return "environment_mismatch: the output is locked"
-            travel = float(np.ptp(truth.q))
-            if travel < 100 * case.encoder_step:
-                return (f"environment_mismatch: the output moves {travel / case.encoder_step:.0f} counts, "
-                        "needs >= 100")
+    return None
+
+
+def _structural_reason(case: IndependentCase, truth: IndependentTruth, word: Effect, th: np.ndarray,
+                       w: np.ndarray) -> str | None:
+    """Why the excitation or set-up cannot show ``word`` at all (checked before its size is)."""
+    if word is Effect.ENVIRONMENT_MISMATCH and case.environment.locked:
+        return "environment_mismatch: the output is locked"
+    rev = _reversals(w)
+    if word in (Effect.COULOMB, Effect.STICTION, *ANGLE_WORDS) and rev < 2:
+        return f"{word}: {rev} velocity reversal(s), needs >= 2"
+    if word in ANGLE_WORDS:
+        travel = float(th.max() - th.min())
+        if travel < 2.0 * math.pi:
+            return f"{word}: motor travel {travel:.2f} rad, needs >= 2 pi"
+    if word is Effect.STICTION and not case.effect_params.get("sigma0"):
+        b = _breakaways(np.asarray(truth.stuck))
+        if b < 2:
+            return f"stiction: {b} breakaway(s) after sticking, needs >= 2"
+        # the drop from F_s to F_c is seen only where the motor slides well beyond v_s
+        fast = float(np.mean(np.abs(w) > 2.0 * float(case.effect_params["v_s"])))
+        if fast < 0.05:
+            return (f"stiction: the motor slides faster than 2 v_s in {100 * fast:.1f} % of the log, "
+                    "needs >= 5 % to show the Stribeck decay")
+    if word in (Effect.DELAY, Effect.TORQUE_GAIN):
+        frac = one_line_fraction(truth.command)
+        if frac >= 0.95:
+            return f"{word}: {100 * frac:.1f} % of the command variance is one spectral line"
+    if word is Effect.TORQUE_GAIN:
+        # a gain is a common rescaling of J_m, d_m and k: inside the datasheet tolerance that a
+        # re-calibration may absorb it is a nominal error, not a distinguishable effect
+        g = float(case.effect_params["gain"])
+        if abs(g - 1.0) <= DATASHEET_TOLERANCE["J_m"]:
+            tol = DATASHEET_TOLERANCE["J_m"]
+            return (f"torque_gain: |gain - 1| = {abs(g - 1.0):.3f} within the {tol:.0%} "
+                    "datasheet tolerance of the re-calibration")
+    if word is Effect.BACKLASH:
+        sides = np.asarray(truth.spring_mode)
+        sides = sides[(sides == 1) | (sides == -1)]
+        passes = int(np.count_nonzero(np.diff(sides))) if sides.size else 0
+        if passes < 2:
+            return f"backlash: {passes} passage(s) through the dead band, needs >= 2"
+    if word is Effect.ENVIRONMENT_MISMATCH:
+        travel = float(np.ptp(truth.q))
+        if travel < 100 * case.encoder_step:
+            return (f"environment_mismatch: the output moves {travel / case.encoder_step:.0f} counts, "
+                    "needs >= 100")
     return None
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import ExportError, ParameterError
 from ..export.firmware import (FirmwareOptions, build_firmware, export_firmware, firmware_measurements,
-                               sensor_counts)
+                               firmware_reference, sensor_counts)
 from ..export.toolchain import M4_CLOCK_HZ, find_tools
 from ..params import Design
 from ..simulation import plant_stepper
@@ -225,8 +225,9 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
     bed = plant_stepper(design, effects, n=n, rate_hz=rate, seed=seed, process_noise_std=noise_std,
                         encoder_counts=opt.encoder_counts)
     ctrl = program.make_step(dtype)
-    refs = ref.signal().sample(n, rate)
     single = np.dtype(dtype) == np.float32
+    # float32: the firmware's own reference generator (its edges fall on the same periods)
+    refs = firmware_reference(ref, n, rate) if single else ref.signal().sample(n, rate)
     runner = None
     if program.external:   # a controller written as code: software in the loop (its C on the host)
         from ..simulation.code import code_runner
@@ -244,7 +245,7 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
             th, q, tau_s = firmware_measurements(sensor_counts(th, opt.rad_per_count),
                                                  sensor_counts(q, opt.rad_per_count), opt.rad_per_count,
                                                  design.testbed.k, design.environment.locked)
-        tau_r = float(np.float32(refs[i])) if single else float(refs[i])
+        tau_r = float(refs[i])
         u_code = 0.0 if runner is None else runner.step(i / rate, tau_r, tau_s, th, q)
         tau_m = ctrl.step(tau_r, tau_s, th, u_external=u_code)
         for key, v in zip(out, (tau_m, th, q, tau_s, tau_r, ctrl.u, ctrl.hat)):
