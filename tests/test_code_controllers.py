@@ -314,6 +314,27 @@ def test_missing_files_and_modules_are_one_line(tmp_path):
     assert resolve_controller("pd:5:0.1").kind == "pd"
 
 
+def test_parse_controller_reads_the_code_spellings_as_resolve_controller_does(tmp_path, monkeypatch):
+    """The benchmark's and the package's parse_controller take FILE.py:Class, module:Class and FILE.c
+    (relative to the working directory); a python:/c: prefix is one line naming the spellings."""
+    from forecast_design import parse_controller
+    from forecast_design.benchmark import parse_controller as bench_parse
+
+    _write(tmp_path, "pd.py", PD_PY)
+    _write(tmp_path, "pd.c", PD_C)
+    monkeypatch.chdir(tmp_path)
+    for text, kind in (("pd.py:PD", PythonController), (EXAMPLE_PY, PythonController), ("pd.c", CController)):
+        got = parse_controller(text)
+        assert isinstance(got, kind) and got == resolve_controller(text) == bench_parse(text)
+    assert parse_controller("pd.c").source == str(tmp_path / "pd.c")
+    for text in ("python:source=pd.py:class_name=PD", "c:pd"):
+        with pytest.raises(ParameterError, match="code is spelled FILE.py:Class, module:Class or FILE.c") as info:
+            parse_controller(text)
+        assert "\n" not in str(info.value)
+    with pytest.raises(ParameterError, match="FILE.py:Class, module:Class, FILE.c or a TOML file"):
+        parse_controller("nonsense")
+
+
 def test_an_experiment_records_code_as_other_and_refuses_code_kinds(tmp_path):
     from forecast_design.errors import ExperimentFormatError
     from forecast_design.experiment_io import parse_toml
