@@ -300,6 +300,7 @@ def emit_c(program: ControllerProgram, out_dir: str | Path, *, user_source: str 
         "version": __version__, "provenance": provenance,
         "rate_hz": repr(float(program.rate_hz)), "rate_hz_c": lit(program.rate_hz),
         "n_sections": str(max(program.n_sections, 1)),
+        "has_sections": "1" if program.n_sections > 0 else "0",
         "coefficients": "\n\n".join(coeffs) if coeffs else "/* no filters */",
         "body": "\n".join(body),
         "locals": "\n".join("    " + line for line in locals_),
