@@ -257,6 +257,12 @@ BAD_C = {
                "float *fd_kept;   /* global: the compiler cannot drop the allocation */\n"
                "float fd_user_step(float a, float b, float c, float d) { fd_kept = malloc(4); (void)b; (void)c; "
                "(void)d; *fd_kept = a; return *fd_kept; }\n", "calls malloc of libc"),
+    # other types than the interface's: without the prototypes first, ctypes and the firmware would
+    # pass floats where the code reads doubles (garbage, no error)
+    "signature.c": ("void fd_user_init(double r) { (void)r; }\n"
+                    "double fd_user_step(double a, double b, double c, double d) { (void)c; (void)d; return a - b; }\n",
+                    r"signature\.c:1:6: error: conflicting types for .fd_user_init.*\(the interface: void "
+                    r"fd_user_init\(float rate_hz\)"),
     "stdio.c": ("#include <stdio.h>\nvoid fd_user_init(float r) { (void)r; }\n"
                 "float fd_user_step(float a, float b, float c, float d) { printf(\"%f\", a); (void)b; (void)c; (void)d; "
                 "return a; }\n", "calls printf of libc"),
