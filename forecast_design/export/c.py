@@ -118,7 +118,10 @@ def _provenance(design: Design, rate_hz: float, tau_max: float) -> tuple:
 
     comp = design.compensator or Compensator()
     rows = [("tool", f"forecast-design {__version__}"), ("rate_hz", repr(float(rate_hz)))]
-    if design.controller is not None:
+    if design.controller is not None and design.controller.is_code:
+        rows.append(("law", f"{design.controller.label}; u = fd_user_step(tau_r, tau_s, theta, q) in fd_user.c, "
+                            "its state in its own static variables"))
+    elif design.controller is not None:
         rows.append(("law", f"{design.controller.label}; u = C_r(z) tau_r - C(z) tau_s as "
                             "forecast_design.controllers defines it"))
     rows.append(("tau_max", repr(float(tau_max)) + " N m"))
