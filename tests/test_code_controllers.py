@@ -257,6 +257,12 @@ BAD_C = {
                "float *fd_kept;   /* global: the compiler cannot drop the allocation */\n"
                "float fd_user_step(float a, float b, float c, float d) { fd_kept = malloc(4); (void)b; (void)c; "
                "(void)d; *fd_kept = a; return *fd_kept; }\n", "calls malloc of libc"),
+    # other types than the interface's: without the prototypes first, ctypes and the firmware would
+    # pass floats where the code reads doubles (garbage, no error)
+    "signature.c": ("void fd_user_init(double r) { (void)r; }\n"
+                    "double fd_user_step(double a, double b, double c, double d) { (void)c; (void)d; return a - b; }\n",
+                    r"signature\.c:1:6: error: conflicting types for .fd_user_init.*\(the interface: void "
+                    r"fd_user_init\(float rate_hz\)"),
     "stdio.c": ("#include <stdio.h>\nvoid fd_user_init(float r) { (void)r; }\n"
                 "float fd_user_step(float a, float b, float c, float d) { printf(\"%f\", a); (void)b; (void)c; (void)d; "
                 "return a; }\n", "calls printf of libc"),
@@ -312,6 +318,27 @@ def test_missing_files_and_modules_are_one_line(tmp_path):
         code_runner(resolve_controller("no_such_lab_module:Controller"))
     # a registered kind is never read as module:Class
     assert resolve_controller("pd:5:0.1").kind == "pd"
+
+
+def test_parse_controller_reads_the_code_spellings_as_resolve_controller_does(tmp_path, monkeypatch):
+    """The benchmark's and the package's parse_controller take FILE.py:Class, module:Class and FILE.c
+    (relative to the working directory); a python:/c: prefix is one line naming the spellings."""
+    from forecast_design import parse_controller
+    from forecast_design.benchmark import parse_controller as bench_parse
+
+    _write(tmp_path, "pd.py", PD_PY)
+    _write(tmp_path, "pd.c", PD_C)
+    monkeypatch.chdir(tmp_path)
+    for text, kind in (("pd.py:PD", PythonController), (EXAMPLE_PY, PythonController), ("pd.c", CController)):
+        got = parse_controller(text)
+        assert isinstance(got, kind) and got == resolve_controller(text) == bench_parse(text)
+    assert parse_controller("pd.c").source == str(tmp_path / "pd.c")
+    for text in ("python:source=pd.py:class_name=PD", "c:pd"):
+        with pytest.raises(ParameterError, match="code is spelled FILE.py:Class, module:Class or FILE.c") as info:
+            parse_controller(text)
+        assert "\n" not in str(info.value)
+    with pytest.raises(ParameterError, match="FILE.py:Class, module:Class, FILE.c or a TOML file"):
+        parse_controller("nonsense")
 
 
 def test_an_experiment_records_code_as_other_and_refuses_code_kinds(tmp_path):
@@ -446,9 +473,26 @@ def test_the_export_links_the_c_controller_and_its_host_build_is_the_float32_pro
 
 
 @needs_cc
+def test_a_c_controller_without_a_compensator_exports_and_builds_with_the_strict_flags(tmp_path):
+    """No compensator: the program has no filter section at all, and the generated C (built with
+    -Werror -pedantic) is the user's step saturated: tau_m = sat(fd_user_step(...) + 0)."""
+    from forecast_design.export.c import export_controller
+    from forecast_design.export.toolchain import build_host, run_host
+
+    res = export_controller(out_dir=tmp_path, controller=EXAMPLE_C, compensator="none", tau_max=2.0)
+    assert res.program.n_sections == 0
+    x = toolchain.test_sequence(5000, with_q=True)
+    host = run_host(build_host(tmp_path), x)
+    runner = code_runner(resolve_controller(EXAMPLE_C))
+    runner.reset(2000.0, None, None)
+    u = np.array([runner.step(0.0, *row) for row in x.astype(float)])
+    assert np.array_equal(host, np.clip(u, -2.0, 2.0)) and np.max(np.abs(u)) > 2.0
+
+
+@needs_cc
 def test_the_emulated_board_runs_the_c_controller_it_was_built_with(tmp_path):
     """emulate --controller FILE.c accepts the host's upload of that code (run --controller FILE.c),
-    refuses another, and a NaN from the code is fault CONTROLLER with zero torque."""
+    refuses another, and a NaN or an infinity from the code is fault CONTROLLER with zero torque."""
     import os
     import signal
 
@@ -457,7 +501,8 @@ def test_the_emulated_board_runs_the_c_controller_it_was_built_with(tmp_path):
     nan_c = _write(tmp_path, "nan.c", "static int n;\nvoid fd_user_init(float r) { (void)r; n = 0; }\n"
                    "float fd_user_step(float a, float b, float c, float d) { (void)b; (void)c; (void)d; "
                    "return ++n > 50 ? 0.0f / 0.0f : a; }\n")
-    for code, expect in ((EXAMPLE_C, 0), (str(nan_c), 2)):
+    inf_c = _write(tmp_path, "inf.c", nan_c.read_text().replace("0.0f / 0.0f", "1.0f / 0.0f"))
+    for code, expect in ((EXAMPLE_C, 0), (str(nan_c), 2), (str(inf_c), 2)):
         emu = subprocess.Popen([*CLI, "emulate", "--controller", code], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True, cwd=tmp_path)
         try:
@@ -514,10 +559,13 @@ def test_sil_equals_pil_bit_for_bit_for_the_c_example(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.skipif(_pil_missing() is not None, reason="no qemu / arm toolchain")
-def test_pil_stops_a_nan_c_controller_with_fault_controller(tmp_path):
+@pytest.mark.parametrize("bad", ["0.0f / 0.0f", "1.0f / 0.0f"], ids=["nan", "inf"])
+def test_pil_stops_a_nan_or_infinite_c_controller_with_fault_controller(tmp_path, bad):
+    """An infinity is a fault too, not a command at the torque limit (the firmware checks u + hat before
+    fd_step's saturation)."""
     _write(tmp_path, "nan.c", "static int n;\nvoid fd_user_init(float r) { (void)r; n = 0; }\n"
            "float fd_user_step(float a, float b, float c, float d) { (void)b; (void)c; (void)d; "
-           "return ++n > 50 ? 0.0f / 0.0f : a; }\n")
+           f"return ++n > 50 ? {bad} : a; }}\n")
     p = _cli("pil", "--controller", "nan.c", "--duration", "0.1", "--out", "run.toml", "--json", "-", cwd=tmp_path)
     assert p.returncode == 2, p.stderr
     doc = json.loads(p.stdout)

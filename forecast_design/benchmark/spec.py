@@ -169,7 +169,9 @@ class BenchmarkSpec:
     ----------
     controllers : tuple of Controller
         Force controllers under test, any kind with equations (each runs its own law: its
-        discretisation, derivative filter and placement, saturation).
+        discretisation, derivative filter and placement, saturation) or written as code
+        (:class:`~forecast_design.controllers.PythonController`,
+        :class:`~forecast_design.controllers.CController`: it runs as written).
     compensators : tuple of Compensator
         Friction compensators (part of the benchmarking system, paper Section 1).
     environments : tuple of (str, Environment)

@@ -20,6 +20,8 @@ Command-line spelling: ``KIND:positional...[:key=value...]``::
     tf:NUM/DEN                tf:0.5,10/0.01,1 (comma-separated, descending powers of s)
     discrete:NUM/DEN          discrete:205,-200/1,0[:rate_hz=2000]
     other:NAME                other:my adaptive law
+    FILE.py:Class             a controller written in Python (module:Class when importable)
+    FILE.c                    a controller written in C (docs/controllers-as-code.md)
     FILE.toml                 a file with a [controller] table (an experiment TOML works too)
 """
 
@@ -214,6 +216,8 @@ def _forms() -> str:
             out.append(f"{kind}:NUM/DEN")
         elif kind == "other":
             out.append("other:NAME")
+        elif cls.is_code:
+            out.append("FILE.c" if kind == "c" else "FILE.py:Class, module:Class")
         else:
             need, optional = cls.positional
             out.append(":".join([kind, *need] + [f"[{k}]" for k in optional]))
@@ -230,7 +234,8 @@ def parse_controller(text: str) -> Controller:
     ----------
     text : str
         ``pd:5:0.1``, ``pid:6:20:0.05:0.002``, ``tf:NUM/DEN``, ``discrete:NUM/DEN``,
-        ``other:NAME``, with optional ``:key=value`` fields for the kind's other keys.
+        ``other:NAME``, with optional ``:key=value`` fields for the kind's other keys; code:
+        ``FILE.py:Class``, ``module:Class``, ``FILE.c`` (a relative file from the working directory).
 
     Returns
     -------
@@ -253,10 +258,16 @@ def parse_controller(text: str) -> Controller:
     kind, sep, rest = text.partition(":")
     kind = kind.lower()
     owner = f"controller {text!r:.80}"
+    code = code_controller_from_spelling(text, kinds=tuple(CONTROLLERS))
+    if code is not None:
+        return code
     if not sep or kind not in CONTROLLERS:
         raise ParameterError(f"{owner}: expected one of {_forms()} or a TOML file with a [controller] table",
                              name="controller", value=text)
     cls = CONTROLLERS[kind]
+    if cls.is_code:
+        raise ParameterError(f"{owner}: code is spelled FILE.py:Class, module:Class or FILE.c (no {kind}: prefix)",
+                             name="controller", value=text)
     if kind == "other":
         return cls(**cls.parse_fields([rest], {}, owner))
     positional, options = _split_options(owner, rest.split(":"))
@@ -312,9 +323,6 @@ def resolve_controller(spec: Any, *, default: Controller | None = None) -> Contr
         text = str(spec).strip()
         if text.lower().endswith(".toml") or (isinstance(spec, Path) and text.lower().endswith(".toml")):
             return _from_file(Path(text))
-        code = code_controller_from_spelling(text, kinds=tuple(CONTROLLERS))
-        if code is not None:
-            return code
         return parse_controller(text)
     module = type(spec).__module__ or ""
     if module.startswith("control"):

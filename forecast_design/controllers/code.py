@@ -45,8 +45,9 @@ __all__ = ["CodeController", "PythonController", "CController", "code_controller
            "python_linearisation", "code_table_with_paths", "C_CONTROLLER_FLAGS", "C_CONTROLLER_INTERFACE"]
 
 #: Flags a C controller is compiled with, on the host (software in the loop) and for the board
-#: (with the Cortex-M4F's): the export's C99 without -Werror/-pedantic (the user's warnings are
-#: shown, not refused) and no fused multiply-add, so host and board round alike.
+#: (with the Cortex-M4F's): the export's C99 without -Werror/-pedantic (the user's warnings do not
+#: stop the build) and no fused multiply-add, so host and board round alike. Every build puts the
+#: interface's prototypes first (``-include``), so a definition with other types does not compile.
 C_CONTROLLER_FLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-ffp-contract=off")
 #: The C interface, as error messages state it.
 C_CONTROLLER_INTERFACE = ("void fd_user_init(float rate_hz); float fd_user_step(float tau_r, float tau_s, "

@@ -118,7 +118,10 @@ def _provenance(design: Design, rate_hz: float, tau_max: float) -> tuple:
 
     comp = design.compensator or Compensator()
     rows = [("tool", f"forecast-design {__version__}"), ("rate_hz", repr(float(rate_hz)))]
-    if design.controller is not None:
+    if design.controller is not None and design.controller.is_code:
+        rows.append(("law", f"{design.controller.label}; u = fd_user_step(tau_r, tau_s, theta, q) in fd_user.c, "
+                            "its state in its own static variables"))
+    elif design.controller is not None:
         rows.append(("law", f"{design.controller.label}; u = C_r(z) tau_r - C(z) tau_s as "
                             "forecast_design.controllers defines it"))
     rows.append(("tau_max", repr(float(tau_max)) + " N m"))
@@ -300,6 +303,7 @@ def emit_c(program: ControllerProgram, out_dir: str | Path, *, user_source: str 
         "version": __version__, "provenance": provenance,
         "rate_hz": repr(float(program.rate_hz)), "rate_hz_c": lit(program.rate_hz),
         "n_sections": str(max(program.n_sections, 1)),
+        "has_sections": "1" if program.n_sections > 0 else "0",
         "coefficients": "\n\n".join(coeffs) if coeffs else "/* no filters */",
         "body": "\n".join(body),
         "locals": "\n".join("    " + line for line in locals_),

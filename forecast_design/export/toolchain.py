@@ -66,7 +66,8 @@ HOST_CFLAGS = ("-std=c99", "-O2", "-Wall", "-Wextra", "-Werror", "-pedantic", "-
 ARM_CFLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", "-O2", "-Wall",
               "-Wextra", "-Werror", "-std=c99", "-ffp-contract=off")
 #: A user's C controller (fd_user.c) is compiled with the export's flags but without -Werror and
-#: -pedantic: its warnings are reported by the compiler, not turned into a refusal.
+#: -pedantic (its warnings do not stop the build), after fd_controller.h (``-include``): its
+#: definitions must match the interface's prototypes.
 USER_HOST_CFLAGS = C_CONTROLLER_FLAGS
 USER_ARM_CFLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard", *C_CONTROLLER_FLAGS)
 #: Core clock of the F446RE in the paper's set-up [Hz].
@@ -186,7 +187,8 @@ def build_host(export_dir: str | Path, *, shared: bool = False, cc: str | None =
     if user.is_file():
         # the user's C controller: the export's flags without -Werror/-pedantic (its warnings are its own)
         objs.append(d / "fd_user.host.o")
-        _run([cc, *USER_HOST_CFLAGS, *pic, "-I", str(d), "-c", "-o", str(objs[-1]), str(user)], "host compile (fd_user.c)")
+        _run([cc, *USER_HOST_CFLAGS, *pic, "-include", str(d / "fd_controller.h"), "-c", "-o", str(objs[-1]),
+              str(user)], "host compile (fd_user.c)")
     if shared:
         out = d / "libfd_controller.so"
         cmd = [cc, *HOST_CFLAGS, *pic, "-shared", "-o", str(out), str(d / "fd_controller.c"), *map(str, objs), "-lm"]
@@ -461,7 +463,8 @@ def build_arm(export_dir: str | Path, inputs: np.ndarray, *, tools: ToolPaths | 
     user = []
     if (d / "fd_user.c").is_file():
         user = [str(b / "fd_user.o")]
-        _run([tools.arm_gcc, *USER_ARM_CFLAGS, *inc, "-c", "-o", user[0], str(d / "fd_user.c")], "arm compile (fd_user.c)")
+        _run([tools.arm_gcc, *USER_ARM_CFLAGS, "-include", str(d / "fd_controller.h"), "-c", "-o", user[0],
+              str(d / "fd_user.c")], "arm compile (fd_user.c)")
     # -fno-tree-loop-distribute-patterns: the start-up copy loops must not become memcpy calls
     _run([tools.arm_gcc, *ARM_CFLAGS, "-fno-tree-loop-distribute-patterns", *inc, "-c", "-o",
           str(b / "fd_harness.o"), str(b / "fd_harness.c")], "arm compile (harness)")

@@ -246,7 +246,8 @@ class _Emulator:
                 except Exception:   # noqa: BLE001 - the user's code failed: the firmware's NaN path
                     u_code = math.nan
             tau_m = ctrl.step(tau_r, tau_s, th, u_external=u_code)
-            if not math.isfinite(tau_m):   # the firmware: zero torque, FAULT CONTROLLER, DONE (fault)
+            if not math.isfinite(ctrl.u + ctrl.hat):   # the firmware (before its saturation): zero torque,
+                # FAULT CONTROLLER, DONE (fault)
                 self._write_all(bytes(batch))
                 self._send(M.FAULT, pr.encode_fault(i, pr.Fault.CONTROLLER))
                 self._send(M.DONE, pr.encode_done(sent, 2))

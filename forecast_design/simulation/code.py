@@ -167,17 +167,22 @@ def compile_c_controller(controller: CController, *, cc: str | None = None) -> P
         folder.mkdir(exist_ok=True)
         copy = folder / "fd_user.c"      # compiled from this copy: the file checked is the file built
         copy.write_bytes(text)
+        # the interface's prototypes come first, as fd_controller.h does in the export: a definition
+        # with other types (double, int...) is a compile error instead of garbage through the call
+        interface = folder / "fd_user_interface.h"
+        interface.write_text(C_CONTROLLER_INTERFACE.replace("; ", ";\n") + ";\n")
         tmp = folder / f".libfd_user.{os.getpid()}.{threading.get_ident()}.so"
         try:
-            proc = subprocess.run([cc, *C_CONTROLLER_FLAGS, "-fPIC", "-shared", "-o", str(tmp), str(copy), "-lm"],
-                                  capture_output=True, text=True)
+            proc = subprocess.run([cc, *C_CONTROLLER_FLAGS, "-include", str(interface), "-fPIC", "-shared", "-o",
+                                   str(tmp), str(copy), "-lm"], capture_output=True, text=True)
         except OSError as exc:
             raise ParameterError(f"controller {src}: the compiler {cc} did not run: {exc}", name="controller",
                                  value=str(src)) from None
         if proc.returncode != 0:
-            raise ParameterError(f"controller {src}: does not compile: "
-                                 f"{_first_error(proc.stderr).replace(str(copy), src.name)}", name="controller",
-                                 value=str(src))
+            first = _first_error(proc.stderr).replace(str(copy), src.name)
+            if "conflicting types for" in first:
+                first += f" (the interface: {C_CONTROLLER_INTERFACE})"
+            raise ParameterError(f"controller {src}: does not compile: {first}", name="controller", value=str(src))
         try:
             _check_symbols(tmp, src)
             lib = folder / "libfd_user.so"

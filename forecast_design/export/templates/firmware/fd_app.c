@@ -148,7 +148,7 @@ static void fd_period(uint32_t raw_m, uint32_t raw_e)
     const uint32_t t0 = FD_SYSTICK->VAL;
     const uint32_t k = fd_index;
     uint8_t p[36];
-    float theta, q, tau_s, tau_r, tau_m;
+    float theta, q, tau_s, tau_r, tau_m, unsat;
     uint32_t dt;
     if (k == 0u) {                               /* angles count from the first period of a run */
         fd_encoder_zero(&fd_enc_m, raw_m);
@@ -170,7 +170,8 @@ static void fd_period(uint32_t raw_m, uint32_t raw_e)
 #endif
     tau_r = fd_reference_value(&fd_ref, k);
     tau_m = fd_step(&fd_ctrl, tau_r, tau_s, theta, q);
-    if (!(tau_m - tau_m == 0.0f)) {              /* NaN or infinite: the controller failed */
+    unsat = fd_ctrl.u + fd_ctrl.hat;             /* the command before fd_step's saturation */
+    if (!(unsat - unsat == 0.0f)) {              /* NaN or infinite (saturation would hide it): failed */
         fd_fault(FD_FAULT_CONTROLLER);
         return;
     }
