@@ -274,15 +274,18 @@ BAD_C = {
 def test_bad_c_is_one_line_with_exit_2(tmp_path, name):
     text, pattern = BAD_C[name]
     _write(tmp_path, name, text)
-    p = _cli("benchmark", "--controller", name, "--envs", "exp-soft", "--compensator", "none", "--repetitions", "2",
-             "--duration", "0.05", "--out", "b", "--no-plots", cwd=tmp_path)
-    assert p.returncode == 2, p.stderr
-    lines = [line for line in p.stderr.splitlines() if line.startswith("forecast-design: error")]
-    assert len(lines) == 1 and "Traceback" not in p.stderr
     import re
 
-    assert re.search(pattern, lines[0]), lines[0]
-    assert name in lines[0]
+    for argv in (["benchmark", "--controller", name, "--envs", "exp-soft", "--compensator", "none", "--repetitions",
+                  "2", "--duration", "0.05", "--out", "b", "--no-plots"],
+                 ["export", "--controller", name, "--out", "c"]):      # the export compiles it once too
+        p = _cli(*argv, cwd=tmp_path)
+        assert p.returncode == 2, p.stderr
+        lines = [line for line in p.stderr.splitlines() if line.startswith("forecast-design: error")]
+        assert len(lines) == 1 and "Traceback" not in p.stderr
+        assert re.search(pattern, lines[0]), lines[0]
+        assert name in lines[0]
+    assert not (tmp_path / "c").exists()
 
 
 BAD_PY = {

@@ -417,6 +417,12 @@ def export_controller(design: Design | None = None, out_dir: str | Path = ".", *
     design = design.with_friction(sfm_params)
     program = program_for_export(design, rate_hz=rate_hz, tau_max=tau_max)
     user = design.controller.source if isinstance(design.controller, CController) else None
+    if user is not None:
+        from ..simulation.code import compile_c_controller
+
+        # compiled once with the host compiler (as software in the loop does) before anything is
+        # written: a file that does not compile or lacks a symbol is one line here, not at the lab's build
+        compile_c_controller(design.controller)
     h, c = emit_c(program, out_dir, user_source=user)
     parts = [h, c] + ([Path(out_dir) / USER_SOURCE_NAME] if user is not None else [])
     digest = hashlib.sha256(b"".join(p.read_bytes() for p in parts)).hexdigest()
