@@ -562,10 +562,11 @@ def test_sil_equals_pil_bit_for_bit_for_the_c_example(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.skipif(_pil_missing() is not None, reason="no qemu / arm toolchain")
-@pytest.mark.parametrize("bad", ["0.0f / 0.0f", "1.0f / 0.0f"], ids=["nan", "inf"])
+@pytest.mark.parametrize("bad", ["1.0f / 0.0f"], ids=["inf"])
 def test_pil_stops_a_nan_or_infinite_c_controller_with_fault_controller(tmp_path, bad):
-    """An infinity is a fault too, not a command at the torque limit (the firmware checks u + hat before
-    fd_step's saturation)."""
+    """An infinity is a fault, not a command at the torque limit (the firmware checks u + hat before
+    fd_step's saturation). One qemu run: the firmware's test ``!(x - x == 0)`` is the same for a NaN
+    (x - x is NaN for both); the emulator and the simulator tests run the NaN."""
     _write(tmp_path, "nan.c", "static int n;\nvoid fd_user_init(float r) { (void)r; n = 0; }\n"
            "float fd_user_step(float a, float b, float c, float d) { (void)b; (void)c; (void)d; "
            f"return ++n > 50 ? {bad} : a; }}\n")
