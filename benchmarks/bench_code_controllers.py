@@ -1,0 +1,188 @@
+"""Controllers written as code (issue 28): how much slower Python and C (software in the loop) run than the kernel.
+
+Two measurements, each in one run after a warm-up (numba caches loaded, the C file compiled):
+
+``simulate``
+    One ``simulate()`` of 1 s at 2 kHz (exp-soft, EA-FOB 10 Hz, a 0.2 N m step) with the paper's
+    PD through the compiled kernel, with the example gain-scheduled PID written in Python, and
+    with the same controller in C through ctypes; the three interleaved, ``--rounds`` times. Prints
+    the median seconds per run, the cost per control period of 10 s runs, and the slowdown
+    against the kernel (median of the per-round ratios).
+``benchmark``
+    The issue's workload through the command line: ``forecast-design benchmark`` over 7
+    environments (a log grid of k_e) x the default compensators (none, sfm, ea-fob) x 10
+    repetitions of 1 s, ``--no-plots``, a fresh result folder per command (no cell reused), once
+    per controller (the paper's PD, the Python example, the C example). Prints each command's
+    wall time against the issue's target (under 2 minutes for the code controllers).
+
+Usage::
+
+    python benchmarks/bench_code_controllers.py [simulate|benchmark|all] [--workers N] [--rounds R]
+    python benchmarks/bench_code_controllers.py simulate --baseline OLD_TREE
+
+``--baseline OLD_TREE`` (a checkout of an earlier commit) runs the chosen measurements in
+subprocesses, alternately with ``PYTHONPATH`` on this tree and on OLD_TREE, and prints this
+tree's figure over the baseline's, pair by pair (median of the pairs), for a change's before/after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+SET = """[[environment]]
+name = "k"
+J_e = 0.01
+k_e = {log = [0.1, 1000.0], n = 7}
+"""
+PYTHON_EXAMPLE = "forecast_design.controllers.examples.gain_scheduled_pid:GainScheduledPID"
+LABELS = ("kernel pd:5:0.1", "Python example", "C example (ctypes)")
+
+
+def _controllers() -> list[str]:
+    from forecast_design.controllers.examples import example_path
+
+    return ["pd:5:0.1", PYTHON_EXAMPLE, str(example_path("gain_scheduled_pid.c"))]
+
+
+def measure_simulate(rounds: int) -> dict:
+    """Median seconds of a 1 s run, microseconds per period of 10 s runs, ratios to the kernel."""
+    from forecast_design.controllers import resolve_controller
+    from forecast_design.params import Compensator, Design
+    from forecast_design.simulation import simulate
+    from forecast_design.simulation.references import Step
+
+    base = Design.nominal("exp-soft")
+    designs = [dataclasses.replace(base, controller=resolve_controller(s), compensator=Compensator(kind="ea-fob",
+                                                                                                  w_q_hz=10.0))
+               for s in _controllers()]
+    ref = Step(amplitude=0.2)
+    for d in designs:                                   # warm-up: numba caches, the C build
+        simulate(d, reference=ref, duration_s=0.05)
+    one = [[] for _ in designs]
+    ten = [[] for _ in designs]
+    for r in range(rounds):
+        for i, d in enumerate(designs):
+            t0 = time.perf_counter()
+            simulate(d, reference=ref, duration_s=1.0, seed=r)
+            one[i].append(time.perf_counter() - t0)
+        if r < max(rounds // 4, 1):
+            for i, d in enumerate(designs):
+                t0 = time.perf_counter()
+                simulate(d, reference=ref, duration_s=10.0, seed=r)
+                ten[i].append(time.perf_counter() - t0)
+    return {"run_1s_s": [statistics.median(t) for t in one],
+            "period_us": [1e6 * statistics.median(t) / 20_000 for t in ten],
+            "ratio": [statistics.median(a / b for a, b in zip(t, one[0])) for t in one]}
+
+
+def measure_benchmark(workers: int) -> dict:
+    """Wall seconds of the benchmark command, one fresh folder per controller."""
+    tmp = Path(tempfile.mkdtemp(prefix="bench-code-"))
+    (tmp / "set.toml").write_text(SET)
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    cmd = [sys.executable, "-m", "forecast_design", "benchmark", "--no-plots", "--workers", str(workers)]
+    specs = _controllers()
+    # warm-up: the workers' numba caches, on a small set
+    warm = subprocess.run([*cmd, *sum((["--controller", s] for s in specs), []), "--envs", "exp-soft",
+                           "--repetitions", "2", "--duration", "0.1", "--out", str(tmp / "warm")],
+                          capture_output=True, text=True, env=env)
+    if warm.returncode != 0:
+        raise SystemExit(f"warm-up failed: {warm.stderr.strip().splitlines()[-1:]}")
+    walls, codes = [], []
+    for i, spec in enumerate(specs):
+        t0 = time.perf_counter()
+        proc = subprocess.run([*cmd, "--controller", spec, "--envs", str(tmp / "set.toml"), "--repetitions", "10",
+                               "--out", str(tmp / f"out{i}")], capture_output=True, text=True, env=env)
+        walls.append(time.perf_counter() - t0)
+        codes.append(proc.returncode)
+    return {"wall_s": walls, "exit": codes, "workers": workers}
+
+
+def _print_simulate(res: dict) -> None:
+    print("| controller | 1 s run [s] (median) | per period, 10 s runs [us] | slowdown vs kernel (1 s runs) |")
+    print("|---|---|---|---|")
+    for label, t, us, ratio in zip(LABELS, res["run_1s_s"], res["period_us"], res["ratio"]):
+        print(f"| {label} | {t:.4f} | {us:.1f} | {ratio:.2f}x |")
+
+
+def _print_benchmark(res: dict) -> None:
+    print(f"\nbenchmark command, 7 envs x 3 compensators (none,sfm,ea-fob) x 10 repetitions of 1 s, "
+          f"--no-plots, fresh folder, --workers {res['workers']}:")
+    print("| controller | wall [s] | exit | target < 120 s |")
+    print("|---|---|---|---|")
+    for i, (label, wall, code) in enumerate(zip(LABELS, res["wall_s"], res["exit"])):
+        target = "(reference)" if i == 0 else ("met" if wall < 120 and code == 0 else "NOT met")
+        print(f"| {label} | {wall:.1f} | {code} | {target} |")
+    print(f"ratios to the kernel PD command: Python {res['wall_s'][1] / res['wall_s'][0]:.2f}x, "
+          f"C {res['wall_s'][2] / res['wall_s'][0]:.2f}x")
+
+
+def _vs_baseline(args: argparse.Namespace) -> None:
+    """This tree against ``args.baseline``, alternately in subprocesses (A B A B ...)."""
+    trees = {"this": str(HERE.parent), "baseline": str(Path(args.baseline).resolve())}
+    argv = [sys.executable, str(Path(__file__).resolve()), args.what, "--json", "--workers", str(args.workers),
+            "--rounds", str(args.rounds)]
+    out: dict[str, list[dict]] = {"this": [], "baseline": []}
+    for _ in range(args.pairs):
+        for name, tree in trees.items():
+            env = {**os.environ, "PYTHONPATH": tree}
+            proc = subprocess.run(argv, capture_output=True, text=True, env=env, cwd=tree)
+            if proc.returncode != 0:
+                raise SystemExit(f"{name} tree failed: {proc.stderr.strip().splitlines()[-1:]}")
+            out[name].append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    print(f"this tree / baseline, median of {args.pairs} pairs (A B A B ...; < 1 is faster):")
+    keys = (("simulate", "run_1s_s", "1 s simulate() [s]"), ("simulate", "period_us", "per period [us]"),
+            ("benchmark", "wall_s", "benchmark command wall [s]"))
+    for part, key, what in keys:
+        if part not in out["this"][0]:
+            continue
+        for i, label in enumerate(LABELS):
+            a = [run[part][key][i] for run in out["this"]]
+            b = [run[part][key][i] for run in out["baseline"]]
+            ratio = statistics.median(x / y for x, y in zip(a, b))
+            print(f"{what}, {label}: this {statistics.median(a):.4g}, baseline {statistics.median(b):.4g}, "
+                  f"ratio {ratio:.3f}")
+
+
+def main() -> None:
+    """Run the measurements the first argument names (default all)."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("what", nargs="?", default="all", choices=("simulate", "benchmark", "all"))
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="benchmark's --workers")
+    parser.add_argument("--rounds", type=int, default=20, help="interleaved simulate() rounds")
+    parser.add_argument("--baseline", metavar="OLD_TREE", help="compare with another checkout")
+    parser.add_argument("--pairs", type=int, default=3, help="with --baseline: A/B pairs")
+    parser.add_argument("--json", action="store_true", help="print one JSON line (for --baseline)")
+    args = parser.parse_args()
+    if args.baseline:
+        _vs_baseline(args)
+        return
+    res = {}
+    load = os.getloadavg()[0]
+    if args.what in ("simulate", "all"):
+        res["simulate"] = measure_simulate(args.rounds)
+    if args.what in ("benchmark", "all"):
+        res["benchmark"] = measure_benchmark(args.workers)
+    if args.json:
+        print(json.dumps(res))
+        return
+    print(f"load average (1 min) before: {load:.2f}")
+    if "simulate" in res:
+        _print_simulate(res["simulate"])
+    if "benchmark" in res:
+        _print_benchmark(res["benchmark"])
+    print(f"load average (1 min) after: {os.getloadavg()[0]:.2f}")
+
+
+if __name__ == "__main__":
+    main()
