@@ -69,7 +69,7 @@ _TRUTH = ("theta", "omega", "q", "v", "z", "tau_frc", "tau_s", "tau_m_applied")
 
 @_njit(inline="always")
 def _encoders(theta, q, enc_step, k_nom):
-    """Step 1 of a period: the encoder readings ``theta_m``, ``q_m`` [rad] of the true angles and ``tau_s_m`` [N m]."""
+    """Step 1 of a period: the encoder readings ``theta_m``, ``q_m`` [rad] and ``tau_s_m`` [N m]."""
     if enc_step > 0.0:
         theta = math.floor(theta / enc_step + 0.5) * enc_step
         q = math.floor(q / enc_step + 0.5) * enc_step
@@ -124,7 +124,8 @@ def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, en
     if not stopped:
         if flags[6] != 0:
             mem[3] = f(u)
-        cmd = program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, f(tau_r), f(tau_s), f(th))
+        cmd = program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem,
+                           f(tau_r), f(tau_s), f(th))
         uu = mem[3]
         hat = mem[4]
     meas[k, 0] = th
