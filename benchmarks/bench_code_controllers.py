@@ -13,14 +13,15 @@ Two measurements, each in one run after a warm-up (numba caches loaded, the C fi
     The issue's workload through the command line: ``forecast-design benchmark`` over 7
     environments (a log grid of k_e) x the command's default compensators (none, sfm, ea-fob) x 10
     repetitions of 1 s (``--compensator`` to choose others), ``--no-plots``, a fresh result folder
-    per command (no cell reused), once per controller (the paper's PD, the Python example, the C
-    example), after a small warm-up benchmark that loads the numba caches. Prints each command's
-    wall time against the issue's target (under 2 minutes for the code controllers).
+    per command (no cell reused), the controllers (the paper's PD, the Python example, the C
+    example) in turn, ``--times`` rounds, after a small warm-up benchmark that loads the numba
+    caches. Prints each command's median wall time and range against the issue's target (under 2
+    minutes for the code controllers: the slowest of the rounds).
 
 Usage::
 
     python benchmarks/bench_code_controllers.py [simulate|benchmark|all] [--workers N] [--rounds R]
-        [--compensator LIST]
+        [--compensator LIST] [--times T]
     python benchmarks/bench_code_controllers.py simulate --baseline OLD_TREE
 
 ``--baseline OLD_TREE`` (a checkout of an earlier commit) runs the chosen measurements in
@@ -90,8 +91,8 @@ def measure_simulate(rounds: int) -> dict:
             "ratio": [statistics.median(a / b for a, b in zip(t, one[0])) for t in one]}
 
 
-def measure_benchmark(workers: int, compensators: str) -> dict:
-    """Wall seconds of the benchmark command, one fresh folder per controller."""
+def measure_benchmark(workers: int, compensators: str, times: int = 1) -> dict:
+    """Wall seconds of the benchmark command (fresh folder each), the controllers in turn, ``times`` rounds."""
     tmp = Path(tempfile.mkdtemp(prefix="bench-code-"))
     (tmp / "set.toml").write_text(SET)
     env = {**os.environ, "MPLBACKEND": "Agg"}
@@ -103,15 +104,19 @@ def measure_benchmark(workers: int, compensators: str) -> dict:
                           capture_output=True, text=True, env=env)
     if warm.returncode != 0:
         raise SystemExit(f"warm-up failed: {warm.stderr.strip().splitlines()[-1:]}")
-    walls, codes = [], []
-    for i, spec in enumerate(specs):
-        t0 = time.perf_counter()
-        proc = subprocess.run([*cmd, "--controller", spec, "--envs", str(tmp / "set.toml"), "--repetitions",
-                               "10", "--compensator", compensators, "--out", str(tmp / f"out{i}")],
-                              capture_output=True, text=True, env=env)
-        walls.append(time.perf_counter() - t0)
-        codes.append(proc.returncode)
-    return {"wall_s": walls, "exit": codes, "workers": workers, "compensators": compensators}
+    walls: list[list[float]] = [[] for _ in specs]
+    codes = [0 for _ in specs]
+    for r in range(times):
+        for i, spec in enumerate(specs):
+            t0 = time.perf_counter()
+            proc = subprocess.run([*cmd, "--controller", spec, "--envs", str(tmp / "set.toml"),
+                                   "--repetitions", "10", "--compensator", compensators,
+                                   "--out", str(tmp / f"out{r}-{i}")],
+                                  capture_output=True, text=True, env=env)
+            walls[i].append(time.perf_counter() - t0)
+            codes[i] = codes[i] or proc.returncode
+    return {"wall_s": [statistics.median(w) for w in walls], "range_s": [[min(w), max(w)] for w in walls],
+            "exit": codes, "workers": workers, "compensators": compensators, "times": times}
 
 
 def _print_simulate(res: dict) -> None:
@@ -124,12 +129,13 @@ def _print_simulate(res: dict) -> None:
 
 def _print_benchmark(res: dict) -> None:
     print(f"\nbenchmark command, 7 envs x compensators {res['compensators']} x 10 repetitions of 1 s, "
-          f"--no-plots, fresh folder, --workers {res['workers']}:")
-    print("| controller | wall [s] | exit | target < 120 s |")
-    print("|---|---|---|---|")
-    for i, (label, wall, code) in enumerate(zip(LABELS, res["wall_s"], res["exit"])):
-        target = "(reference)" if i == 0 else ("met" if wall < 120 and code == 0 else "NOT met")
-        print(f"| {label} | {wall:.1f} | {code} | {target} |")
+          f"--no-plots, fresh folder, --workers {res['workers']}, {res['times']} time(s) each, in turn:")
+    print("| controller | wall [s] (median) | min - max [s] | exit | target < 120 s |")
+    print("|---|---|---|---|---|")
+    rows = zip(LABELS, res["wall_s"], res["range_s"], res["exit"])
+    for i, (label, wall, (lo, hi), code) in enumerate(rows):
+        target = "(reference)" if i == 0 else ("met" if hi < 120 and code == 0 else "NOT met")
+        print(f"| {label} | {wall:.1f} | {lo:.1f} - {hi:.1f} | {code} | {target} |")
     print(f"ratios to the kernel PD command: Python {res['wall_s'][1] / res['wall_s'][0]:.2f}x, "
           f"C {res['wall_s'][2] / res['wall_s'][0]:.2f}x")
 
@@ -138,7 +144,8 @@ def _vs_baseline(args: argparse.Namespace) -> None:
     """This tree against ``args.baseline``, alternately in subprocesses (A B A B ...)."""
     trees = {"this": str(HERE.parent), "baseline": str(Path(args.baseline).resolve())}
     argv = [sys.executable, str(Path(__file__).resolve()), args.what, "--json", "--workers",
-            str(args.workers), "--rounds", str(args.rounds), "--compensator", args.compensator]
+            str(args.workers), "--rounds", str(args.rounds), "--compensator", args.compensator,
+            "--times", str(args.times)]
     out: dict[str, list[dict]] = {"this": [], "baseline": []}
     for _ in range(args.pairs):
         for name, tree in trees.items():
@@ -168,6 +175,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="benchmark's --workers")
     parser.add_argument("--compensator", default="none,sfm,ea-fob",
                         help="benchmark's --compensator (default: the command's default)")
+    parser.add_argument("--times", type=int, default=1, help="benchmark commands per controller")
     parser.add_argument("--rounds", type=int, default=20, help="interleaved simulate() rounds")
     parser.add_argument("--baseline", metavar="OLD_TREE", help="compare with another checkout")
     parser.add_argument("--pairs", type=int, default=3, help="with --baseline: A/B pairs")
@@ -181,7 +189,7 @@ def main() -> None:
     if args.what in ("simulate", "all"):
         res["simulate"] = measure_simulate(args.rounds)
     if args.what in ("benchmark", "all"):
-        res["benchmark"] = measure_benchmark(args.workers, args.compensator)
+        res["benchmark"] = measure_benchmark(args.workers, args.compensator, args.times)
     if args.json:
         print(json.dumps(res))
         return
