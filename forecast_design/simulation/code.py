@@ -377,7 +377,7 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
         raise shared["crash"]
     fault = shared["fault"]
     # after a fault: zero torque to the end of the log, the plant running on (the firmware's safe stop)
-    th, qq, tau_s = _encoders(float(x[0]), float(x[2]), prep.enc_step, prep.k_nominal)   # x after period k-1
+    th, qq, tau_s = _encoders(float(x[0]), float(x[2]), prep.enc_step, prep.k_nominal)   # period shared["k"]
     for k in range(shared["k"], n):
         th, qq, tau_s = _code_period(k, th, qq, tau_s, 0.0, 0.0, True, *period_args)
     return fault

@@ -140,7 +140,7 @@ def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, en
 
 
 def _kernel_dependencies() -> list:
-    """The modules ``_loop`` (and the batch kernels) inline or call: their sources key its numba cache."""
+    """The modules ``_loop``, ``_code_period`` and the batch kernels inline or call (their cache keys)."""
     import importlib
 
     root = __package__.rsplit('.', 1)[0]
