@@ -4,10 +4,12 @@
 :class:`~forecast_design.controllers.CController` into a runner with the one interface the
 simulator calls once per period (``reset(rate_hz, testbed, environment)``,
 ``step(t, tau_r, tau_s, theta, q) -> u`` [N m]); :func:`run_code_loop` is the period loop of
-:func:`~.run.simulate` for them: the same measurements (:class:`~.plant.PlantStepper`), the
-same compensator, saturation and command (the design's ``external``
-:class:`~forecast_design.program.ControllerProgram`, whose output slot the code fills), the
-same delays and plant step as the compiled loop.
+:func:`~.run.simulate` for them: the same encoder readings, the same compensator, saturation
+and command (the design's ``external`` :class:`~forecast_design.program.ControllerProgram`,
+whose output slot the code fills), the same delays and plant step as the compiled loop. Each
+period is one Python call of the user's ``step`` and one call of a compiled function that runs
+the program, logs the period, steps the plant and reads the encoders for the next period
+(``benchmarks/RESULTS.md``, "Controllers as code", has the cost per period against the compiled loop).
 
 Software in the loop: the C file is compiled once per content with the host compiler
 (:data:`~forecast_design.controllers.code.C_CONTROLLER_FLAGS`) into a shared library called
@@ -289,15 +291,22 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
     dict or None
         The fault that stopped the controller (``period``, ``t_s``, ``reason``), or None.
     """
-    from .plant import PlantStepper
+    from .plant import history_length
+    from .run import _check_kernel_cache, _code_period, _encoders
 
     if not (step_timeout_s > 0 and math.isfinite(step_timeout_s)):
         raise ParameterError(f"step_timeout_s must be > 0 [s], got {step_timeout_s!r}", name="step_timeout_s",
                              value=step_timeout_s)
+    _check_kernel_cache(_code_period)
     rate = prep.rate_hz
-    stepper = PlantStepper(prep.plant, substeps=prep.substeps, k_nominal=prep.k_nominal, encoder_step=prep.enc_step,
-                           noise=prep.arrays["noise"])
-    ctrl = prep.program.make_step(runner.dtype)
+    packed = prep.program.pack(runner.dtype)
+    state, mem = packed.new_state()
+    x = np.zeros(5)
+    # the compiled period's arguments after the controller's output: the plant, the program, the logs
+    period_args = (prep.substeps, int(prep.plant.delay_substeps), prep.arrays["p"], prep.arrays["harm"], x,
+                   prep.enc_step, prep.arrays["noise"], prep.k_nominal,
+                   *(np.array(a, order="C") for a in packed.arrays()), state, mem, meas, truth,
+                   np.zeros(history_length(prep.substeps, prep.plant.delay_substeps)), np.zeros(2))
     runner.reset(rate, prep.ran.testbed, prep.ran.environment)
     ref = prep.ref.tolist()
     n = prep.n
@@ -308,16 +317,17 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
     lock = threading.Lock()
 
     def loop() -> None:
+        step, monotonic, period = runner.step, time.monotonic, _code_period
+        th, qq, tau_s = _encoders(float(x[0]), float(x[2]), prep.enc_step, prep.k_nominal)
         lock.acquire()
         try:
             for k in range(n):
-                th, qq, tau_s = stepper.measure()
                 u, error = 0.0, None
-                shared["since"] = time.monotonic()
+                shared["since"] = monotonic()
                 try:
                     try:
                         lock.release()
-                        u = runner.step(k / rate, ref[k], tau_s, th, qq)
+                        u = step(k / rate, ref[k], tau_s, th, qq)
                         if not math.isfinite(u):
                             error = ValueError(f"step returned {u!r}")
                     except StepTimeout:
@@ -339,10 +349,7 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
                            else f"{type(error).__name__}: {error}")
                     shared["fault"] = {"period": k, "t_s": k / rate, "reason": f"controller {name}: {why}"}
                     return
-                cmd = ctrl.step(ref[k], tau_s, th, u_external=u)
-                meas[k] = (th, qq, tau_s, cmd, ctrl.u, ctrl.hat)
-                stepper.advance(cmd)
-                truth[k] = stepper.row
+                th, qq, tau_s = period(k, th, qq, tau_s, u, ref[k], False, *period_args)
                 shared["k"] = k + 1
         except BaseException as exc:   # noqa: BLE001 - the simulator's own failure: raised again below
             shared["crash"] = exc
@@ -375,9 +382,7 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
         raise shared["crash"]
     fault = shared["fault"]
     # after a fault: zero torque to the end of the log, the plant running on (the firmware's safe stop)
+    th, qq, tau_s = _encoders(float(x[0]), float(x[2]), prep.enc_step, prep.k_nominal)   # period shared["k"]
     for k in range(shared["k"], n):
-        th, qq, tau_s = stepper.measure()
-        meas[k] = (th, qq, tau_s, 0.0, 0.0, 0.0)
-        stepper.advance(0.0)
-        truth[k] = stepper.row
+        th, qq, tau_s = _code_period(k, th, qq, tau_s, 0.0, 0.0, True, *period_args)
     return fault

@@ -67,18 +67,22 @@ _MEAS = ("theta", "q", "tau_s", "tau_m", "u", "tau_frc_hat")
 _TRUTH = ("theta", "omega", "q", "v", "z", "tau_frc", "tau_s", "tau_m_applied")
 
 
+@_njit(inline="always")
+def _encoders(theta, q, enc_step, k_nom):
+    """Step 1 of a period: the encoder readings ``theta_m``, ``q_m`` [rad] and ``tau_s_m`` [N m]."""
+    if enc_step > 0.0:
+        theta = math.floor(theta / enc_step + 0.5) * enc_step
+        q = math.floor(q / enc_step + 0.5) * enc_step
+    return theta, q, k_nom * (theta - q)
+
+
 @_njit
 def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, noise, k_nom,
           sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, meas, truth, hist):
     out = np.zeros(2)
     H = hist.shape[0]
     for k in range(n):
-        th = x[0]
-        qq = x[2]
-        if enc_step > 0.0:
-            th = math.floor(th / enc_step + 0.5) * enc_step
-            qq = math.floor(qq / enc_step + 0.5) * enc_step
-        tau_s = k_nom * (th - qq)
+        th, qq, tau_s = _encoders(x[0], x[2], enc_step, k_nom)
         if closed:
             cmd = program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, ref[k], tau_s, th)
             u = mem[3]
@@ -102,8 +106,41 @@ def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, no
         advance_period(x, k, nsub, dsub, hist, p, harm, noise[k], out, truth[k])
 
 
+@_njit
+def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, enc_step, noise, k_nom,
+                 sos, meta, gains, flags, par, ff_coef, ff_harm, state, mem, meas, truth, hist, out):
+    """Period ``k`` of ``_loop`` for a controller written as code (:mod:`.code`), which gave ``u`` [N m].
+
+    ``th``, ``qq``, ``tau_s`` are the period's encoder readings (the previous call's return) and
+    ``tau_r`` its reference [N m]. The program (the compensator, saturation and command) runs in its
+    arrays' dtype (float32 for C, as on the board); with ``stopped`` (after a controller fault) the
+    command is zero and the program does not run. Logs the period, steps the plant and returns the
+    encoder readings of period ``k + 1``: ``(theta_m, q_m, tau_s_m)``.
+    """
+    f = mem.dtype.type
+    cmd = 0.0
+    uu = 0.0
+    hat = 0.0
+    if not stopped:
+        if flags[6] != 0:
+            mem[3] = f(u)
+        cmd = program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem,
+                           f(tau_r), f(tau_s), f(th))
+        uu = mem[3]
+        hat = mem[4]
+    meas[k, 0] = th
+    meas[k, 1] = qq
+    meas[k, 2] = tau_s
+    meas[k, 3] = cmd
+    meas[k, 4] = uu
+    meas[k, 5] = hat
+    hist[k % hist.shape[0]] = cmd
+    advance_period(x, k, nsub, dsub, hist, p, harm, noise[k] if k < noise.shape[0] else 0.0, out, truth[k])
+    return _encoders(x[0], x[2], enc_step, k_nom)
+
+
 def _kernel_dependencies() -> list:
-    """The modules ``_loop`` (and the batch kernels) inline or call: their sources key its numba cache."""
+    """The modules ``_loop``, ``_code_period`` and the batch kernels inline or call (their cache keys)."""
     import importlib
 
     root = __package__.rsplit('.', 1)[0]
