@@ -79,18 +79,36 @@ def test_backlash_is_named_on_a_log_whose_tau_s_the_logger_printed_with_fixed_de
 # --- 10. coarse encoders and stiction -------------------------------------------------------------
 
 
+SWEEP = Excitation(kind="sweep", amplitude=1.2, f_lo_hz=0.15, dither=0.05)
+
+
 def test_stiction_on_a_14_bit_log_is_not_rejected_for_a_deflection_below_one_count():
-    sweep = Excitation(kind="sweep", amplitude=1.2, f_lo_hz=0.15, dither=0.05)
-    exp = _log((Effect.STICTION,), {"F_c": 0.2, "F_s": 0.36, "v_s": 0.05}, env="soft", excitation=sweep,
+    exp = _log((Effect.STICTION,), {"F_c": 0.2, "F_s": 0.36, "v_s": 0.05}, env="soft", excitation=SWEEP,
                encoder_counts=2**14, duration_s=12.0)
     diag = diagnose(exp, joint=False)
     stiction = next(r for r in diag.ranking if r.effect is Effect.STICTION)
+    coulomb = next(r for r in diag.ranking if r.effect is Effect.COULOMB)
     statuses = stiction.assessment.status
     # a presliding stiffness beyond F_s / (one count) is not resolved: never "implausible", never a reason
     assert all(st_.status != "implausible" for name, st_ in statuses.items() if name in ("sigma0", "x_p"))
     assert not any("sigma0" in reason for reason in stiction.assessment.reasons)
-    assert diag.effect in (Effect.STICTION, Effect.COULOMB)
     assert stiction.identified
+    # stiction explains 70 % of the gap, coulomb 54 %: on the held-out units where the two laws differ by more
+    # than the 14-bit quantisation every one is better explained by stiction (before: coulomb was named,
+    # the t-test over all units, most of them quantisation, gave p = 0.02)
+    assert stiction.reduction > coulomb.reduction + 0.1
+    assert diag.effect is Effect.STICTION
+    assert diag.params["F_s"] > diag.params["F_c"]
+
+
+@pytest.mark.parametrize("counts", [2**14, 2**16])
+def test_coulomb_friction_on_a_coarse_encoder_stays_coulomb(counts):
+    # the same sweep with Coulomb friction alone (sticking below F_c): the richer laws predict the same
+    # torque within the quantisation wherever the motor moves, and the parsimony rule keeps coulomb
+    exp = _log((Effect.COULOMB,), {"F_c": 0.25}, env="soft", excitation=SWEEP, encoder_counts=counts,
+               duration_s=12.0)
+    diag = diagnose(exp, joint=False)
+    assert diag.effect is Effect.COULOMB, [(str(r.effect), round(r.reduction, 3)) for r in diag.ranking[:3]]
 
 
 # --- 11. weak effects, and no false alarm -----------------------------------------------------------
