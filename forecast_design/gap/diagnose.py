@@ -10,7 +10,8 @@ probability or scales with the information in the log; none is tuned to one gene
 2. The reference is the calibrated nominal model: ``J_m`` and the spring torque
    scale within the datasheet tolerance ``calibration_tolerance`` (3 %), ``d_m >= 0``.
 3. A candidate counts when it lowers the total held-out gap (all equations: explaining one equation
-   while the others get worse is no verdict) and, on the equations where its physics acts
+   while the total does not drop is no verdict) by the held-out test of (c) at the same level and,
+   on the equations where its physics acts
    (:func:`~.candidates.effect_rows`), (a) its held-out reduction is at least
    ``min_reduction`` of the gap above the encoders' quantisation floor (:mod:`.grading`), (b) the torque it explains, ``sqrt(gap_before^2 - gap_after^2)``,
    is at least ``min_effect_fraction`` (0.1 %) of the RMS command (the motor's torque
@@ -307,7 +308,8 @@ def _metric_text(data: GapData) -> str:
             f"parameters fitted on the even blocks and the gap measured on the odd ones. tau_s column: "
             f"{data.tau_s_source.source}. gap_before is the nominal model with J_m and the spring torque scale "
             f"re-calibrated within the datasheet tolerance +-{100 * o.calibration_tolerance:g} % and d_m >= 0. "
-            f"An effect counts when it lowers the total held-out gap and, on the equations where it acts, it removes "
+            f"An effect counts when it lowers the total held-out gap (all equations, by the t-test below) and, on the "
+            f"equations where it acts, it removes "
             f">= {100 * o.min_reduction:g} % of the held-out gap above the encoders' quantisation floor (an effect "
             f"that passes every other test but removes less is the verdict graded weak when none counts) and explains >= {100 * o.min_effect_fraction:g} % of the RMS command, a one-sided "
             f"t-test on the log ratio of squared errors over held-out units of twice the residual's correlation "
@@ -404,9 +406,14 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
         red_own = explainable_reduction(base, fit, held_rows & own, floor)
         if _explained_rms(base, fit, held_rows & own) < opts.min_effect_fraction * tau_rms:
             red_own = 0.0   # below the motor's torque accuracy: not an effect
-        units = test_units(data, fit)
-        units[~own] = -1
+        all_units = test_units(data, fit)
+        units = np.where(own, all_units, -1)
         p = held_out_test(base, fit, held_blocks, units=units)
+        # and the total gap, all equations, must drop by the same test: a candidate that explains its own
+        # (quiet) equation while the total hardly moves is no verdict (an environment mismatch fitted to an
+        # environment equation of quantisation next to a motor equation full of stiction)
+        p_total = p if bool(np.all(own)) else held_out_test(base, fit, held_blocks, units=all_units)
+        lowers_total = red > 0.0 and p_total < alpha
         sse = fit.gap_held_out ** 2 * n_held
         bic = n_held * math.log(max(sse / n_held, 1e-300)) + fit.n_params * math.log(n_held)
         assessment = assess_fit(data, fit)
@@ -416,9 +423,9 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
                                       equations=tuple(eq for k, eq in enumerate(data.equations)
                                                       if own[k * data.t.size]),
                                       significant=bool(red_own >= opts.min_reduction and p < alpha
-                                                       and assessment.identified and red > 0.0),
+                                                       and assessment.identified and lowers_total),
                                       weak=bool(0.0 < red_own < opts.min_reduction and p < alpha
-                                                and assessment.identified and red > 0.0)))
+                                                and assessment.identified and lowers_total)))
     ranked.sort(key=lambda r: (not r.significant, r.bic))
     by_effect = {str(f.effect): f for f in fits}
     winner = ranked[0] if ranked and ranked[0].significant else None

@@ -404,10 +404,6 @@ def identifiability(case: IndependentCase, truth: IndependentTruth) -> str | Non
             return f"the command saturates {100 * sat:.0f} % of the time"
     floor = quantisation_floor(case)
     for word in case.words:
-        sig = _signature(case, truth, word)
-        if sig < VISIBLE_FACTOR * floor:
-            return (f"{word}: its torque ({sig:.2g} N m RMS) is below {VISIBLE_FACTOR:g} x the encoders' quantisation "
-                    f"floor ({floor:.2g} N m at {case.encoder_counts} counts)")
         rev = _reversals(w)
         if word in (Effect.COULOMB, Effect.STICTION, *ANGLE_WORDS) and rev < 2:
             return f"{word}: {rev} velocity reversal(s), needs >= 2"
@@ -449,6 +445,11 @@ def identifiability(case: IndependentCase, truth: IndependentTruth) -> str | Non
             if travel < 100 * case.encoder_step:
                 return (f"environment_mismatch: the output moves {travel / case.encoder_step:.0f} counts, "
                         "needs >= 100")
+        # last, so that a structural reason (no travel, no reversal, a locked output) is the one named
+        sig = _signature(case, truth, word)
+        if sig < VISIBLE_FACTOR * floor:
+            return (f"{word}: its torque ({sig:.2g} N m RMS) is below {VISIBLE_FACTOR:g} x the encoders' quantisation "
+                    f"floor ({floor:.2g} N m at {case.encoder_counts} counts)")
     return None
 
 
