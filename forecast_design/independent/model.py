@@ -26,7 +26,7 @@ RATES_HZ = (1000.0, 2000.0)
 #: Excitation kinds (open-loop commands or closed-loop force references).
 EXCITATION_KINDS = ("multisine", "square", "chirp", "sweep", "triangle", "constant")
 #: Friction laws of :func:`friction_log`, named like :func:`forecast_design.friction.friction_model`.
-FRICTION_LAWS = ("sfm", "extended-sfm", "asymmetric", "stribeck", "lugre")
+FRICTION_LAWS = ("sfm", "extended-sfm", "asymmetric", "stribeck", "lugre", "position-friction")
 #: Words whose effect depends on the motor angle (need a revolution of travel).
 ANGLE_WORDS = (Effect.POSITION_FRICTION, Effect.COGGING)
 
