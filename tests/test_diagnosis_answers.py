@@ -1,14 +1,17 @@
 """Issue 25, gap diagnosis: the last paths to a confident wrong answer, on the independent generator.
 
 9.  a logger-written tau_s is read as derived for every rounding a logger can use (significant
-    digits, fixed decimals, float32, printed angles), so backlash stays visible;
+    digits, fixed decimals, float32, printed angles), so backlash stays visible; a column between a
+    logger's rounding and a quiet sensor is read both ways and the reading the data support is kept;
 10. a parameter the encoders cannot resolve (a bristle deflection below one count) is not
-    evidence against stiction on a 14-bit log;
-11. a real but weak effect is the verdict graded ``weak``; effect-free logs stay ``none``;
+    evidence against stiction on a 14-bit log, and stiction is named over coulomb there;
+11. a real but weak effect is the verdict graded ``weak``; effect-free logs stay ``none`` (coarse
+    encoders, a torque sensor's zero and scale, the other SEA);
 12. a verdict lowers the total held-out gap;
 13. a torque gain inside the datasheet tolerance and a delay on its search bound never count.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -17,8 +20,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from forecast_design.effects import Effect
-from forecast_design.gap import diagnose
-from forecast_design.independent import Excitation, IndependentCase, simulate_independent
+from forecast_design.gap import GapOptions, diagnose
+from forecast_design.independent import Excitation, IndependentCase, draw_independent_case, simulate_independent
 from forecast_design.controllers import PD
 from forecast_design.params import Testbed, environment_preset
 from forecast_design.tau_s_source import classify_tau_s, printed_quantum
@@ -76,44 +79,122 @@ def test_backlash_is_named_on_a_log_whose_tau_s_the_logger_printed_with_fixed_de
     assert diag.params["width_rad"] == pytest.approx(3e-3, rel=0.15)
 
 
+def test_backlash_is_named_on_a_log_whose_logger_stores_tau_s_and_the_angles_as_float32():
+    exp = _log((Effect.BACKLASH,), {"width": 3e-3}, tau_s_logging="float32", angle_logging="float32")
+    diag = diagnose(exp, joint=False)
+    assert diag.data.tau_s_source.source == "derived" and not diag.data.tau_s_source.uncertain
+    assert diag.effect is Effect.BACKLASH
+    assert diag.params["width_rad"] == pytest.approx(3e-3, rel=0.2)
+
+
+@pytest.mark.parametrize("word,params", [(Effect.COULOMB, {"F_c": 0.2}), (Effect.DELAY, {"delay_s": 3e-3})])
+def test_a_quiet_torque_sensor_is_an_uncertain_reading_and_both_readings_are_tried(word, params):
+    # a noiseless torque sensor next to angles printed with 5 decimals: under 1 % of its rows leave the rounding
+    # a logger's k (theta - q) would show, so the column could be either; the diagnosis runs both readings,
+    # keeps the one whose verdict explains more and names the other
+    exp = _log((word,), params, tau_s_logging="sensor", sensor_noise=0.0, angle_logging="decimals:5")
+    src = classify_tau_s(False, exp.signals.tau_s, exp.signals.theta, exp.signals.q)
+    assert src.uncertain and 0.0 < src.beyond_rounding < 0.05
+    diag = diagnose(exp, joint=False)
+    alternative = diag.to_mapping()["tau_s"]["alternative"]
+    assert alternative is not None and diag.reading == alternative
+    assert {alternative["source"], alternative["chosen"]} == {"derived", "measured"}
+    assert diag.caveats[0].startswith("Caution: the tau_s column is between a logger's rounding and a quiet sensor")
+    # each reading forced on its own (GapOptions.tau_s_reading): the kept one is the one that explains more
+    forced = {r: diagnose(exp, options=GapOptions(tau_s_reading=r), joint=False) for r in ("derived", "measured")}
+    kept, other = forced[alternative["chosen"]], forced[alternative["source"]]
+    assert diag.effect is kept.effect is word and diag.reduction == pytest.approx(kept.reduction, rel=1e-12)
+    assert alternative["effect"] == str(other.effect) and alternative["reduction"] == pytest.approx(other.reduction, rel=1e-12)
+    assert kept.reduction >= other.reduction
+
+
 # --- 10. coarse encoders and stiction -------------------------------------------------------------
 
 
+SWEEP = Excitation(kind="sweep", amplitude=1.2, f_lo_hz=0.15, dither=0.05)
+
+
 def test_stiction_on_a_14_bit_log_is_not_rejected_for_a_deflection_below_one_count():
-    sweep = Excitation(kind="sweep", amplitude=1.2, f_lo_hz=0.15, dither=0.05)
-    exp = _log((Effect.STICTION,), {"F_c": 0.2, "F_s": 0.36, "v_s": 0.05}, env="soft", excitation=sweep,
+    exp = _log((Effect.STICTION,), {"F_c": 0.2, "F_s": 0.36, "v_s": 0.05}, env="soft", excitation=SWEEP,
                encoder_counts=2**14, duration_s=12.0)
     diag = diagnose(exp, joint=False)
     stiction = next(r for r in diag.ranking if r.effect is Effect.STICTION)
+    coulomb = next(r for r in diag.ranking if r.effect is Effect.COULOMB)
     statuses = stiction.assessment.status
     # a presliding stiffness beyond F_s / (one count) is not resolved: never "implausible", never a reason
     assert all(st_.status != "implausible" for name, st_ in statuses.items() if name in ("sigma0", "x_p"))
     assert not any("sigma0" in reason for reason in stiction.assessment.reasons)
-    assert diag.effect in (Effect.STICTION, Effect.COULOMB)
     assert stiction.identified
+    # stiction explains 70 % of the gap, coulomb 54 %: on the held-out units where the two laws differ by more
+    # than the 14-bit quantisation every one is better explained by stiction (before: coulomb was named,
+    # the t-test over all units, most of them quantisation, gave p = 0.02)
+    assert stiction.reduction > coulomb.reduction + 0.1
+    assert diag.effect is Effect.STICTION
+    assert diag.params["F_s"] > diag.params["F_c"]
+
+
+@pytest.mark.parametrize("counts", [2**14, 2**16])
+def test_coulomb_friction_on_a_coarse_encoder_stays_coulomb(counts):
+    # the same sweep with Coulomb friction alone (sticking below F_c): the richer laws predict the same
+    # torque within the quantisation wherever the motor moves, and the parsimony rule keeps coulomb
+    exp = _log((Effect.COULOMB,), {"F_c": 0.25}, env="soft", excitation=SWEEP, encoder_counts=counts,
+               duration_s=12.0)
+    diag = diagnose(exp, joint=False)
+    assert diag.effect is Effect.COULOMB, [(str(r.effect), round(r.reduction, 3)) for r in diag.ranking[:3]]
 
 
 # --- 11. weak effects, and no false alarm -----------------------------------------------------------
 
 
-@pytest.mark.parametrize("env,excitation", [("exp-soft", MULTISINE), ("stiff", MULTISINE), ("locked", MULTISINE)])
-def test_effect_free_logs_stay_none(env, excitation):
-    exp = _log((), {}, env=env, excitation=excitation, nominal_errors={"J_m": 0.015, "d_m": -0.02, "k": 0.01})
+#: The other SEA the generator draws (independent.draw.OTHER_SEA): a stiffer spring, a lighter motor.
+OTHER_SEA = Testbed(J_m=0.053, d_m=0.3, k=145.0)
+
+
+@pytest.mark.parametrize("env", ["exp-soft", "stiff", "locked"])
+@pytest.mark.parametrize("setup", [
+    {},
+    {"encoder_counts": 2**14},
+    {"encoder_counts": 2**16},
+    # a torque sensor whose zero and scale are off by what a datasheet allows (0.02 N m, 3 %)
+    {"tau_s_logging": "sensor", "sensor_noise": 0.003, "sensor_offset": 0.02, "sensor_gain": 1.03},
+    {"tau_s_logging": "sensor", "sensor_noise": 0.003, "sensor_offset": -0.02, "sensor_gain": 0.97},
+    {"testbed": OTHER_SEA},
+    {"testbed": OTHER_SEA, "encoder_counts": 2**14},
+], ids=["testbed", "14-bit", "16-bit", "sensor+", "sensor-", "other-SEA", "other-SEA-14-bit"])
+def test_effect_free_logs_stay_none(env, setup):
+    exp = _log((), {}, env=env, excitation=MULTISINE, nominal_errors={"J_m": 0.015, "d_m": -0.02, "k": 0.01}, **setup)
     diag = diagnose(exp, joint=False)
-    assert diag.effect is Effect.NONE and diag.to_mapping()["verdict"]["grade"] == "none"
+    assert diag.effect is Effect.NONE and diag.to_mapping()["verdict"]["grade"] == "none", \
+        [(str(r.effect), round(r.reduction, 3), r.weak) for r in diag.ranking[:3]]
 
 
-def test_a_weak_delay_the_log_resolves_is_the_verdict_graded_weak():
-    # a 0.25 ms delay (an eighth of the typical) in a closed-loop chirp: it removes 4-6 % of the gap, so
-    # the fixed 40 % threshold answered none although the delay was the first, identified candidate
+def test_a_small_cogging_on_a_14_bit_log_is_the_verdict_graded_weak():
+    # 0.01 N m of cogging (a quarter of the smallest typical) under 14-bit encoders: it removes about a fifth
+    # of the gap above the quantisation floor, passes the held-out test by orders of magnitude and is
+    # identified, so the verdict names it with the grade weak, not none and not clear
+    sweep = Excitation(kind="sweep", amplitude=1.5, f_lo_hz=0.1, dither=0.05)
+    exp = _log((Effect.COGGING,), {"cog_a": (0.01, 0.0), "cog_b": (0.0, 0.005)}, env="link-only", excitation=sweep,
+               encoder_counts=2**14, duration_s=20.0)
+    diag = diagnose(exp, joint=False)
+    doc = diag.to_mapping()
+    top = diag.ranking[0]
+    assert diag.effect is Effect.COGGING and diag.grade == "weak" and doc["verdict"]["grade"] == "weak"
+    assert top.weak and not top.significant and top.identified
+    assert 0.0 < top.reduction_own < diag.data.options.min_reduction
+    assert any(c.startswith("Weak effect: 'cogging'") for c in diag.caveats)
+    assert doc["ranking"][0]["weak"] is True and doc["ranking"][0]["counts"] is False
+
+
+def test_an_eighth_size_delay_the_log_resolves_is_the_verdict():
+    # a 0.25 ms delay (an eighth of the typical) in a closed-loop chirp removes 45 % of the gap (on a log with
+    # 2,000,000-count encoders the floor is small): a clear verdict, named with its delay
     chirp = Excitation(kind="chirp", amplitude=0.3, f_lo_hz=0.2, f_hi_hz=8.0)
     exp = _log((Effect.DELAY,), {"delay_s": 2.5e-4}, env="stiff", excitation=chirp, closed_loop=True,
                controller=PD(P=4.0, D=0.08))
     diag = diagnose(exp, joint=False)
-    doc = diag.to_mapping()["verdict"]
-    assert diag.effect is Effect.DELAY and doc["grade"] in ("weak", "clear")
-    if doc["grade"] == "weak":
-        assert any(c.startswith("Weak effect: 'delay'") for c in diag.caveats)
+    assert diag.effect is Effect.DELAY and diag.to_mapping()["verdict"]["grade"] == "clear"
+    assert diag.ranking[0].reduction_own >= diag.data.options.min_reduction
+    assert diag.params["delay_s"] == pytest.approx(2.5e-4, rel=0.5)
 
 
 # --- 12./13. a verdict lowers the total gap; bounds and tolerances ------------------------------------
@@ -132,3 +213,63 @@ def test_every_counted_candidate_lowers_the_total_held_out_gap_and_a_small_gain_
     delay = next(r for r in diag.ranking if r.effect is Effect.DELAY)
     if delay.assessment.status["delay_s"].status == "at_bound":
         assert not delay.identified and any("bound" in why for why in delay.assessment.reasons)
+
+
+def _drawn(word, index, seed, attempt=0, **changes):
+    """A case the generator draws (its set-ups included), with some fields replaced, simulated."""
+    case = dataclasses.replace(draw_independent_case(word, index, seed, attempt=attempt), **changes)
+    return simulate_independent(case)[0]
+
+
+def test_a_candidate_that_explains_only_its_own_quiet_equation_is_not_the_verdict():
+    # a 14-bit open-loop multisine with stiction (F_c 0.20/0.15, F_s 0.30 N m): the environment equation
+    # carries quantisation only, and an environment mismatch fitted to it removes 78 % of that equation's
+    # gap above the floor but 0.6 % of the total (the held-out test on all equations: p = 0.006, above
+    # 0.01 / 8). Before, it was the clear verdict while stiction and coulomb removed 39 % of the total.
+    exp = _drawn(Effect.STICTION, 1, 7, attempt=2, encoder_counts=2**14)
+    diag = diagnose(exp, joint=False)
+    env = next(r for r in diag.ranking if r.effect is Effect.ENVIRONMENT_MISMATCH)
+    assert env.reduction_own >= diag.data.options.min_reduction and env.reduction < 0.01
+    assert not env.significant and not env.weak
+    assert diag.effect is not Effect.ENVIRONMENT_MISMATCH
+    assert diag.effect in (Effect.STICTION, Effect.COULOMB) and diag.reduction > 0.3
+
+
+def test_a_candidate_whose_total_held_out_gap_rises_never_counts_on_a_two_effect_log():
+    # Coulomb friction and a delay (16-bit encoders): an environment mismatch explains its own equation
+    # (99 % of its gap above the floor) while the total held-out gap rises; it is neither the verdict nor
+    # the second effect
+    coulomb = draw_independent_case(Effect.COULOMB, 2, 25)
+    delay = draw_independent_case(Effect.DELAY, 2, 25)
+    exp = simulate_independent(dataclasses.replace(coulomb, words=(Effect.COULOMB, Effect.DELAY),
+                                                   effect_params={**delay.effect_params, **coulomb.effect_params},
+                                                   encoder_counts=2**16))[0]
+    diag = diagnose(exp, joint=False)
+    env = next(r for r in diag.ranking if r.effect is Effect.ENVIRONMENT_MISMATCH)
+    assert env.reduction_own >= diag.data.options.min_reduction and env.gap_after > diag.gap_before
+    assert not env.significant and not env.weak
+    assert diag.effect is Effect.COULOMB
+    assert diag.secondary is None or diag.secondary.effect is not Effect.ENVIRONMENT_MISMATCH
+
+
+@pytest.mark.parametrize("env,excitation,loop", [
+    ("exp-soft", Excitation(kind="multisine", amplitude=0.8, f_lo_hz=0.2, f_hi_hz=15.0, lines=20, periods=2, tilt=0.5),
+     {}),
+    ("stiff", Excitation(kind="chirp", amplitude=0.3, f_lo_hz=0.2, f_hi_hz=8.0),
+     {"closed_loop": True, "controller": PD(P=4.0, D=0.08)}),
+])
+@pytest.mark.parametrize("delay_s", [1e-3, 2e-3])
+def test_a_small_delay_under_stiction_is_never_a_confident_wrong_number(env, excitation, loop, delay_s):
+    # stiction with a 1-2 ms delay (a third to a half of the typical): the verdict is the friction; the delay
+    # fitted alone absorbs friction torque and runs to its 20 ms search bound, which is reported as not
+    # identified; fitted with the stiction it removes 0-37 % of what is left (below the 40 % a second effect
+    # needs), so it is not named, and when it is, its value is the truth's
+    exp = _log((Effect.STICTION, Effect.DELAY), {"F_c": 0.2, "F_s": 0.33, "v_s": 0.05, "delay_s": delay_s}, env=env,
+               excitation=excitation, **loop)
+    diag = diagnose(exp, joint=False)
+    assert diag.effect is Effect.STICTION
+    alone = next(r for r in diag.ranking if r.effect is Effect.DELAY)
+    at_bound = alone.assessment.status["delay_s"].status == "at_bound"
+    assert not alone.identified and (not at_bound or any("bound" in why for why in alone.assessment.reasons))
+    if diag.secondary is not None and diag.secondary.effect is Effect.DELAY:
+        assert diag.secondary.params["delay_s"] == pytest.approx(delay_s, rel=0.5)

@@ -446,3 +446,20 @@ def test_loggers_print_tau_s_and_the_angles_with_their_own_rounding(tau_s, angle
         mag = np.floor(np.log10(np.where(exact != 0, np.abs(exact), 1.0)))
         bound = 0.5 * 10.0 ** (mag - int(n) + 1)
     assert np.all(np.abs(col - exact) <= bound * (1 + 1e-9) + 1e-15)
+
+
+def test_a_float32_logger_stores_tau_s_and_the_angles_as_32_bit_floats():
+    case = _case(duration_s=1.0, tau_s_logging="float32", angle_logging="float32")
+    exp, truth = simulate_independent(case)
+    sig = exp.signals
+    for col in (sig.tau_s, sig.theta, sig.q):
+        col = np.asarray(col)
+        assert np.array_equal(col.astype(np.float32).astype(float), col)     # exactly representable in float32
+    # tau_s was k (theta - q) of the quantised angles, rounded to float32 (half an ulp: 2^-24 relative)
+    exact = case.testbed.k * (np.round(np.asarray(truth.theta) / ENCODER_STEP)
+                              - np.round(np.asarray(truth.q) / ENCODER_STEP)) * ENCODER_STEP
+    assert np.all(np.abs(np.asarray(sig.tau_s) - exact) <= np.abs(exact) * 2.0 ** -24 + 1e-300)
+    assert np.all(np.abs(np.asarray(sig.theta) - np.round(np.asarray(truth.theta) / ENCODER_STEP) * ENCODER_STEP)
+                  <= np.abs(np.asarray(sig.theta)) * 2.0 ** -24 + 1e-300)
+    with pytest.raises(ParameterError, match="float32"):
+        _case(tau_s_logging="float64")

@@ -469,10 +469,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     try:
         comp = _compensator_from_args(args)
+        env = _one_environment_from_args(args, "run")[1]
+        if comp is not None and comp.kind == "sfm":
+            # the loop's stability with the compensator, before its code goes to the board
+            from ..params import Design
+
+            _check_sfm_loop(Design(testbed=_testbed_from_args(args), environment=env), comp.friction_params,
+                            controller=_controller_from_args(args))
         result = run_on_port(args.port, out=args.out, reference=args.reference, duration=args.duration,
                              controller=_controller_from_args(args), compensator=comp if comp is not None else "none",
-                             w_q_hz=args.w_q_hz, env=_one_environment_from_args(args, "run")[1],
-                             testbed=_testbed_from_args(args), timeout=args.timeout)
+                             w_q_hz=args.w_q_hz, env=env, testbed=_testbed_from_args(args), timeout=args.timeout)
         summary = result.to_mapping()
     except (LinkError, BoardError) as exc:
         # a run that ended badly (lost link, board fault, a late write failure saved to a recovery file)

@@ -10,7 +10,8 @@ probability or scales with the information in the log; none is tuned to one gene
 2. The reference is the calibrated nominal model: ``J_m`` and the spring torque
    scale within the datasheet tolerance ``calibration_tolerance`` (3 %), ``d_m >= 0``.
 3. A candidate counts when it lowers the total held-out gap (all equations: explaining one equation
-   while the others get worse is no verdict) and, on the equations where its physics acts
+   while the total does not drop is no verdict) by the held-out test of (c) at the same level and,
+   on the equations where its physics acts
    (:func:`~.candidates.effect_rows`), (a) its held-out reduction is at least
    ``min_reduction`` of the gap above the encoders' quantisation floor (:mod:`.grading`), (b) the torque it explains, ``sqrt(gap_before^2 - gap_after^2)``,
    is at least ``min_effect_fraction`` (0.1 %) of the RMS command (the motor's torque
@@ -23,11 +24,13 @@ probability or scales with the information in the log; none is tuned to one gene
    for, and no parameter is outside the plausible range of :mod:`forecast_design.plausibility`.
 4. Among the candidates that count, the winner minimises a held-out BIC,
    ``n log(SSE / n) + p log(n)`` (p = number of effect parameters).
-5. Parsimony between nested friction laws: ``stiction`` or ``position_friction``
-   wins over ``coulomb`` only if it is better than ``coulomb`` by the same test at the
-   family-wise level ``alpha`` (one planned comparison) and removes at least
-   ``min_reduction / 2`` of ``coulomb``'s held-out gap; the same rule applies to the
-   two-effect path and to the second effect.
+5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
+   ``stiction`` or ``position_friction`` wins over ``coulomb`` only if it removes at least
+   ``min_reduction / 2`` of ``coulomb``'s held-out gap above the quantisation floor and beats
+   ``coulomb`` by the held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison
+   between two laws that both count) on the held-out units where the two laws' predictions
+   differ by more than the floor;
+   the same rule applies to the two-effect path and to the second effect.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
    reduction, graded ``weak`` (:mod:`.grading`), or ``none`` when there is none.
 7. A second effect (forward selection, one step): every other candidate is fitted
@@ -59,7 +62,6 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 import numpy as np
-from scipy import stats
 from threadpoolctl import threadpool_limits
 
 from ..effects import Effect
@@ -81,6 +83,7 @@ from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
 from .grading import explainable_reduction, noise_floor
+from .heldout import NESTED_ALPHA, correlation_length, held_out_test, richer_law_justified, test_units
 from .residuals import GapData, GapOptions, prepare_gap_data, gap_log_scales
 
 __all__ = ["Diagnosis", "RankedCandidate", "diagnose", "held_out_test", "test_units", "correlation_length"]
@@ -296,108 +299,6 @@ class Diagnosis:
         return out
 
 
-def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks: np.ndarray, *,
-                  units: np.ndarray | None = None) -> float:
-    """One-sided paired t-test that ``candidate`` lowers the squared error of the held-out data.
-
-    The test statistic is the per-unit log ratio ``log(SSE_reference / SSE_candidate)``:
-    units differ widely in excitation, and the log ratio makes a consistent relative
-    improvement count equally in quiet and busy units. Unit SSEs are floored at
-    ``1e-6`` times the reference's mean held-out unit SSE (so a ratio saturates at
-    ``1e6`` instead of diverging on a unit explained exactly).
-
-    Parameters
-    ----------
-    reference, candidate : CandidateFit
-        Two fits on the same data.
-    held_blocks : ndarray of int
-        Indices of the held-out blocks (the units when ``units`` is not given).
-    units : ndarray of int, optional
-        Test unit of every stacked residual row (-1: not a held-out row); see
-        :func:`test_units`. Default: the held-out blocks.
-
-    Returns
-    -------
-    float
-        p-value of H0 "mean log ratio <= 0" against H1 "mean log ratio > 0" [-].
-    """
-    if units is None:
-        a = reference.block_sse[held_blocks]
-        b = candidate.block_sse[held_blocks]
-    else:
-        use = units >= 0
-        n_units = int(units.max()) + 1 if np.any(use) else 0
-        a = np.bincount(units[use], weights=reference.residual[use] ** 2, minlength=n_units)
-        b = np.bincount(units[use], weights=candidate.residual[use] ** 2, minlength=n_units)
-    if a.size == 0:   # no held-out unit (a log too short or too still to test on): no evidence of improvement
-        return 1.0
-    # A unit explained to (numerically) zero, e.g. a stuck motor under a static-friction
-    # model, would give an infinite log ratio whose spread hides a consistent improvement:
-    # squared errors below 1e-6 of the reference's mean unit are treated as equal.
-    floor = max(1e-6 * float(np.mean(a)), 1e-300)
-    a = np.maximum(a, floor)
-    b = np.maximum(b, floor)
-    d = np.log(a / b)
-    n = d.size
-    sd = float(np.std(d, ddof=1)) if n > 1 else 0.0
-    mean = float(np.mean(d))
-    if sd <= 1e-12 * max(1.0, abs(mean)):
-        return 0.0 if mean > 1e-12 else 1.0
-    return float(stats.t.sf(mean / (sd / math.sqrt(n)), n - 1))
-
-
-def correlation_length(residual: np.ndarray) -> int:
-    """First lag [samples] at which a residual's autocorrelation falls inside its white-noise band ``2/sqrt(n)``."""
-    e = np.asarray(residual, dtype=float)
-    e = e - e.mean()
-    n = e.size
-    if n < 8 or not np.any(e):
-        return 1
-    spec = np.fft.rfft(e, 2 * n)
-    acf = np.fft.irfft(spec * np.conj(spec))[:n]
-    acf = acf / acf[0]
-    inside = np.flatnonzero(np.abs(acf[1:]) < 2.0 / math.sqrt(n))
-    return int(inside[0]) + 1 if inside.size else n
-
-
-def test_units(data: GapData, candidate: CandidateFit, *, min_samples: int = 4) -> np.ndarray:
-    """Test units of the held-out rows, sized by the information in the log.
-
-    Each held-out block is cut into units of ``max(2 l, min_samples)`` decimated
-    samples (at most the block), where ``l`` is the correlation length of the
-    candidate's held-out motor-equation residual (:func:`correlation_length`): units
-    that far apart are nearly independent, so the number of units -- and the power
-    of :func:`held_out_test` -- grows with the log's length and shrinks with a
-    correlated (badly explained) residual.
-
-    Parameters
-    ----------
-    data : GapData
-        Prepared equation errors.
-    candidate : CandidateFit
-        The better-scoring model of the comparison.
-    min_samples : int
-        Smallest unit [decimated samples].
-
-    Returns
-    -------
-    ndarray of int, shape (m * n_equations,)
-        Unit index of every stacked row; -1 for rows on the fit blocks.
-    """
-    m = data.t.size
-    held = data.held_out
-    ell = correlation_length(candidate.residual[:m][held])
-    size = max(2 * ell, min_samples)
-    unit = np.full(m, -1, dtype=int)
-    nxt = 0
-    for b in np.unique(data.block[held]):
-        idx = np.flatnonzero(data.block == b)
-        n_units = max(1, idx.size // size)
-        unit[idx] = nxt + np.minimum(np.arange(idx.size) * n_units // idx.size, n_units - 1)
-        nxt += n_units
-    return data.stacked(unit)
-
-
 def _metric_text(data: GapData) -> str:
     o = data.options
     eqs = ", ".join(data.equations)
@@ -407,15 +308,17 @@ def _metric_text(data: GapData) -> str:
             f"parameters fitted on the even blocks and the gap measured on the odd ones. tau_s column: "
             f"{data.tau_s_source.source}. gap_before is the nominal model with J_m and the spring torque scale "
             f"re-calibrated within the datasheet tolerance +-{100 * o.calibration_tolerance:g} % and d_m >= 0. "
-            f"An effect counts when it lowers the total held-out gap and, on the equations where it acts, it removes "
+            f"An effect counts when it lowers the total held-out gap (all equations, by the t-test below) and, on the "
+            f"equations where it acts, it removes "
             f">= {100 * o.min_reduction:g} % of the held-out gap above the encoders' quantisation floor (an effect "
             f"that passes every other test but removes less is the verdict graded weak when none counts) and explains >= {100 * o.min_effect_fraction:g} % of the RMS command, a one-sided "
             f"t-test on the log ratio of squared errors over held-out units of twice the residual's correlation "
             f"length gives p < {o.alpha:g}/n_candidates (Bonferroni), and it is identified (defining coefficients "
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
             f"within its plausible range); the winner minimises the held-out BIC; stiction/position_friction must "
-            f"beat coulomb by the same test at level {o.alpha:g} and remove {100 * o.min_reduction / 2:g} % of its "
-            f"gap; a second effect fitted together with the winner is reported when it passes the test against "
+            f"remove {100 * o.min_reduction / 2:g} % of coulomb's gap above the quantisation floor and beat coulomb by "
+            f"the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
+            f"than the floor; a second effect fitted together with the winner is reported when it passes the test against "
             f"the winner alone.")
 
 
@@ -503,9 +406,14 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
         red_own = explainable_reduction(base, fit, held_rows & own, floor)
         if _explained_rms(base, fit, held_rows & own) < opts.min_effect_fraction * tau_rms:
             red_own = 0.0   # below the motor's torque accuracy: not an effect
-        units = test_units(data, fit)
-        units[~own] = -1
+        all_units = test_units(data, fit)
+        units = np.where(own, all_units, -1)
         p = held_out_test(base, fit, held_blocks, units=units)
+        # and the total gap, all equations, must drop by the same test: a candidate that explains its own
+        # (quiet) equation while the total hardly moves is no verdict (an environment mismatch fitted to an
+        # environment equation of quantisation next to a motor equation full of stiction)
+        p_total = p if bool(np.all(own)) else held_out_test(base, fit, held_blocks, units=all_units)
+        lowers_total = red > 0.0 and p_total < alpha
         sse = fit.gap_held_out ** 2 * n_held
         bic = n_held * math.log(max(sse / n_held, 1e-300)) + fit.n_params * math.log(n_held)
         assessment = assess_fit(data, fit)
@@ -515,16 +423,16 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
                                       equations=tuple(eq for k, eq in enumerate(data.equations)
                                                       if own[k * data.t.size]),
                                       significant=bool(red_own >= opts.min_reduction and p < alpha
-                                                       and assessment.identified and red > 0.0),
+                                                       and assessment.identified and lowers_total),
                                       weak=bool(0.0 < red_own < opts.min_reduction and p < alpha
-                                                and assessment.identified and red > 0.0)))
+                                                and assessment.identified and lowers_total)))
     ranked.sort(key=lambda r: (not r.significant, r.bic))
     by_effect = {str(f.effect): f for f in fits}
     winner = ranked[0] if ranked and ranked[0].significant else None
     if winner is not None and winner.effect in (Effect.STICTION, Effect.POSITION_FRICTION):
         coul = next((r for r in ranked if r.effect is Effect.COULOMB), None)
-        if coul is not None and coul.significant and not _richer_law_justified(
-                data, by_effect[str(winner.effect)], by_effect[str(Effect.COULOMB)], held_blocks):
+        if coul is not None and coul.significant and not richer_law_justified(
+                data, by_effect[str(winner.effect)], by_effect[str(Effect.COULOMB)]):
             winner = coul
             ranked.remove(coul)
             ranked.insert(0, coul)
@@ -553,7 +461,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
             if coul is not None:
                 f_w = fit_pair(data, by_effect[str(best_pair[0].effect)], best_pair[1].effect)
                 f_c = fit_pair(data, by_effect[str(Effect.COULOMB)], best_pair[1].effect)
-                if f_w is not None and f_c is not None and not _richer_law_justified(data, f_w, f_c, held_blocks):
+                if f_w is not None and f_c is not None and not richer_law_justified(data, f_w, f_c):
                     alt = _second_effect(data, by_effect[str(Effect.COULOMB)], fits, gap0, n_held, held_blocks,
                                          alpha, min_extra=0.5 * opts.min_reduction, base=base)
                     if alt is not None and alt.reduction >= opts.min_reduction:
@@ -575,8 +483,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
                       key=lambda r: r.bic)
         if weak and weak[0].effect in (Effect.STICTION, Effect.POSITION_FRICTION):
             coul = next((r for r in weak if r.effect is Effect.COULOMB), None)
-            if coul is not None and not _richer_law_justified(data, by_effect[str(weak[0].effect)],
-                                                              by_effect[str(Effect.COULOMB)], held_blocks):
+            if coul is not None and not richer_law_justified(data, by_effect[str(weak[0].effect)],
+                                                             by_effect[str(Effect.COULOMB)]):
                 weak.remove(coul)
                 weak.insert(0, coul)
         if weak:
@@ -635,19 +543,6 @@ def _explained_rms(reference: CandidateFit, candidate: CandidateFit, rows: np.nd
     a2 = float(np.mean(reference.residual[rows] ** 2))
     b2 = float(np.mean(candidate.residual[rows] ** 2))
     return math.sqrt(max(a2 - b2, 0.0))
-
-
-def _richer_law_justified(data: GapData, richer: CandidateFit, coulomb: CandidateFit, held_blocks: np.ndarray) -> bool:
-    """Parsimony between nested friction laws: stiction or position_friction over plain coulomb.
-
-    The richer law must beat coulomb by the held-out test at the family-wise level (one
-    planned comparison, no Bonferroni) and remove at least ``min_reduction / 2`` of
-    coulomb's remaining held-out gap.
-    """
-    opts = data.options
-    p = held_out_test(coulomb, richer, held_blocks, units=test_units(data, richer))
-    extra = 1.0 - richer.gap_held_out / coulomb.gap_held_out if coulomb.gap_held_out > 0 else 0.0
-    return bool(p < opts.alpha and extra >= 0.5 * opts.min_reduction)
 
 
 #: Share of the cogging verdict's held-out gap reduction that a constant motor torque must reach for
@@ -757,6 +652,6 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
                                         p_value=p_c, bic=bic, significant=True,
                                         assessment=assess_fit(data, pair_c)), pair_c)
         if coul is not None and coul[0].identified and \
-                not _richer_law_justified(data, passing[str(best.effect)][1], coul[1], held_blocks):
+                not richer_law_justified(data, passing[str(best.effect)][1], coul[1]):
             best = coul[0]
     return best

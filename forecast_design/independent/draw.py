@@ -520,4 +520,7 @@ _FRICTION_DEFAULTS: Mapping[str, Mapping[str, float]] = MappingProxyType({
                                   "viscous": 0.3}),
     "lugre": MappingProxyType({"sigma0": 1000.0, "sigma1": 5.0, "static": 0.45, "coulomb": 0.3,
                                "stribeck_velocity": 0.05, "viscous": 0.3}),
+    "position-friction": MappingProxyType({"viscous": 0.3, "coulomb": 0.3, "coulomb_sin1": 0.04, "coulomb_cos1": 0.02,
+                                           "coulomb_sin2": 0.0, "coulomb_cos2": 0.03, "coulomb_sin3": 0.01,
+                                           "coulomb_cos3": 0.0, "coulomb_sin4": 0.0, "coulomb_cos4": 0.01}),
 })

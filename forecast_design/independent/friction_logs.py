@@ -22,20 +22,32 @@ from .draw import _FRICTION_DEFAULTS, _motor_gain, _static_friction
 FRICTION_EXCITATIONS = ("sliding", "little-sliding", "presliding", "multisine", "square")
 
 
+#: The harmonic parameter names of the angle-dependent laws: ``sin<i>``/``cos<i>`` (added to the friction,
+#: extended SFM) and ``coulomb_sin<i>``/``coulomb_cos<i>`` (of the Coulomb level, position friction).
+_HARMONIC_PREFIX = {"extended-sfm": "", "position-friction": "coulomb_"}
+
+
+def _harmonic_re(law: str) -> re.Pattern:
+    return re.compile(rf"^{_HARMONIC_PREFIX[law]}(sin|cos)(\d+)$")
+
+
 def _friction_names(law: str, params: Mapping[str, float]) -> tuple[str, ...]:
-    if law == "extended-sfm":
-        n = max([int(m.group(2)) for m in (re.match(r"^(sin|cos)(\d+)$", k) for k in params) if m] or [0])
-        return ("viscous", "coulomb") + tuple(f"{f}{i}" for i in range(1, n + 1) for f in ("sin", "cos"))
+    if law in _HARMONIC_PREFIX:
+        n = max([int(m.group(2)) for m in (_harmonic_re(law).match(k) for k in params) if m] or [0])
+        pre = _HARMONIC_PREFIX[law]
+        return ("viscous", "coulomb") + tuple(f"{pre}{f}{i}" for i in range(1, n + 1) for f in ("sin", "cos"))
     return tuple(_FRICTION_DEFAULTS[law])
 
 
 def _effect_params(law: str, true: Mapping[str, float]) -> tuple[dict[str, Any], tuple[Effect, ...], float]:
     """The plant's effect parameters, the effect words and the true d_m of a friction law's parameters."""
-    if law == "extended-sfm":
-        n_h = (len(true) - 2) // 2
-        eff: dict[str, Any] = {"F_c": true["coulomb"],
-                               "cog_a": tuple(true[f"sin{i}"] for i in range(1, n_h + 1)),
-                               "cog_b": tuple(true[f"cos{i}"] for i in range(1, n_h + 1))}
+    if law in _HARMONIC_PREFIX:
+        n_h, pre = (len(true) - 2) // 2, _HARMONIC_PREFIX[law]
+        a = tuple(true[f"{pre}sin{i}"] for i in range(1, n_h + 1))
+        b = tuple(true[f"{pre}cos{i}"] for i in range(1, n_h + 1))
+        if law == "position-friction":     # the Coulomb level varies with the angle: F_c + sum a_i sin + b_i cos
+            return {"F_c": true["coulomb"], "pos_a": a, "pos_b": b}, (Effect.POSITION_FRICTION,), true["viscous"]
+        eff: dict[str, Any] = {"F_c": true["coulomb"], "cog_a": a, "cog_b": b}
         return eff, (Effect.COULOMB, Effect.COGGING), true["viscous"]
     if law == "sfm":
         return {"F_c": true["coulomb"]}, (Effect.COULOMB,), true["viscous"]
@@ -59,12 +71,14 @@ def friction_log(law: str, params: Mapping[str, float] | None = None, *, duratio
     ----------
     law : str
         ``sfm`` (viscous + Coulomb with true sticking), ``extended-sfm`` (and angle
-        harmonics), ``asymmetric`` (Coulomb level and viscous coefficient differ by
+        harmonics added to the friction), ``position-friction`` (a Coulomb level that
+        varies with the angle, ``coulomb + sum coulomb_sin<i> sin(i theta) + coulomb_cos<i>
+        cos(i theta)``), ``asymmetric`` (Coulomb level and viscous coefficient differ by
         direction of motion), ``stribeck`` (event-based stick/slip on the Stribeck curve)
         or ``lugre`` (LuGre bristle dynamics).
     params : Mapping[str, float], optional
         True parameters named as :func:`forecast_design.friction.friction_model`
-        names them (``viscous``, ``coulomb``, ``sin1``, ``cos1`` ...; ``viscous_pos``,
+        names them (``viscous``, ``coulomb``, ``sin1``, ``cos1`` ...; ``coulomb_sin1`` ...; ``viscous_pos``,
         ``viscous_neg``, ``coulomb_pos``, ``coulomb_neg``; ``static``,
         ``stribeck_velocity``; ``sigma0``, ``sigma1``); missing names take typical values.
         ``viscous`` (``viscous_pos``) is the motor's ``d_m``.
@@ -118,8 +132,8 @@ def friction_log(law: str, params: Mapping[str, float] | None = None, *, duratio
                              "little-sliding; closed: multisine, square)", name="excitation", value=excitation)
     given = dict(params or {})
     base = dict(_FRICTION_DEFAULTS[law])
-    if law == "extended-sfm" and any(re.match(r"^(sin|cos)\d+$", k) for k in given):
-        base = {k: v for k, v in base.items() if not re.match(r"^(sin|cos)\d+$", k)}
+    if law in _HARMONIC_PREFIX and any(_harmonic_re(law).match(k) for k in given):
+        base = {k: v for k, v in base.items() if not _harmonic_re(law).match(k)}
     base.update(given)
     names = _friction_names(law, base)
     unknown = [k for k in base if k not in names]
@@ -149,7 +163,7 @@ def friction_log(law: str, params: Mapping[str, float] | None = None, *, duratio
     elif excitation == "presliding":
         level = min(eff.get("F_c", 0.0), eff.get("F_c_neg", eff.get("F_c", 0.0)))
         ex = Excitation(kind="sweep", amplitude=0.6 * level, f_lo_hz=3.0 / duration_s, dither=0.1 * level)
-    elif law in ("sfm", "extended-sfm", "asymmetric"):
+    elif law in ("sfm", "extended-sfm", "asymmetric", "position-friction"):
         f = float(rng.uniform(1.5, 2.0)) / duration_s
         amp = min(2.0 * math.pi / _motor_gain(tb, env, f) + 1.5 * holding, 3.5)
         ex = Excitation(kind="sweep", amplitude=amp, f_lo_hz=f, dither=0.1 * max(holding, 0.1))

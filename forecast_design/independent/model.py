@@ -26,7 +26,7 @@ RATES_HZ = (1000.0, 2000.0)
 #: Excitation kinds (open-loop commands or closed-loop force references).
 EXCITATION_KINDS = ("multisine", "square", "chirp", "sweep", "triangle", "constant")
 #: Friction laws of :func:`friction_log`, named like :func:`forecast_design.friction.friction_model`.
-FRICTION_LAWS = ("sfm", "extended-sfm", "asymmetric", "stribeck", "lugre")
+FRICTION_LAWS = ("sfm", "extended-sfm", "asymmetric", "stribeck", "lugre", "position-friction")
 #: Words whose effect depends on the motor angle (need a revolution of travel).
 ANGLE_WORDS = (Effect.POSITION_FRICTION, Effect.COGGING)
 
@@ -34,8 +34,8 @@ _WORDS = tuple(Effect)
 _FRICTION_WORDS = (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION)
 _PARAM_KEYS = ("F_c", "F_s", "v_s", "sigma0", "sigma1", "pos_a", "pos_b", "cog_a", "cog_b",
                "width", "delay_s", "gain", "J_factor", "d_factor", "k_e_factor", "F_c_neg", "F_s_neg", "d_neg")
-_TAU_S_RE = re.compile(r"^(omitted|sensor|derived:(\d+)|decimals:(\d+))$")
-_ANGLE_RE = re.compile(r"^(exact|digits:(\d+)|decimals:(\d+))$")
+_TAU_S_RE = re.compile(r"^(omitted|sensor|float32|derived:(\d+)|decimals:(\d+))$")
+_ANGLE_RE = re.compile(r"^(exact|float32|digits:(\d+)|decimals:(\d+))$")
 #: Encoder resolutions the loggers may have [counts/rev]: the testbed's, 16 and 14 bit.
 ENCODER_COUNTS = (COUNTS_PER_REV, 2**16, 2**14)
 
@@ -152,7 +152,8 @@ class IndependentCase:
         ``omitted``, ``derived:<digits>`` (printed ``k_nominal (theta - q)`` at
         1-17 significant digits), ``decimals:<n>`` (the same printed with a fixed
         number 0-12 of decimal places, ``%.<n>f``: small torques keep fewer
-        significant digits than large ones) or ``sensor`` (independent torque
+        significant digits than large ones), ``float32`` (the same stored as a
+        32-bit float, written with every digit of that float) or ``sensor`` (independent torque
         sensor with noise, printed at 7 significant digits; the controller then
         feeds back the sensor).
     tau_m_digits : int
@@ -164,8 +165,10 @@ class IndependentCase:
         16,384 for 16- and 14-bit encoders).
     angle_logging : str
         How the logger prints ``theta`` and ``q``: ``exact`` (every digit of the quantised
-        angle), ``digits:<n>`` (n = 4-17 significant digits) or ``decimals:<n>`` (n = 3-12
-        decimal places). A derived ``tau_s`` is computed from the angles before printing.
+        angle), ``digits:<n>`` (n = 4-17 significant digits), ``decimals:<n>`` (n = 3-12
+        decimal places) or ``float32`` (stored as 32-bit floats: 24 bits of mantissa, coarser than
+        the encoder beyond a few revolutions). A derived ``tau_s`` is computed from the angles
+        before printing.
     sensor_noise : float
         Standard deviation of the torque-sensor noise [N m].
     sensor_offset : float
@@ -231,13 +234,13 @@ class IndependentCase:
         m = _TAU_S_RE.match(str(self.tau_s_logging))
         if m is None or (m.group(2) is not None and not 1 <= int(m.group(2)) <= 17) \
                 or (m.group(3) is not None and not 0 <= int(m.group(3)) <= 12):
-            raise ParameterError("tau_s_logging must be 'omitted', 'sensor', 'derived:<1..17>' or "
+            raise ParameterError("tau_s_logging must be 'omitted', 'sensor', 'float32', 'derived:<1..17>' or "
                                  f"'decimals:<0..12>', got {self.tau_s_logging!r}", name="tau_s_logging",
                                  value=self.tau_s_logging)
         a = _ANGLE_RE.match(str(self.angle_logging))
         if a is None or (a.group(2) is not None and not 4 <= int(a.group(2)) <= 17) \
                 or (a.group(3) is not None and not 3 <= int(a.group(3)) <= 12):
-            raise ParameterError("angle_logging must be 'exact', 'digits:<4..17>' or 'decimals:<3..12>', "
+            raise ParameterError("angle_logging must be 'exact', 'float32', 'digits:<4..17>' or 'decimals:<3..12>', "
                                  f"got {self.angle_logging!r}", name="angle_logging", value=self.angle_logging)
         c = self.encoder_counts
         if isinstance(c, bool) or not isinstance(c, (int, np.integer)) or not 64 <= int(c) <= 10**9:

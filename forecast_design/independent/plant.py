@@ -391,7 +391,9 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
     t = np.round(case.t0_s + np.arange(n) * T, 9)
     if case.angle_logging != "exact":     # the logger prints the angles (tau_s was computed before)
         kind, _, places = case.angle_logging.partition(":")
-        if kind == "digits":
+        if kind == "float32":
+            theta_m, q_m = (np.asarray(a, dtype=np.float32).astype(float) for a in (theta_m, q_m))
+        elif kind == "digits":
             theta_m, q_m = round_significant(theta_m, int(places)), round_significant(q_m, int(places))
         else:
             fixed = f".{int(places)}f"
@@ -401,6 +403,8 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
         tau_s_col = None
     elif tau_s_mode == "sensor":
         tau_s_col = tau_s_log
+    elif tau_s_mode == "float32":                        # a logger storing k (theta - q) as a 32-bit float
+        tau_s_col = tau_s_log.astype(np.float32).astype(float)
     elif tau_s_mode.startswith("decimals:"):
         fixed = f".{int(tau_s_mode.split(':')[1])}f"     # a logger printing %.<n>f
         tau_s_col = np.array([float(format(v, fixed)) for v in tau_s_log.tolist()])
