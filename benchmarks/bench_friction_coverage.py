@@ -4,8 +4,8 @@ Run: python benchmarks/bench_friction_coverage.py [--logs N] [--workers W] [--fa
 
 Families (each log drawn from its own seed, parameters drawn around the Forecast testbed's):
 
-* ``open``: open-loop sliding logs of every law (sfm, extended-sfm, asymmetric, stribeck, lugre),
-  each fitted with its own model; 2 kHz, 12-20 s;
+* ``open``: open-loop sliding logs of every law (sfm, extended-sfm, asymmetric, stribeck, lugre,
+  position-friction), each fitted with its own model; 2 kHz, 12-20 s;
 * ``closed``: PD force control (P 3-6, D 0.05-0.12) of a multisine or square force reference on
   stiff / exp-soft / soft / locked, sfm and extended-sfm friction;
 * ``coarse``: open-loop sfm, extended-sfm and stribeck logs on 16- and 14-bit encoders;
@@ -31,7 +31,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-LAWS = ("sfm", "extended-sfm", "asymmetric", "stribeck", "lugre")
+LAWS = ("sfm", "extended-sfm", "asymmetric", "stribeck", "lugre", "position-friction")
 FAMILIES = ("open", "closed", "coarse", "little", "wrong")
 #: In the ``wrong`` family, the true parameters each sfm parameter stands for.
 STANDS_FOR = {"asymmetric": {"viscous": ("viscous_pos", "viscous_neg"), "coulomb": ("coulomb_pos", "coulomb_neg")},
@@ -43,12 +43,15 @@ def draw_params(law: str, rng: np.random.Generator) -> dict[str, float]:
     visc, coul = float(rng.uniform(0.15, 0.45)), float(rng.uniform(0.15, 0.45))
     if law == "sfm":
         return {"viscous": visc, "coulomb": coul}
-    if law == "extended-sfm":
+    if law in ("extended-sfm", "position-friction"):
+        # harmonics of the motor angle, added (extended SFM) or in the Coulomb level (position friction: at most
+        # 0.03 N m each, so that the level stays positive)
         out = {"viscous": visc, "coulomb": coul}
+        pre, top = ("", 0.04) if law == "extended-sfm" else ("coulomb_", 0.03)
         for i in range(1, 5):
-            a = float(rng.uniform(0.0, 0.04)) if rng.random() < 0.6 else 0.0
+            a = float(rng.uniform(0.0, top)) if rng.random() < 0.6 else 0.0
             ph = float(rng.uniform(0, 2 * math.pi))
-            out[f"sin{i}"], out[f"cos{i}"] = a * math.cos(ph), a * math.sin(ph)
+            out[f"{pre}sin{i}"], out[f"{pre}cos{i}"] = a * math.cos(ph), a * math.sin(ph)
         return out
     if law == "asymmetric":
         return {"viscous_pos": visc, "viscous_neg": visc * float(rng.uniform(0.6, 1.4)),

@@ -168,6 +168,19 @@ def test_effect_free_logs_stay_none(env, setup):
         [(str(r.effect), round(r.reduction, 3), r.weak) for r in diag.ranking[:3]]
 
 
+@pytest.mark.parametrize("env", ["exp-soft", "stiff", "locked"])
+def test_effect_free_closed_loop_squares_stay_none(env):
+    # PD force control of a square wave: the motor comes to rest between the edges, and a breakaway level as
+    # large as the encoders' noise would explain every quiet row at rest (exp-soft was graded a weak stiction
+    # of 4.7 mN m, 31 % of the gap above the floor): a level explains the rows at rest only down to the floor
+    square = Excitation(kind="square", amplitude=0.3, period_s=2.0)
+    exp = _log((), {}, env=env, excitation=square, closed_loop=True, controller=PD(P=4.0, D=0.08),
+               nominal_errors={"J_m": 0.015, "d_m": -0.02, "k": 0.01})
+    diag = diagnose(exp, joint=False)
+    assert diag.effect is Effect.NONE and diag.to_mapping()["verdict"]["grade"] == "none", \
+        [(str(r.effect), round(r.reduction, 3), r.weak) for r in diag.ranking[:3]]
+
+
 def test_a_small_cogging_on_a_14_bit_log_is_the_verdict_graded_weak():
     # 0.01 N m of cogging (a quarter of the smallest typical) under 14-bit encoders: it removes about a fifth
     # of the gap above the quantisation floor, passes the held-out test by orders of magnitude and is

@@ -20,7 +20,8 @@ gain error beyond that tolerance can be blamed on the motor.
 Friction candidates (``coulomb``, ``stiction``, ``position_friction``) also
 explain the samples where the motor is at rest: a static friction holds any
 net torque up to its breakaway level, so there the residual left is
-``soft_threshold(r, level)``.
+``soft_threshold(r, level)``, but never less than the encoders' quantisation
+floor of the row, which no friction explains.
 
 Around reversals and stops the filters smear whatever torque a friction feature
 misses into the neighbouring rows where the motor moves, and a Stribeck bump
@@ -107,10 +108,6 @@ class CandidateFit:
     structure: Any = field(default=None, repr=False, compare=False)
     coef: np.ndarray = field(default=None, repr=False, compare=False)  # type: ignore[assignment]
     n_cal: int = 0
-
-
-def _soft_threshold(r: np.ndarray, level: np.ndarray | float) -> np.ndarray:
-    return np.sign(r) * np.maximum(np.abs(r) - np.maximum(level, 0.0), 0.0)
 
 
 def _calibration(data: GapData) -> list[_Coef]:
@@ -402,10 +399,13 @@ def _evaluate(data: GapData, effect: Effect, coefs: Sequence[_Coef], p: np.ndarr
         st = np.flatnonzero(data.stuck)
         lv = level(p[n_cal:])
         lv = lv[st] if np.ndim(lv) else lv
-        held = _soft_threshold(r[st], lv)
+        from .grading import floor_rms, held_at_rest    # grading scores the fits made here
+
+        held = held_at_rest(r[st], lv, floor_rms(data)[st])
         prediction[st] += r[st] - held
         r[st] = held
     return r, prediction
+
 
 
 def _summaries(data: GapData, r: np.ndarray) -> tuple[float, float, np.ndarray]:
