@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import math
-import warnings
 from dataclasses import dataclass
 from typing import Any
 
