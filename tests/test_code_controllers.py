@@ -543,9 +543,9 @@ def _pil_missing():
 @pytest.mark.skipif(_pil_missing() is not None, reason="no qemu / arm toolchain")
 def test_sil_equals_pil_bit_for_bit_for_the_c_example(tmp_path):
     from forecast_design.export.firmware import FirmwareOptions, export_firmware
-    from forecast_design.runtime.pil import python_closed_loop, run_pil
+    from forecast_design.runtime.pil import PIL_LINK_TIMEOUT_MS, python_closed_loop, run_pil
 
-    opts = FirmwareOptions()
+    opts = FirmwareOptions(link_timeout_ms=PIL_LINK_TIMEOUT_MS)
     c = resolve_controller(EXAMPLE_C)
     res = run_pil(controller=c, compensator="ea-fob", env="exp-soft", w_q_hz=10.0, reference="square:0.2:0.125",
                   duration=0.2, out=tmp_path / "run.toml", work_dir=tmp_path / "fw", options=opts)

@@ -116,6 +116,14 @@ int main(void)
             unsigned long pclk, baud;
             if (scanf("%lu %lu", &pclk, &baud) != 2) return 1;
             printf("%lu\n", (unsigned long)fd_usart_brr((uint32_t)pclk, (uint32_t)baud));
+        } else if (strcmp(cmd, "CRC") == 0) {
+            static uint8_t all[256];
+            unsigned i;
+            for (i = 0; i < 256u; ++i) {
+                all[i] = (uint8_t)i;
+                printf("%u\n", (unsigned)fd_crc16(&all[i], 1u, 0xFFFFu));
+            }
+            printf("%u\n", (unsigned)fd_crc16(all, 256u, 0xFFFFu));
         } else if (strcmp(cmd, "PARSE") == 0) {
             static fd_parser p;
             unsigned long n, i, b;
@@ -203,6 +211,15 @@ def test_dac_scaling_and_saturation(host_drivers, tau, code):
 def test_pwm_scaling_and_saturation(host_drivers, tau, duty):
     arr = 20999   # 84 MHz / 4 kHz - 1
     assert int(host_drivers(f"PWM {tau} 2.0 {arr}")[0]) == round(duty * (arr + 1))
+
+
+def test_firmware_crc_table_is_the_standard_crc16_ccitt_false(host_drivers):
+    # every table entry (a one-byte message from 0xFFFF reaches each of them) and one long message,
+    # against the standard library's CRC-16/CCITT-FALSE
+    import binascii
+
+    got = [int(v) for v in host_drivers("CRC") if v]
+    assert got == [binascii.crc_hqx(bytes([b]), 0xFFFF) for b in range(256)] + [binascii.crc_hqx(bytes(range(256)), 0xFFFF)]
 
 
 def test_usart_divisor_for_the_link_rate(host_drivers):

@@ -13,7 +13,7 @@ import pytest
 
 from forecast_design.export.firmware import FirmwareOptions
 from forecast_design.experiment import load_experiment
-from forecast_design.runtime.pil import python_closed_loop, qemu_available, run_pil
+from forecast_design.runtime.pil import PIL_LINK_TIMEOUT_MS, python_closed_loop, qemu_available, run_pil
 
 NO_PIL = qemu_available()
 pytestmark = pytest.mark.skipif(NO_PIL is not None, reason=str(NO_PIL))
@@ -32,7 +32,7 @@ CASES = [("none", None), ("sfm", SFM), ("ea-fob", None), ("lo-dob", None), ("ld-
 @pytest.mark.slow
 @pytest.mark.parametrize("compensator, sfm", CASES, ids=[c for c, _ in CASES])
 def test_pil_matches_the_python_closed_loop(tmp_path, compensator, sfm):
-    opts = FirmwareOptions()
+    opts = FirmwareOptions(link_timeout_ms=PIL_LINK_TIMEOUT_MS)
     res = run_pil(compensator=compensator, env="exp-soft", w_q_hz=10.0, sfm_params=sfm,
                   reference=REFERENCE, duration=0.2, out=tmp_path / "run.toml", work_dir=tmp_path / "fw",
                   options=opts)
@@ -83,7 +83,7 @@ def test_pil_runs_every_controller_kind_bit_identical_to_the_python_loop(tmp_pat
     from forecast_design.controllers import resolve_controller
     from forecast_design.export.firmware import export_firmware
 
-    opts = FirmwareOptions()
+    opts = FirmwareOptions(link_timeout_ms=PIL_LINK_TIMEOUT_MS)
     c = resolve_controller(controller)
     res = run_pil(controller=c, compensator="ea-fob", env="exp-soft", w_q_hz=10.0, reference="square:0.2:0.125",
                   duration=0.2, out=tmp_path / "run.toml", work_dir=tmp_path / "fw", options=opts)

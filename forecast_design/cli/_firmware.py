@@ -21,17 +21,23 @@ def _add_firmware_options(p: argparse.ArgumentParser) -> None:
                    help="ESCON set value: dac (PA4 analog) or pwm (PA6, 10-90 %% duty); default dac")
     g.add_argument("--tau-full-scale", type=_float_range, default=2.0, metavar="N_M",
                    help="torque at the ESCON's full-scale set value [N m] (default 2.0; from k_t, gear, current range)")
-    g.add_argument("--link-timeout-ms", type=_float_range, default=100.0, metavar="MS",
-                   help="host silence during a run that zeroes the torque [ms] (default 100)")
+    g.add_argument("--link-timeout-ms", type=_float_range, default=None, metavar="MS",
+                   help="host silence during a run that zeroes the torque [ms] (default 100 for export; "
+                        "pil: 10000, since the desktop host is not real-time)")
 
 
-def _firmware_options_from_args(args: argparse.Namespace):
-    """FirmwareOptions of the parsed options; --tau-max is the torque limit (default 1 N m)."""
+def _firmware_options_from_args(args: argparse.Namespace, *, link_timeout_ms: float | None = None):
+    """FirmwareOptions of the parsed options; --tau-max is the torque limit (default 1 N m).
+
+    ``link_timeout_ms`` is the verb's default when --link-timeout-ms is not given (None: the board's).
+    """
     from ..export.firmware import FirmwareOptions
 
     limit = args.tau_max if math.isfinite(args.tau_max) else 1.0
+    timeout = args.link_timeout_ms if args.link_timeout_ms is not None else link_timeout_ms
+    extra = {} if timeout is None else {"link_timeout_ms": timeout}
     return FirmwareOptions(board=args.board, output=args.output_stage, tau_limit_N_m=limit,
-                           tau_full_scale_N_m=args.tau_full_scale, link_timeout_ms=args.link_timeout_ms)
+                           tau_full_scale_N_m=args.tau_full_scale, **extra)
 
 
 def _cmd_export_firmware(args: argparse.Namespace, env, comp) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from . import _command, _compensator_from_args, _configure_export, _controller_from_args, _one_environment_from_args
 from . import _testbed_from_args
@@ -24,7 +25,7 @@ def _configure_pil(p: argparse.ArgumentParser) -> None:
           _configure_pil)
 def _cmd_pil(args: argparse.Namespace) -> int:
     from ..errors import ParameterError
-    from ..runtime.pil import run_pil
+    from ..runtime.pil import PIL_LINK_TIMEOUT_MS, run_pil
 
     if args.check_arm:
         raise ParameterError("--check-arm is an export option; pil always runs the firmware on qemu",
@@ -34,7 +35,7 @@ def _cmd_pil(args: argparse.Namespace) -> int:
     result = run_pil(controller=_controller_from_args(args), compensator=comp if comp is not None else "none", env=env,
                      testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz,
                      reference=args.reference, duration=args.duration, out=args.out, work_dir=args.work_dir,
-                     options=_firmware_options_from_args(args), icount=not args.no_icount)
+                     options=_firmware_options_from_args(args, link_timeout_ms=PIL_LINK_TIMEOUT_MS), icount=not args.no_icount)
     summary = result.to_mapping()
     if args.json:
         _write_json(args.json, summary)
@@ -43,6 +44,8 @@ def _cmd_pil(args: argparse.Namespace) -> int:
         cost = (f"; {ips:.0f} instructions per period (longest {worst:.0f}; x CPI 2 against 84000 cycles: "
                 f"{100 * summary['max_budget_fraction_at_cpi_2']:.1f} %)" if ips is not None and worst is not None
                 else "")
-        fault = f"; firmware fault {result.fault}" if result.fault else ""
-        print(f"{args.out}: {result.samples} of {result.expected} periods with the firmware in the loop{cost}{fault}")
+        print(f"{args.out}: {result.samples} of {result.expected} periods with the firmware in the loop{cost}")
+    if result.fault:
+        print(f"forecast-design: error: firmware fault {result.fault} at sample {result.fault_index} (torque zero)",
+              file=sys.stderr)
     return 2 if result.fault else 0

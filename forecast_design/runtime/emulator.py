@@ -284,7 +284,7 @@ def warm_up(design: Design, effects: Sequence[Any] = (), rate_hz: float = 2000.0
     """Step the virtual testbed once so numba compiles the kernel before a host is waiting."""
     from ..simulation.run import plant_stepper
 
-    plant_stepper(design, effects, n=1, rate_hz=rate_hz, process_noise_std=0.0).advance(0.0)
+    plant_stepper(design, effects, n=1, rate_hz=rate_hz, process_noise_std=0.0).warm_up()
 
 
 def serve_emulator(fd: int, *, design: Design | None = None, effects: Sequence[Any] = (),

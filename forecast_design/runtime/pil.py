@@ -32,11 +32,15 @@ from . import protocol as pr
 from .board import Board, _save_with_recovery, check_writable, record_to_experiment
 from .link import BoardError, LinkError
 
-__all__ = ["PilFaults", "PilResult", "QemuBoard", "qemu_available", "run_pil", "pil_session",
+__all__ = ["PIL_LINK_TIMEOUT_MS", "PilFaults", "PilResult", "QemuBoard", "qemu_available", "run_pil", "pil_session",
            "python_closed_loop", "COUNT_OFFSET"]
 
 #: Raw counts start here (mod 2**32), so the firmware's 32-bit counters wrap within the first periods.
 COUNT_OFFSET = 2**32 - 3
+#: The firmware's link timeout under PIL [ms]. The desktop host is not real-time: while it stalls, the
+#: firmware polls the link and qemu -icount counts those instructions as virtual time (measured: a 20 s
+#: host stall passes the board's 100 ms, a 3 s one does not); a loaded CI machine stalls that long.
+PIL_LINK_TIMEOUT_MS = 10_000.0
 
 #: Signals of a run by name, as the SAMPLE frame carries them (PilResult.arrays, python_closed_loop).
 _SIGNALS = ("tau_m", "theta", "q", "tau_s", "tau_r", "u", "tau_frc_hat")
@@ -269,7 +273,7 @@ def pil_session(board: Board, program, design: Design, reference: pr.Reference, 
     # everything slow happens before START: once the firmware runs, a host pause longer than its
     # link timeout is a LINK_TIMEOUT fault, not a slow machine
     bed = plant_stepper(design, effects, n=n, rate_hz=rate, seed=seed, process_noise_std=noise_std,
-                        encoder_counts=options.encoder_counts)
+                        encoder_counts=options.encoder_counts).warm_up()
     board.ping(connect_timeout=20.0)
     board.upload(program)
     board._command(pr.MsgType.SET_REFERENCE, pr.encode_reference(reference))
@@ -349,7 +353,8 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     work_dir : str or Path, optional
         Where the firmware project is written and built (default: beside ``out``, else ``pil-firmware``).
     options : FirmwareOptions, optional
-        Board settings (link timeout, torque limit...).
+        Board settings (link timeout, torque limit...); default the board's with a link timeout of
+        ``PIL_LINK_TIMEOUT_MS`` (the host is not real-time).
     faults : PilFaults, optional
         Link faults to inject.
     effects, seed, noise_std
@@ -380,7 +385,7 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
         raise ExportError(f"pil: {why}")
     if out is not None:
         check_writable(out)   # before the build and the session, not after them
-    opt = options or FirmwareOptions()
+    opt = options or FirmwareOptions(link_timeout_ms=PIL_LINK_TIMEOUT_MS)
     work = Path(work_dir) if work_dir else (Path(out).with_suffix("").with_name(Path(out).stem + "-firmware")
                                             if out else Path("pil-firmware"))
     # the firmware's own STATS measure every period's cost here: no separate cycle check

@@ -724,6 +724,16 @@ class PlantStepper:
             qq = 0.0
         return th, qq, self.k_nominal * (th - qq)
 
+    def warm_up(self) -> PlantStepper:
+        """Compile the period step now (numba compiles on the first call, ~0.7 s), on scratch state.
+
+        A lock-step session calls this before it starts the board, whose link timeout would
+        otherwise see the first period's compile as a silent host. Returns ``self``.
+        """
+        advance_period(self.x.copy(), 0, self.substeps, int(self.plant.delay_substeps), self._hist.copy(),
+                       self.plant.params, self.plant.harmonics, 0.0, self._out.copy(), self.row.copy())
+        return self
+
     def advance(self, tau_m: float) -> None:
         """Hold the command ``tau_m`` [N m] over one period and step the plant."""
         k = self.period
