@@ -244,6 +244,35 @@ def _cluster_error(address: str, what: str, exc: BaseException | None = None) ->
     return ParameterError(f"the Dask cluster at {address} {what}{why}"[:400], name="scheduler", value=address)
 
 
+def _probe_scheduler(address: str, timeout_s: float) -> None:
+    """Connect to ``address`` and complete Dask's handshake within ``timeout_s`` [s], then hang up.
+
+    ``distributed``'s connect bounds the TCP connection but not the handshake read after it: a
+    port that accepts and never speaks would hang ``Client`` for ever. The probe runs its own
+    event loop in a thread (the caller may be inside one, e.g. a notebook).
+
+    Raises
+    ------
+    OSError
+        Nothing answering, or not a Dask peer, within the time.
+    """
+    import asyncio
+    from concurrent.futures import ThreadPoolExecutor
+
+    from distributed.comm import connect
+
+    async def probe() -> None:
+        try:
+            comm = await asyncio.wait_for(connect(address, timeout=timeout_s), timeout_s)
+        except asyncio.TimeoutError:
+            raise OSError(f"no Dask handshake within {timeout_s:g} s (something listens there, but not a "
+                          "Dask scheduler)") from None
+        await comm.close()
+
+    with ThreadPoolExecutor(1) as pool:
+        pool.submit(asyncio.run, probe()).result()
+
+
 class DaskExecutor(Executor):
     """Tasks on a ``dask.distributed`` cluster (the scheduler at ``address``).
 
@@ -289,6 +318,7 @@ class DaskExecutor(Executor):
         # executor's one-line error instead (the level is restored by close)
         self._log_levels = _quiet_loggers()
         try:
+            _probe_scheduler(address, timeout_s)
             self.client = Client(address, timeout=timeout_s, set_as_default=False)
         except (OSError, TimeoutError) as exc:
             _restore_loggers(self._log_levels)

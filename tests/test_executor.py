@@ -248,6 +248,48 @@ def test_a_scheduler_without_workers_fails_in_one_line_after_the_stated_wait(mon
                 and "has no worker after 1 s" in err[0], err
 
 
+@pytest.mark.parametrize("behaviour", ["silent", "hang-up"])
+def test_an_address_that_is_no_scheduler_fails_in_one_line_after_the_connect_timeout(behaviour):
+    """A port that accepts and never speaks (or hangs up at once) is not a scheduler: one line, no hang."""
+    pytest.importorskip("distributed")
+    import socket
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    held, stop = [], threading.Event()
+
+    def accept():
+        server.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                continue
+            if behaviour == "silent":
+                held.append(conn)
+            else:
+                conn.close()
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    try:
+        address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+        t0 = time.monotonic()
+        with pytest.raises(ParameterError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:") as info:
+            DaskExecutor(address, timeout_s=2.0)
+        assert len(str(info.value).splitlines()) == 1
+        # a silent peer is given the stated wait, and no more than a liveness bound (dask's own connect
+        # bounds the TCP connection but not its handshake: this hung for ever)
+        elapsed = time.monotonic() - t0
+        assert elapsed < 60.0 and (behaviour != "silent" or elapsed >= 2.0)
+    finally:
+        stop.set()
+        thread.join()
+        for conn in held:
+            conn.close()
+        server.close()
+
+
 @pytest.mark.slow
 def test_a_scheduler_killed_mid_benchmark_ends_the_command_in_one_line(tmp_path):
     distributed = pytest.importorskip("distributed")

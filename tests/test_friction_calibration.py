@@ -32,10 +32,10 @@ EXT_NAMES = ("viscous", "coulomb", "sin1", "cos1", "sin2", "cos2", "sin3", "cos3
 
 @pytest.fixture(scope="module")
 def extended_sfm_runs():
-    """(truth, default fit, fit on every sample) for N_LOGS independent extended-SFM logs."""
+    """(truth, default fit, fit on every sample) for N_LOGS independent extended-SFM logs of 10 s."""
     runs = []
     for seed in range(N_LOGS):
-        exp, true = friction_log("extended-sfm", seed=seed, duration_s=20.0)
+        exp, true = friction_log("extended-sfm", seed=seed, duration_s=10.0)
         runs.append((true, identify(exp, "extended-sfm", holdout=0.0),
                      identify(exp, "extended-sfm", holdout=0.0, selection="off")))
     return runs

@@ -339,7 +339,7 @@ def test_identifiability_rules():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scale", [1.0, 0.5, 0.25])
+@pytest.mark.parametrize("scale", [1.0, 0.25])   # the ends of the range; 0.5 is in bench-gap
 @pytest.mark.parametrize("word", list(Effect))
 def test_every_word_gives_an_identifiable_log(word, scale):
     log = make_independent_log(word, 0, 2024, magnitude_scale=scale)
