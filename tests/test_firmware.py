@@ -277,7 +277,7 @@ def _session(pil_image, faults, n=200):
                            options=opts, faults=faults)
 
 
-@pytest.mark.slow   # builds the PIL image once (~10 s), then three short qemu runs
+@pytest.mark.slow   # builds the PIL image once (~1 s), then three short qemu runs
 @needs_qemu
 @pytest.mark.parametrize("faults, code, at", [
     (PilFaults(garbage_at=50, garbage_bytes=80), "LINK_CORRUPT", 50),
