@@ -89,11 +89,16 @@ def test_hostile_csv_files_are_one_line_in_bounded_memory(tmp_path, capsys, what
 def test_every_log_limit_is_checked_before_the_csv_is_parsed(tmp_path, capsys, monkeypatch):
     """With the limits lowered to 1000 rows, a 2000-row log is refused by each verb, naming its limit."""
     toml = write_experiment(tmp_path, "run")         # 2000 rows
-    for name in ("log_samples_check", "log_samples_identify", "log_samples_diagnose"):
+    (tmp_path / "runs").mkdir()
+    write_experiment(tmp_path / "runs", "run")       # a folder of recorded runs for benchmark --runs
+    for name in ("log_samples_check", "log_samples_identify", "log_samples_diagnose", "log_samples_benchmark"):
         monkeypatch.setitem(COMPUTATION_LIMITS, name, (1, 1000, "test"))
     for verb, reader in (("check", "check"), ("identify", "identify"), ("diagnose", "diagnose")):
         code, out, err = cli([verb, toml], capsys)
         assert_one_line_error(code, err, "run.csv", "2000 rows", f"{reader} reads at most 1000 rows")
+    code, out, err = cli(["benchmark", "--runs", tmp_path / "runs", "--out", tmp_path / "b", "--no-plots"], capsys)
+    assert_one_line_error(code, err, "run.csv", "2000 rows", "benchmark --runs reads at most 1000 rows")
+    assert not (tmp_path / "b").exists()
     code, out, err = cli(["identify", "--csv", tmp_path / "run.csv", "--time", "t", "--position", "theta",
                           "--force", "tau_m"], capsys)
     assert_one_line_error(code, err, "2000 rows", "identify reads at most 1000 rows")
