@@ -180,3 +180,23 @@ def test_object_references_no_double_libm(kind, tmp_path):
         assert undefined == set()
     else:  # gcc may merge sinf + cosf of one angle into sincosf: still the float versions
         assert undefined and undefined <= {"sinf", "cosf", "sincosf"}
+
+
+@needs_cc
+def test_a_header_and_a_source_of_two_exports_do_not_compile_together(tmp_path):
+    """A pair left mixed (an export interrupted during its renames, or files copied by hand) is a compile
+    error naming the cause; each export's own pair compiles."""
+    a = export_controller(out_dir=tmp_path / "a", compensator="ea-fob")
+    b = export_controller(out_dir=tmp_path / "b", compensator="lo-dob")
+
+    def compile_pair(header, source):
+        d = tmp_path / f"mix-{header.parent.name}{source.parent.name}"
+        d.mkdir()
+        (d / "fd_controller.h").write_bytes(header.read_bytes())
+        (d / "fd_controller.c").write_bytes(source.read_bytes())
+        return subprocess.run([TOOLS.cc, "-std=c99", "-c", "-o", str(d / "x.o"), str(d / "fd_controller.c")],
+                              capture_output=True, text=True)
+
+    assert compile_pair(a.header, a.source).returncode == 0 and compile_pair(b.header, b.source).returncode == 0
+    mixed = compile_pair(a.header, b.source)
+    assert mixed.returncode != 0 and "come from different exports" in mixed.stderr

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import math
 import string
 from dataclasses import dataclass
@@ -314,6 +315,9 @@ def emit_c(program: ControllerProgram, out_dir: str | Path, *, user_source: str 
         "user_init": "    fd_user_init(FD_RATE_HZ);\n" if external is not None else "",
         "user_decl": _USER_DECL if external is not None else "",
     }
+    # the pair's identity, checked by the C preprocessor: a header and a source written by two
+    # exports (one interrupted during its renames, or copied by hand) do not compile together
+    values["export_id"] = "0x" + hashlib.sha256(json.dumps(values, sort_keys=True).encode()).hexdigest()[:8]
     header = _render("fd_controller.h.in", **values)
     source = _render("fd_controller.c.in", **values)
     h_path, c_path = out / "fd_controller.h", out / "fd_controller.c"
