@@ -72,12 +72,14 @@ from ..discrete import HAVE_NUMBA, njit
 from ..friction.laws import stribeck_level
 from ..params import Design, Environment
 
-# numba IR-level inlining of the per-substep helpers: measured ~2x faster loops. The helpers take
-# scalars and the parameter tuple of _unpack, never an array but the harmonic table (and that only
-# inside the branch for angle harmonics): numba reference-counts each array an inlined call binds,
-# atomically, and that cost 3x the arithmetic of a substep (issue 16).
-_INLINE = {"_rhs": "always", "_level": "always", "_angle_terms": "always", "_substep": "always",
-           "_unpack": "always", "advance_period": "always", "stribeck_level": "always"}
+# numba IR-level inlining of the per-substep helpers. The helpers take scalars and the parameter
+# tuple of _unpack, never an array but the harmonic table (and that only inside the branch for
+# angle harmonics): numba reference-counts each array a call binds, atomically, and that cost 3x
+# the arithmetic of a substep (issue 16). Only the array-binding helpers and the outer two are
+# IR-inlined: LLVM inlines the scalar ones (_rhs, _level, stribeck_level) as well, and inlining
+# them in numba's IR too multiplied the first compile by 2.5 (25 s against 10 s per kernel) for no
+# measurable speed (benchmarks/RESULTS.md, "Plant kernel: compile time").
+_INLINE = {"_substep": "always", "_unpack": "always", "advance_period": "always", "_angle_terms": "always"}
 
 def _njit(func):
     return njit(func, inline=_INLINE.get(func.__name__, "never"))
