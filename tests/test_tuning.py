@@ -19,7 +19,10 @@ def test_tuned_cutoffs_are_feasible_and_agree_with_dense_scan(paper_set_results)
     for obs, result in paper_set_results.items():
         assert result.feasible, obs
         assert result.agrees_with_scan, obs
-        assert result.worst_ratio >= 0.9 - 1e-6
+        assert result.worst_ratio >= 0.9      # as promised, no tolerance (it was 0.89999945 for LO-DOB)
+        # recomputed independently of the tuner's own bookkeeping: the exact worst ratio at the answer
+        at, _ = worst_case_ratio(Compensator(kind=obs, w_q_hz=result.w_q_hz), "soft,stiff")
+        assert at >= 0.9 * (1 - 1e-12) and at == pytest.approx(result.worst_ratio, rel=1e-12)
         assert result.w_q_hz >= 0.98 * result.scan_w_q_hz
         assert 0.5 <= result.w_q_hz <= 30.0
         assert result.solver["success"]
@@ -37,7 +40,7 @@ def test_tuned_cutoff_is_locally_maximal(paper_set_results, observer):
     result = paper_set_results[observer]
     above, _ = worst_case_ratio(Compensator(kind=observer, w_q_hz=result.w_q_hz * 1.02), "soft,stiff")
     at, _ = worst_case_ratio(Compensator(kind=observer, w_q_hz=result.w_q_hz), "soft,stiff")
-    assert at >= 0.9 - 1e-6 > above
+    assert at >= 0.9 * (1 - 1e-12) and 0.9 > above
 
 
 def test_uncertainty_can_only_lower_the_cutoff(paper_set_results):
@@ -124,14 +127,14 @@ def test_sampled_tuning_is_verified_on_the_sampled_loop(sampled_results):
             / sampled_force_loop(Design.nominal(env)).disk_margin().alpha
             for env in ("soft", "stiff"))
         assert worst == pytest.approx(result.worst_ratio, rel=1e-9)
-        assert worst >= 0.9 * (1 - 1e-6)
+        assert result.worst_ratio >= 0.9 and worst >= 0.9 * (1 - 1e-9)
     assert sampled_results["ea-fob"].w_q_hz >= 5 * sampled_results["lo-dob"].w_q_hz
 
 
 def test_sampled_lo_dob_cutoff_is_locally_maximal(sampled_results):
     r = sampled_results["lo-dob"]
     above, _ = worst_case_ratio(Compensator(kind="lo-dob", w_q_hz=r.w_q_hz * 1.02), "soft,stiff", sampled=True)
-    assert above < 0.9 <= r.worst_ratio + 1e-6
+    assert above < 0.9 <= r.worst_ratio
 
 
 def test_sampled_band_must_stay_below_nyquist():

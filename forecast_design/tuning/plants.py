@@ -24,7 +24,8 @@ _GRID_POINTS = 700
 _GRID_RAD_S = np.logspace(-2, 4.5, _GRID_POINTS)   # constraint/verification grid [rad/s]
 _ACTIVE_PER_PLANT = 4                     # frequencies per plant in the first NLP
 _MAX_CUTS = 12                            # cutting-plane rounds
-_FEAS_RTOL = 1e-6                         # relative slack of the ratio requirement
+_FEAS_RTOL = 1e-6                         # relative slack of the ratio requirement inside the NLP
+_BACKOFF_STEPS = (1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2)   # relative cutoff steps down to meet it exactly
 _BATCH_MARGINS = True                     # exact margins of many loops in one disk_margins call
 _FIRST_BATCH = 8                          # plants in the first batch of an early-stopping check
 

@@ -15,7 +15,7 @@ from ..limits import check_physical
 from ..params import Compensator
 from ..controllers import PAPER_PD, Controller, resolve_controller
 from .nlp import _casadi_abs2_G, _ipopt, _solve_max_cutoff
-from .plants import (_ACTIVE_PER_PLANT, _FEAS_RTOL, _MAX_CUTS, _Setting, _exact_ratios, _grid_ratios,
+from .plants import (_ACTIVE_PER_PLANT, _BACKOFF_STEPS, _FEAS_RTOL, _MAX_CUTS, _Setting, _exact_ratios, _grid_ratios,
     _plants, _q_polynomial, _sensitivity_offset, _with_frequency)
 
 
@@ -35,7 +35,8 @@ class TuningResult:
     worst_environment : str
         Label of the plant attaining it.
     feasible : bool
-        Whether the answer meets the ratio requirement in every plant.
+        Whether ``worst_ratio >= min_ratio`` holds exactly as given (no tolerance): an answer
+        the optimiser leaves on the constraint to within its tolerance is stepped down until it does.
     evaluations : int
         Exact disk-margin evaluations plus NLP solves.
     scan_w_q_hz : float
@@ -219,7 +220,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     if scan == "exact":
         for n, f in enumerate(scan_hz):
             ratios, _ = exact(float(f))
-            if ratios.min() >= threshold:
+            if ratios.min() >= min_ratio:
                 scan_best = float(f)
             if progress:
                 progress(n + 1, len(scan_hz))
@@ -231,7 +232,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
             ratios, _ = exact(float(scan_hz[k]), order=np.argsort(grid[k]), stop_below=threshold)
             if progress:
                 progress(n + 1, len(candidates))
-            if np.all(ratios >= threshold):
+            if np.all(ratios >= min_ratio):
                 scan_best = float(scan_hz[k])
                 break
     feasible_scan = not math.isnan(scan_best)
@@ -297,8 +298,17 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
         best = max((float(scan_hz[k]) for k in np.argsort(ranked)[::-1][:3]), key=lambda f: exact(f)[0].min())
         answer = best
     ratios, _ = exact(answer)
+    if threshold <= ratios.min() < min_ratio:
+        # the NLP's answer sits on the constraint to within its tolerance: step the cutoff down
+        # until the exact margins meet min_ratio as printed (the ratio falls with the cutoff here)
+        for step in _BACKOFF_STEPS:
+            below = max(answer * (1.0 - step), band_hz[0])
+            below_ratios, _ = exact(below)
+            if below_ratios.min() >= min_ratio:
+                answer, ratios = below, below_ratios
+                break
     worst = int(np.argmin(ratios))
-    feasible = bool(ratios.min() >= threshold)
+    feasible = bool(ratios.min() >= min_ratio)
     agrees = feasible and (math.isnan(scan_best) or answer >= scan_best * 0.98)
     return TuningResult(
         observer=observer, w_q_hz=answer, worst_ratio=float(ratios.min()),
