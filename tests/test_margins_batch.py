@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import control
 import numpy as np
 import pytest
@@ -103,3 +105,61 @@ def test_given_stability_flags_follow_disk_margin():
         assert alpha == pytest.approx(single.alpha, rel=1e-9, abs=0.0)
     with pytest.raises(ParameterError, match="closed_loop_stable has 2 entries for 6 loops"):
         disk_margins(loops, closed_loop_stable=[True, True])
+
+
+def _lightly_damped_loops(count: int, seed: int) -> list[RationalTF]:
+    """Random loops of 2-6 poles in lightly damped pairs (zeta down to 1e-3) and 0-4 zeros: the
+    sharp peaks a Newton step from a pole can jump past."""
+    rng = np.random.default_rng(seed)
+    loops = []
+    for _ in range(count):
+        den, num = np.ones(1), np.ones(1)
+        for _ in range(rng.integers(1, 4)):
+            w, z = np.exp(rng.uniform(0.0, 6.0)), np.exp(rng.uniform(np.log(1e-3), 0.0))
+            den = np.convolve(den, [1.0, 2.0 * z * w, w * w])
+        for _ in range(rng.integers(0, 3)):
+            w, z = np.exp(rng.uniform(0.0, 6.0)), np.exp(rng.uniform(np.log(1e-3), 0.0)) * rng.choice([-1.0, 1.0])
+            num = np.convolve(num, [1.0, 2.0 * z * w, w * w])
+        num = num[-(len(den) - 1):]              # strictly proper
+        k = np.exp(rng.uniform(np.log(1e-3), np.log(10.0))) * den[-1] / num[-1]
+        loops.append(RationalTF(tuple(k * num), tuple(den)))
+    return loops
+
+
+def test_batch_equals_the_single_routine_on_lightly_damped_random_loops():
+    """Before the batch took the single routine's stationary points as Newton starts, it
+    overstated alpha by up to 2 % on 150 of 3,343 such stable loops (a step from a lightly damped
+    pole jumped past the peak and stopped)."""
+    loops = _lightly_damped_loops(800, seed=1)
+    batch = disk_margins(loops)
+    single = np.array([disk_margin(L).alpha for L in loops])
+    assert batch.stable.sum() > 450
+    np.testing.assert_allclose(batch.alpha, single, rtol=1e-9, atol=0.0)
+
+
+def test_a_peak_the_batch_used_to_miss_is_found_as_on_a_dense_grid():
+    L = RationalTF((2.7462585064272957, 71.56626695157145), (1.0, 1.282002916502757, 16063.837762020712))
+    w = np.linspace(100.0, 160.0, 2_000_001)   # independent: |S - 1/2| on a fine grid around the peak
+    num, den = np.polyval(L.num, 1j * w), np.polyval(L.den, 1j * w)
+    grid = 1.0 / np.max(np.abs(den / (den + num) - 0.5))
+    batch = disk_margins([L, control.tf(list(L.num), list(L.den))])   # a python-control loop too
+    np.testing.assert_allclose(batch.alpha, grid, rtol=1e-9)          # was 1.94965 (+1.3 %)
+    assert batch.w_peak_rad_s[0] == pytest.approx(133.4824, rel=1e-4)
+
+
+@pytest.mark.parametrize("spelling", ["pd:{a}:{b}", "pid:{a}:{c}:0", "pid:{a}:{c}:{b}:0.002", "tf:{b},{a}/0.004,1"])
+def test_batch_equals_the_single_routine_for_every_lti_controller_kind_with_small_random_gains(spelling):
+    from forecast_design.controllers import parse_controller
+    rng = np.random.default_rng(11)
+    loops = []
+    for i, (_, design) in enumerate(resolve_environments("random:60", seed=5).designs()):
+        a, b, c = (float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+                   for lo, hi in ((0.01, 10.0), (1e-5, 0.3), (0.01, 100.0)))
+        kind = KINDS[i % len(KINDS)]
+        comp = None if kind is None else Compensator(kind=kind, w_q_hz=float(np.exp(rng.uniform(np.log(0.5), np.log(60.0)))))
+        controller = parse_controller(spelling.format(a=f"{a:.6g}", b=f"{b:.6g}", c=f"{c:.6g}"))
+        loops.append(force_loop(dataclasses.replace(design, controller=controller), comp).L)
+    batch = disk_margins(loops)
+    single = [disk_margin(L) for L in loops]
+    assert np.array_equal(batch.stable, [m.stable for m in single])
+    np.testing.assert_allclose(batch.alpha, [m.alpha for m in single], rtol=1e-9, atol=0.0)

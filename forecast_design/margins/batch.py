@@ -28,10 +28,11 @@ import numpy as np
 from ..errors import ParameterError
 from .disk import check_skew
 from .exact import STABILITY_TOLERANCE, as_loop, continuous_equivalent, frequency_rad_s
+from .exact import _ROOT_IMAG_RTOL, _peak, _scaled_G   # one algorithm: the single routine's pieces
 
 __all__ = ["DiskMarginBatch", "disk_margins"]
 
-_GRID = np.logspace(-4.0, 4.0, 161)   # scaled frequencies v = w / w0 (20 points per decade)
+_GRID = np.logspace(-4.0, 4.0, 321)   # scaled frequencies v = w / w0 (the single routine's 40 per decade)
 _NEWTON_STEPS = 12
 _HALVINGS = 4
 
@@ -125,20 +126,80 @@ def _group(num: np.ndarray, den: np.ndarray, c: float) -> tuple[np.ndarray, np.n
         interior = (g_grid[:, 1:-1] >= g_grid[:, :-2]) & (g_grid[:, 1:-1] >= g_grid[:, 2:])
         grid_starts = np.where(interior, v_grid[:, 1:-1], np.nan)
         scaled_poles = poles / w0[:, None]
-        starts = np.concatenate([grid_starts, np.abs(scaled_poles.imag), np.abs(scaled_poles)], axis=1)
+        # the single-loop routine's starting points: the stationary points of |G|^2 (roots of
+        # the stationarity polynomial) and the poles' |Im p| and |p|; the grid's maxima on top
+        starts = np.concatenate([grid_starts, _stationary_points(P, Q), np.abs(scaled_poles.imag),
+                                 np.abs(scaled_poles)], axis=1)
         starts = np.where(starts > 0.0, starts, np.nan)
         v = _newton(P, Q, starts)
         s = 1j * np.nan_to_num(v, nan=1.0)
         vals = np.where(np.isnan(v), -np.inf, np.abs(_polyval_rows(P, s) / _polyval_rows(Q, s)))
-        candidates = np.concatenate([vals, g_grid, np.abs(P[:, -1:] / Q[:, -1:]), np.abs(P[:, :1] / Q[:, :1])],
-                                    axis=1)
-        where = np.concatenate([v, v_grid, np.zeros((idx.size, 1)), np.full((idx.size, 1), np.inf)], axis=1)
+        ends = np.concatenate([np.abs(P[:, -1:] / Q[:, -1:]), np.abs(P[:, :1] / Q[:, :1])], axis=1)
+        candidates = np.concatenate([vals, ends], axis=1)
+        where = np.concatenate([v, np.zeros((idx.size, 1)), np.full((idx.size, 1), np.inf)], axis=1)
         best = np.nanargmax(np.where(np.isfinite(candidates) | np.isinf(candidates), candidates, -np.inf), axis=1)
         rows = np.arange(idx.size)
         peak[idx] = candidates[rows, best]
         w_at[idx] = where[rows, best] * w0
+        # the guard grid: a grid value above every polished point is a peak no start reached;
+        # that loop goes to the single-loop routine (golden section and polish between grid points)
+        missed = np.flatnonzero(np.max(g_grid, axis=1) > peak[idx] * (1.0 + 1e-12))
+        for k in missed:
+            G = _scaled_G(num[idx[k]], den[idx[k]], c)
+            value, v_peak = _peak(G)
+            peak[idx[k]], w_at[idx[k]] = value, v_peak * G.w0
     stable[idx] = stab
     return peak, w_at, stable
+
+
+def _conv_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise polynomial products of (K, n) and (K, m) coefficient rows (any order, complex ok)."""
+    out = np.zeros((a.shape[0], a.shape[1] + b.shape[1] - 1), dtype=np.result_type(a, b))
+    for i in range(a.shape[1]):
+        out[:, i:i + b.shape[1]] += a[:, i:i + 1] * b
+    return out
+
+
+def _abs2_rows(P: np.ndarray) -> np.ndarray:
+    """A(x) with A(v^2) = |P(jv)|^2 for every row (descending powers in s in, in x out)."""
+    n = P.shape[1]
+    asc = P[:, ::-1]
+    jk = 1j ** np.arange(n)
+    prod = _conv_rows(asc * jk, asc * np.conj(jk))    # ascending in v, real, even
+    return np.real(prod[:, ::2])[:, ::-1]             # descending in x = v^2
+
+
+def _derivative_x(A: np.ndarray) -> np.ndarray:
+    m = A.shape[1]
+    return A[:, :-1] * np.arange(m - 1, 0, -1, dtype=float) if m > 1 else np.zeros((A.shape[0], 1))
+
+
+def _stationary_points(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """Scaled frequencies v > 0 where d/dv |P/Q (jv)|^2 = 0: sqrt of the positive real roots x of
+    A'B - AB' (A = |P|^2, B = |Q|^2 in x = v^2), as the single-loop routine's candidates; one
+    batched eigenvalue call per effective degree. Spurious roots are harmless (every start is
+    evaluated on |G| itself); NaN where a row has fewer roots."""
+    K = P.shape[0]
+    A, B = _abs2_rows(P), _abs2_rows(Q)
+    F = _conv_rows(_derivative_x(A), B) - _conv_rows(A, _derivative_x(B))
+    scale = np.max(np.abs(F), axis=1, keepdims=True)
+    F = np.where(scale > 0.0, F / np.where(scale > 0.0, scale, 1.0), 0.0)
+    F = np.where(np.abs(F) > 1e-13, F, 0.0)           # cancelled leading terms are rounding
+    lead = np.argmax(F != 0.0, axis=1)
+    degree = F.shape[1] - 1 - lead
+    out = np.full((K, max(F.shape[1] - 1, 1)), np.nan)
+    for d in np.unique(degree):
+        if d < 1:
+            continue
+        rows = np.flatnonzero(degree == d)
+        C = F[rows[:, None], lead[rows][:, None] + np.arange(d + 1)[None, :]]
+        comp = np.zeros((rows.size, d, d))
+        comp[:, 0, :] = -C[:, 1:] / C[:, :1]
+        comp[:, np.arange(1, d), np.arange(d - 1)] = 1.0
+        roots = np.linalg.eigvals(comp)
+        keep = (np.abs(roots.imag) <= _ROOT_IMAG_RTOL * np.abs(roots) + 1e-12) & (roots.real > 0.0)
+        out[rows, :d] = np.where(keep, np.sqrt(np.abs(roots.real)), np.nan)
+    return out
 
 
 def _newton(P: np.ndarray, Q: np.ndarray, v0: np.ndarray) -> np.ndarray:
