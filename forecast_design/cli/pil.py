@@ -53,9 +53,9 @@ def _cmd_pil(args: argparse.Namespace) -> int:
             raise ParameterError(f"give --scenario or --{given[0].replace('_', '-')}, not both (the scenario holds "
                                  "the design the firmware runs and the virtual testbed)", name=given[0])
         scenario = load_scenario(args.scenario)     # the one resolution of the scenario, as simulate's
-        _note(scenario.notes)
         result = run_pil_scenario(scenario, reference=args.reference, duration=args.duration, out=args.out,
                                   work_dir=args.work_dir, options=options, icount=not args.no_icount)
+        _note(scenario.notes)                       # after the run: a refusal stays one line
     else:
         for key, value in _DESIGN_DEFAULTS.items():
             if getattr(args, key) is None:
