@@ -195,7 +195,12 @@ def test_simulate_a_scenario_naming_the_testbed_file(mysea, tmp_path, capsys):
     (tmp_path / "sc2.toml").write_text(table)
     from forecast_design.simulation.scenario import load_scenario
 
-    _no_table1_link(load_scenario(tmp_path / "sc2.toml").design.environment)
+    loaded = load_scenario(tmp_path / "sc2.toml")
+    _no_table1_link(loaded.design.environment)
+    # the scenario written back keeps its testbed's link
+    from forecast_design.simulation.scenario import scenario_from_mapping
+
+    assert scenario_from_mapping(loaded.to_mapping()).design == loaded.design
     # a testbed file that is not there: one line naming the scenario and the key
     (tmp_path / "sc3.toml").write_text(SCENARIO.replace('testbed = "mysea.toml"', 'testbed = "nosea.toml"'))
     code, _, err = _cli(capsys, "simulate", tmp_path / "sc3.toml", "--out", tmp_path / "r3.toml")

@@ -394,7 +394,8 @@ class Scenario:
         if self.description:
             out["description"] = self.description
         out["sampling"] = {"rate_hz": self.rate_hz}
-        out["testbed"] = self.design.testbed.to_mapping()
+        testbed = self.design.testbed
+        out["testbed"] = {**testbed.to_mapping(), **({"J_l": testbed.J_l, "d_l": testbed.d_l} if testbed.link else {})}
         out["environment"] = self.design.environment.to_mapping()
         if self.closed_loop:
             ctrl = self.design.controller or PAPER_PD
