@@ -471,3 +471,128 @@ def test_benchmark_testbed_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, 
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("forecast-design: error:") and words in err[0]
     assert not (out / "results.csv").exists()
+
+
+# --- a lab's SEA with an unstable cell: flags, aggregates, files that reproduce the indicators, plots ------
+
+LAB_SEA = "k=150,J_m=0.06,d_m=0.12"     # issue 26's newcomer: J_m 0.06, d_m 0.12, k 150, link 0.004 / 0.2
+LAB_ENVS = """
+[[environment]]
+name = "e10"
+k_e = 10.0
+J_e = 0.01
+J_l = 0.004
+d_l = 0.2
+[[environment]]
+name = "locked"
+locked = true
+J_l = 0.004
+d_l = 0.2
+"""
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    """pd:5:0.1 and pd:8:0 with none and ea-fob:10 on the lab's SEA; pd:8:0 on the locked output is unstable."""
+    import contextlib
+    import io
+
+    folder = tmp_path_factory.mktemp("lab")
+    (folder / "envs.toml").write_text(LAB_ENVS)
+    out = folder / "out"
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()) as stdout:
+        code = main(["benchmark", "--testbed", LAB_SEA, "--envs", str(folder / "envs.toml"), "--controller", "pd:5:0.1",
+                     "--controller", "pd:8:0", "--compensator", "none,ea-fob", "--repetitions", "3",
+                     "--reference", "step:0.2:0.6", "--out", str(out), "--workers", "1"])
+    return {"code": code, "out": out, "err": err.getvalue(), "stdout": stdout.getvalue(),
+            "table": pd.read_parquet(out / "results.parquet"), "traces": pd.read_parquet(out / "traces.parquet")}
+
+
+def test_an_unstable_cell_is_flagged_everywhere_and_left_out_of_the_set(lab):
+    from forecast_design.analysis import loop_margins
+    from forecast_design.environments import resolve_environments, resolve_testbed
+
+    df, tr = lab["table"], lab["traces"]
+    assert lab["code"] == 1
+    cells = df[df["kind"] == "environment"].drop_duplicates(["controller", "compensator", "environment"])
+    bad = {(r.controller, r.compensator, r.environment) for r in cells.itertuples() if not pd.isna(r.stable) and not r.stable}
+    assert bad == {("pd:8:0", "none", "locked"), ("pd:8:0", "ea-fob:10", "locked")}
+    # the flag is the loop analysis' (sampled, delay 0), and the frictionless expected response agrees with it:
+    # it grows on the unstable loop (issue 26: 0.54 -> 0.96 N m within 1 s) and decays to its final value elsewhere
+    tb = resolve_testbed(LAB_SEA)
+    envs = resolve_environments(str(lab["out"].parent / "envs.toml"), testbed=tb)
+    for r in cells.itertuples():
+        design = Design(testbed=tb, environment=dict(envs.items())[r.environment], controller=parse_controller(r.controller))
+        comp = parse_compensators(r.compensator)[0]
+        assert bool(r.stable) == loop_margins(design, comp, sampled=True, rate_hz=2000.0, delay_samples=0).stable
+        e = tr[(tr["controller"] == r.controller) & (tr["compensator"] == r.compensator)
+               & (tr["environment"] == r.environment) & (tr["repetition"] == 0)]["tau_s_expected"].to_numpy()
+        n = e.size
+        grows = np.ptp(e[int(0.8 * n):]) > np.ptp(e[int(0.2 * n):int(0.4 * n)])   # its swing at the end vs earlier
+        assert grows == (not r.stable)
+    # stderr names each unstable cell in one warning line; the report and the summary list them
+    warn = [ln for ln in lab["err"].splitlines() if "unstable (disk margin" in ln]
+    assert len(warn) == 2 and all(ln.startswith("forecast-design: warning: pd:8:0 + ") and " in locked " in ln
+                                  for ln in warn)
+    report = (lab["out"] / "report.md").read_text()
+    assert "2 unstable cell(s)" in report and "- pd:8:0 + none in locked" in report
+    summary = json.loads((lab["out"] / "summary.json").read_text())
+    assert {(c["controller"], c["environment"]) for c in summary["flags"]["unstable_cells"]} == {("pd:8:0", "locked")}
+    assert "relative to the reference step" in summary["indicators"]["overshoot_percent"]
+    # the set rows aggregate the stable environments only, and count what they left out
+    for comp in ("none", "ea-fob:10"):
+        sets = df[(df["kind"] == "set") & (df["controller"] == "pd:8:0") & (df["compensator"] == comp)]
+        assert (sets["excluded_cells"] == 1).all()
+        env_mean = df[(df["kind"] == "environment") & (df["statistic"] == "mean") & (df["controller"] == "pd:8:0")
+                      & (df["compensator"] == comp)]
+        stable_mae = env_mean[env_mean["stable"].astype(bool)]["mae_N_m"].to_numpy()
+        assert sets[sets["statistic"] == "mean"]["mae_N_m"].iloc[0] == pytest.approx(float(np.mean(stable_mae)), rel=1e-12)
+        assert sets[sets["statistic"] == "worst"]["mae_N_m"].iloc[0] < 0.3      # never the unstable cell's error
+    assert (df[(df["kind"] == "set") & (df["controller"] == "pd:5:0.1")]["excluded_cells"] == 0).all()
+    assert "1 unstable cell(s) left out" in lab["stdout"]
+
+
+def test_settled_and_settling_time_columns_agree(lab):
+    df = lab["table"]
+    runs = df[df["kind"] == "run"]
+    assert runs["settled"].dtype == "boolean" and runs["stable"].dtype == "boolean"
+    assert runs["settled"].notna().all()
+    assert (runs["settling_time_s"].isna() == ~runs["settled"].astype(bool)).all()
+    env = df[(df["kind"] == "environment") & (df["statistic"] == "mean")]
+    for r in env.itertuples():
+        mine = runs[(runs["controller"] == r.controller) & (runs["compensator"] == r.compensator)
+                    & (runs["environment"] == r.environment)]
+        assert r.unsettled_runs == int((~mine["settled"].astype(bool)).sum())
+    csv = pd.read_csv(lab["out"] / "results.csv")
+    assert csv.loc[~csv["settled"].astype("boolean").fillna(True), "settling_time_s"].isna().all()
+
+
+def test_the_indicators_recompute_from_the_written_traces_with_independent_code(lab):
+    # every run's indicators from traces.parquet alone: python-control's step_info (the benchmark's
+    # conventions spelled in its arguments), numpy for the MAE, scipy's pearsonr for the repeatability
+    from scipy.stats import pearsonr
+
+    df, tr = lab["table"], lab["traces"]
+    runs = df[df["kind"] == "run"]
+    checked = 0
+    for (ctrl, comp, env), cell in tr.groupby(["controller", "compensator", "environment"], observed=True):
+        reps = sorted(cell["repetition"].unique())
+        ys = {i: cell[cell["repetition"] == i] for i in reps}
+        t = ys[0]["t"].to_numpy()
+        assert t.size == round(0.6 * 2000) and np.allclose(np.diff(t), 1 / 2000.0, rtol=1e-9)   # every sample
+        for i in reps:
+            row = runs[(runs["controller"] == ctrl) & (runs["compensator"] == comp) & (runs["environment"] == env)
+                       & (runs["repetition"] == i)].iloc[0]
+            y = ys[i]["tau_s"].to_numpy()
+            ref = _step_info_relative_to_the_step(t, y, 0.2)
+            assert bool(row["settled"]) == ref["settled"]
+            for m in ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m"):
+                # rise: python-control takes the first sample at or past a level, the benchmark interpolates
+                tol = 2.0 / 2000 if m == "rise_time_s" else 1e-9
+                assert row[m] == pytest.approx(ref[m], abs=tol, rel=1e-9, nan_ok=True), (ctrl, comp, env, i, m)
+            assert row["mae_N_m"] == pytest.approx(np.mean(np.abs(y - ys[i]["tau_s_expected"].to_numpy())), rel=1e-12)
+            others = [pearsonr(y, ys[j]["tau_s"].to_numpy())[0] for j in reps if j != i]
+            assert row["repeatability"] == pytest.approx(np.mean(others), rel=1e-9)
+            checked += 1
+    assert checked == len(runs) == 2 * 2 * 2 * 3

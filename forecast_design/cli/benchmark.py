@@ -138,7 +138,8 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             if r["statistic"] == "mean":
                 vals = ", ".join(f"{k} {r[k]:.4g}" for k in ("repeatability", "mae_N_m", "bandwidth_hz", "disk_margin")
                                  if r.get(k) is not None)
-                print(f"{r['controller']} + {r['compensator']} ({r['reference']}): set mean {vals}")
+                left = f" ({r['excluded_cells']} unstable cell(s) left out)" if r.get("excluded_cells") else ""
+                print(f"{r['controller']} + {r['compensator']} ({r['reference']}): set mean {vals}{left}")
         print(f"{info['computed']} cells computed, {info['reused']} reused, {info['elapsed_s']:.1f} s; "
               f"report: {args.out}/report.md")
     unstable = 0
