@@ -596,3 +596,132 @@ def test_the_indicators_recompute_from_the_written_traces_with_independent_code(
             assert row["repeatability"] == pytest.approx(np.mean(others), rel=1e-9)
             checked += 1
     assert checked == len(runs) == 2 * 2 * 2 * 3
+
+
+def _inside(fig, artist) -> bool:
+    """The artist's drawn extent lies within the figure's canvas (one pixel of slack)."""
+    fig.canvas.draw()
+    box, canvas = artist.get_window_extent(), fig.bbox
+    return box.x0 >= canvas.x0 - 1 and box.y0 >= canvas.y0 - 1 and box.x1 <= canvas.x1 + 1 and box.y1 <= canvas.y1 + 1
+
+
+def _has_data(ax) -> bool:
+    return bool(ax.lines or ax.images or ax.collections or ax.patches)
+
+
+def test_benchmark_indicators_plot_reads_at_a_glance(lab):
+    import matplotlib.pyplot as plt
+
+    from forecast_design.plotting.benchmark import UNITS, plot_indicators
+
+    df = lab["table"]
+    fig = plot_indicators(df)
+    try:
+        step_metrics_drawn = [m for m in ("repeatability", "mae_N_m", "rise_time_s", "overshoot_percent",
+                                          "settling_time_s", "disk_margin")]
+        assert len(fig.axes) == len(step_metrics_drawn)             # no empty panel (bandwidth: no chirp here)
+        assert fig.get_suptitle()
+        series = {f"{c} + {k}" for c, k in zip(df["controller"], df["compensator"])}
+        labels = [t.get_text() for t in fig.legends[0].get_texts()]
+        assert series <= set(labels) and any("unstable" in x for x in labels)
+        assert len(fig.legends) == 1 and _inside(fig, fig.legends[0])
+        env = df[(df["kind"] == "environment") & (df["statistic"] == "mean")]
+        for ax, m in zip(fig.axes, step_metrics_drawn):
+            assert _has_data(ax) and ax.get_ylabel() == UNITS[m] and "[" in ax.get_ylabel()
+            assert ax.get_xlabel() == "environment stiffness k_e [N m/rad]"
+            ticks = [t.get_text() for t in ax.get_xticklabels()]
+            assert ticks[-1] == "locked"
+            locked_x = ax.get_xticks()[-1]
+            # the locked output is a category of its own: never the end of a stiffness line, and right of a
+            # separator, not at a stiffness of ~4000
+            for line in ax.lines:
+                x = np.asarray(line.get_xdata(), dtype=float)
+                if x.size > 1 and line.get_linestyle() not in ("None", "none", ""):
+                    assert locked_x not in x
+            assert locked_x > math.log10(10.0) + 1
+            # the unstable cells are marked and do not set the scale
+            assert any(line.get_gid() == "unstable" for line in ax.lines)
+            good = env[env["stable"].astype(bool)][m].to_numpy(dtype=float)
+            lo, hi = ax.get_ylim()
+            assert lo <= np.nanmin(good) and hi >= np.nanmax(good)
+        mae = fig.axes[step_metrics_drawn.index("mae_N_m")]
+        bad = env[~env["stable"].astype(bool)]["mae_N_m"].max()
+        assert mae.get_ylim()[1] < bad          # the unstable cells' ~0.5 N m errors would flatten it
+        # pd:5:0.1's disk margins with and without the EA-FOB coincide within 1 % of the axis: drawn once, named
+        disk = fig.axes[step_metrics_drawn.index("disk_margin")]
+        note = disk.get_legend()
+        assert note is not None and note.get_gid() == "merged"
+        assert any("pd:5:0.1 + none" in t.get_text() and "pd:5:0.1 + ea-fob:10" in t.get_text()
+                   for t in note.get_texts())
+    finally:
+        plt.close(fig)
+
+
+def test_benchmark_indicators_plot_puts_the_legend_in_a_free_panel_slot(lab):
+    import matplotlib.pyplot as plt
+
+    from forecast_design.plotting.benchmark import plot_indicators
+
+    fig = plot_indicators(lab["table"], metrics=("repeatability", "mae_N_m", "rise_time_s", "overshoot_percent",
+                                                 "disk_margin"))
+    try:
+        assert len(fig.axes) == 5 and all(_has_data(ax) for ax in fig.axes)
+        legend = fig.legends[0]
+        fig.canvas.draw()
+        box = legend.get_window_extent()
+        # bottom right of the 2 x 3 grid: right of the second row's panels, not over any of them
+        assert _inside(fig, legend)
+        assert all(not box.overlaps(ax.get_window_extent()) for ax in fig.axes)
+    finally:
+        plt.close(fig)
+
+
+def test_benchmark_overlays_show_every_controller_and_mark_unstable_cells(lab):
+    import matplotlib.pyplot as plt
+
+    from forecast_design.benchmark.runner import CellResult
+    from forecast_design.plotting.benchmark import plot_overlays
+
+    doc = json.loads((lab["out"] / "summary.json").read_text())
+    assert doc["files"]["traces"] == "traces.parquet"
+    cells = [CellResult.load(lab["out"] / "cells", p.stem) for p in sorted((lab["out"] / "cells").glob("*.json"))]
+    fig = plot_overlays([c.thinned() for c in cells])
+    try:
+        assert len(fig.axes) == 4 * 2 and all(_has_data(ax) and len(ax.lines) == 3 + 1 for ax in fig.axes)
+        titles = [ax.get_title() for ax in fig.axes]
+        for ctrl in ("pd:5:0.1", "pd:8:0"):
+            assert sum(f"{ctrl} + " in t for t in titles) == 4
+        unstable = [ax for ax in fig.axes if ax.get_title().startswith("UNSTABLE")]
+        assert {ax.get_title().split("\n")[0] for ax in unstable} == {"UNSTABLE pd:8:0 + none | locked",
+                                                                      "UNSTABLE pd:8:0 + ea-fob:10 | locked"}
+        assert all(ax.get_facecolor() != fig.axes[0].get_facecolor() or ax in unstable for ax in fig.axes)
+        for ax in fig.axes:
+            assert ax.get_ylabel() in ("", r"$\tau_s$ [N m]")
+        assert all(ax.get_xlabel() == "t [s]" for ax in fig.axes[-2:])
+        assert _inside(fig, fig.legends[0])
+        assert any("unstable" in t.get_text() for t in fig.legends[0].get_texts())
+    finally:
+        plt.close(fig)
+
+
+def test_benchmark_heatmap_marks_unstable_cells_outside_its_colour_scale(lab):
+    import matplotlib.pyplot as plt
+
+    from forecast_design.plotting.benchmark import UNITS, plot_heatmap
+
+    df = lab["table"]
+    env = df[(df["kind"] == "environment") & (df["statistic"] == "mean")]
+    fig = plot_heatmap(df)
+    try:
+        panels = [ax for ax in fig.axes if ax.images]
+        assert [ax.get_title() for ax in panels] == [UNITS["repeatability"], UNITS["mae_N_m"]]
+        for ax, m in zip(panels, ("repeatability", "mae_N_m")):
+            marks = [p for p in ax.patches if p.get_gid() == "unstable"]
+            assert len(marks) == int((~env["stable"].astype(bool)).sum()) == 2
+            vmin, vmax = ax.images[0].norm.vmin, ax.images[0].norm.vmax
+            good = env[env["stable"].astype(bool)][m].to_numpy(dtype=float)
+            assert vmin == pytest.approx(good.min()) and vmax == pytest.approx(good.max())
+            assert ax.get_xlabel() == "environment"
+        assert "hatched: unstable" in fig.get_suptitle()
+    finally:
+        plt.close(fig)

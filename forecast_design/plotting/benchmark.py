@@ -218,13 +218,20 @@ def plot_indicators(df, path: str | Path | None = None, *,
     if free is not None:          # the grid's free slot holds the legend
         fig.tight_layout()
         fig.legend(loc="center", bbox_to_anchor=free.get_subplotspec().get_position(fig), **legend)
-    else:                         # below the panels, inside the figure
-        lines = int(math.ceil(len(handles) / 3)) + 1
-        fig.tight_layout(rect=(0, min(0.45, 0.22 * lines / fig.get_figheight()), 1, 1))
-        fig.legend(loc="lower center", ncols=min(3, len(handles)), **legend)
+    else:
+        _legend_below(fig, legend)
     if path is not None:
         write_figure(fig, path)
     return fig
+
+
+def _legend_below(fig, legend: dict[str, Any]) -> None:
+    """A figure legend below the panels, inside the canvas: as many columns as the width holds."""
+    n = len(legend["handles"])
+    cols = max(1, min(n, 3, int(fig.get_figwidth() / 3.4)))
+    lines = int(math.ceil(n / cols)) + (1 if legend.get("title") else 0)
+    fig.tight_layout(rect=(0, min(0.5, (0.2 + 0.19 * lines) / fig.get_figheight()), 1, 1))
+    fig.legend(loc="lower center", ncols=cols, **legend)
 
 
 def _cell_flags(cell: Any) -> tuple[bool, int]:
@@ -287,10 +294,9 @@ def plot_overlays(cells: Sequence[Any], path: str | Path | None = None, *, refer
                Line2D([], [], color="k", ls="--", lw=1.1, label="frictionless expected response")]
     if any_bad:
         handles.append(Patch(facecolor="#fde3e3", edgecolor=UNSTABLE_COLOUR, label="unstable cell (not in the set rows)"))
-    fig.suptitle(f"{ref}: repetitions and the frictionless expected response, every controller and compensator",
+    fig.suptitle(f"{ref}: repetitions and the frictionless expected response,\nevery controller and compensator",
                  fontsize=9)
-    fig.tight_layout(rect=(0, 0.06 if len(rows) < 3 else 0.03, 1, 1))
-    fig.legend(handles=handles, loc="lower center", ncols=len(handles), fontsize=8)
+    _legend_below(fig, {"handles": handles, "fontsize": 8})
     if path is not None:
         write_figure(fig, path)
     return fig
