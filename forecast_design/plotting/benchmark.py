@@ -46,8 +46,11 @@ def _env_means(df):
 
 
 def _unstable(value: Any) -> bool:
-    return value is not None and not (isinstance(value, float) and math.isnan(value)) and not bool(value) \
-        and str(value) != "<NA>"
+    """A ``stable`` flag that is false (None, NaN and pandas' NA: unknown, not unstable)."""
+    try:
+        return value is not None and not bool(value)
+    except TypeError:         # pandas' NA has no truth value
+        return False
 
 
 def _positions(sub) -> tuple[dict[str, float], list[float], list[str], list[float]]:
