@@ -428,3 +428,90 @@ def test_identify_on_a_prismatic_log_labels_and_prints_n_and_m(tmp_path, capsys,
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "N s/m" in out and "N m" not in out
+
+
+# --- plots at a glance (issue 26): shared checks on what a reader sees --------------------------
+
+
+def _drawn(fig):
+    """Lay the figure out and draw it once (legends and constrained layout get their final places)."""
+    fig.canvas.draw()
+    return fig.canvas.get_renderer()
+
+
+def _assert_inside_figure(fig, artists, what):
+    renderer = _drawn(fig)
+    box = fig.bbox
+    for a in artists:
+        ext = a.get_window_extent(renderer)
+        assert (ext.x0 >= box.x0 - 1 and ext.y0 >= box.y0 - 1 and ext.x1 <= box.x1 + 1
+                and ext.y1 <= box.y1 + 1), f"{what} {a} at {ext} leaves the figure {box}"
+
+
+def _assert_no_empty_axes_and_units(fig):
+    """Every axes draws something and labels its axes with a unit in brackets."""
+    import re
+
+    for ax in fig.axes:
+        assert ax.lines or ax.patches or ax.collections or ax.images, f"empty axes {ax.get_title()!r}"
+        for label in (ax.get_xlabel(), ax.get_ylabel()):
+            if label:
+                assert re.search(r"\[[^\]]+\]", label), f"axis label without a unit: {label!r}"
+        assert ax.get_ylabel(), f"axes {ax.get_title()!r} has no y label"
+
+
+def _legend_texts(fig):
+    return [t.get_text() for leg in fig.legends + [ax.get_legend() for ax in fig.axes if ax.get_legend()]
+            for t in leg.get_texts() if t.get_text()]
+
+
+@pytest.fixture
+def kept(monkeypatch):
+    """Figures the CLI's plots draw, kept open instead of written: {module name: [figures]}."""
+    import importlib
+
+    figs = {}
+    for name in ("bode", "margins", "simulation"):
+        mod = importlib.import_module(f"forecast_design.plotting.{name}")
+        for writer in ("save_figure", "write_figure"):
+            if hasattr(mod, writer):
+                monkeypatch.setattr(mod, writer,
+                                    lambda fig, path, _n=name, **kw: figs.setdefault(_n, []).append(fig) or path)
+    return figs
+
+
+def test_tf_plot_has_one_panel_per_environment_a_colour_per_plant_and_a_legend_inside(kept, tmp_path, capsys):
+    from matplotlib.colors import to_rgb
+
+    from forecast_design.cli import main
+    from forecast_design.plotting.style import PLANT_KINDS
+    from forecast_design.params import Testbed
+
+    envs = ["soft", "stiff", "fig7", "exp-soft", "locked", "link-only"]
+    assert main(["tf", "--env", ",".join(envs), "--plot", str(tmp_path / "tf.png")]) == 0
+    (fig,) = kept["bode"]
+    lines = {line.get_gid(): line for ax in fig.axes for line in ax.lines if line.get_gid()}
+    # every environment has its magnitude and phase panel with the four plants, named in its title
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles == [f"environment {e}" for e in envs]
+    for env in envs:
+        for kind in PLANT_KINDS:
+            assert f"mag|{env}|{kind}" in lines and f"phase|{env}|{kind}" in lines
+    # one look per plant kind, the same in every panel, and four different looks
+    looks = {kind: {(to_rgb(lines[f"{p}|{e}|{kind}"].get_color()), str(lines[f"{p}|{e}|{kind}"].get_linestyle()))
+                    for e in envs for p in ("mag", "phase")} for kind in PLANT_KINDS}
+    assert all(len(v) == 1 for v in looks.values()) and len({next(iter(v)) for v in looks.values()}) == 4
+    # the nominal plants are drawn above the true plant (P underneath, never hiding EA)
+    assert all(lines[f"mag|soft|{k}"].get_zorder() > lines["mag|soft|P"].get_zorder() for k in ("EA", "LO", "LD"))
+    # a real fact in the locked panel: DC gain 1 (0 dB) and the resonance at sqrt(k / J_m) [rad/s]
+    tb = Testbed()
+    mag = lines["mag|locked|P"]
+    f, m = mag.get_xdata(), mag.get_ydata()
+    assert m[0] == pytest.approx(0.0, abs=1e-3)
+    assert f[np.argmax(m)] == pytest.approx(math.sqrt(tb.k / tb.J_m) / (2 * math.pi), rel=0.01)
+    # one figure legend names the four plants; it lies inside the figure
+    labels = _legend_texts(fig)
+    assert len(labels) == 4 and all(any(s in lab for lab in labels) for s in ("P", "EA", "LO", "LD"))
+    _assert_inside_figure(fig, fig.legends, "legend")
+    _assert_no_empty_axes_and_units(fig)
+    assert fig._suptitle is not None and "nominal plants" in fig._suptitle.get_text()
