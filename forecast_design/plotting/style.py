@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
-__all__ = ["OBSERVER_COLOURS", "OBSERVER_LABELS", "PLANT_KINDS", "observer_colour", "observer_label", "cutoff_style",
+__all__ = ["OBSERVER_COLOURS", "OBSERVER_LABELS", "OBSERVER_MARKERS", "PLANT_KINDS", "observer_colour", "observer_label", "cutoff_style",
            "plant_style"]
 
 # Base colour per compensator kind (matplotlib's tab10, colour-blind friendlier than pure hues);
@@ -24,6 +24,9 @@ OBSERVER_COLOURS = {
 }
 OBSERVER_LABELS = {"none": "plant", "ea-fob": "EA-FOB", "lo-dob": "LO-DOB", "ld-dob": "LD-DOB",
                    "motor-fob": "motor FOB", "sfm": "SFM", "extended-sfm": "extended SFM"}
+# A marker shape per observer: Fig. 6 puts each disk's markers at its own places along its arc, so
+# disks of (nearly) the same size, whose arcs coincide, each stay visible.
+OBSERVER_MARKERS = {"ea-fob": "o", "lo-dob": "s", "ld-dob": "^", "motor-fob": "D", "sfm": "v", "extended-sfm": "P"}
 _LINESTYLES = ("-", "--", ":", "-.")    # highest cutoff solid, then dashed, dotted
 
 
