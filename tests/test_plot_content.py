@@ -422,6 +422,10 @@ def test_identify_on_a_prismatic_log_labels_and_prints_n_and_m(tmp_path, capsys,
 
 def _drawn(fig):
     """Lay the figure out and draw it once (legends and constrained layout get their final places)."""
+    if not hasattr(fig.canvas, "get_renderer"):          # a figure the plot closed after writing it
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        FigureCanvasAgg(fig)
     fig.canvas.draw()
     return fig.canvas.get_renderer()
 
@@ -563,3 +567,40 @@ def test_fig6_every_disk_is_whole_in_a_frame_and_ea_fob_shows_above_the_plant(fi
     assert "plant" in labels and sum(lab.startswith(("EA-FOB", "LO-DOB", "LD-DOB")) for lab in labels) == 9
     _assert_inside_figure(fig, fig.legends, "legend")
     _assert_no_empty_axes_and_units(fig)
+
+
+def test_margins_plot_names_the_loop_and_labels_the_minimum_at_the_disk_margin(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    args = ["margins", "--controller", "pid:6:20:0.05:0.002", "--compensator", "ea-fob", "--w-q-hz", "7",
+            "--env", "exp-soft", "--plot", str(tmp_path / "m.png"), "--json", str(tmp_path / "m.json")]
+    assert main(args) == 0
+    data = json.loads((tmp_path / "m.json").read_text())
+    (fig,) = kept["margins"]
+    title = fig._suptitle.get_text()
+    for part in ("environment exp-soft", "EA-FOB", "w_q = 7 Hz", "PID P=6 I=20 D=0.05", "continuous"):
+        assert part in title, (part, title)
+    # the minimum of alpha(f) is the exact disk margin, marked there and labelled with its value and frequency
+    ax_a = next(ax for ax in fig.axes if any(line.get_gid() == "alpha" for line in ax.lines))
+    curve = next(line for line in ax_a.lines if line.get_gid() == "alpha")
+    (fx,), (ay,) = next(line for line in ax_a.lines if line.get_gid() == "disk-margin").get_data()
+    fc = data["frequency_rad_s"] / (2 * math.pi)
+    assert ay == pytest.approx(data["disk_margin"], rel=1e-12) and fx == pytest.approx(fc, rel=1e-12)
+    assert np.min(curve.get_ydata()) >= data["disk_margin"] * (1 - 1e-9)            # nothing below the margin
+    assert np.min(curve.get_ydata()) == pytest.approx(data["disk_margin"], rel=1e-3)  # and the grid reaches it
+    note = " ".join(t.get_text() for t in ax_a.texts)
+    assert "minimum" in note and f"{data['disk_margin']:.3f}" in note and f"{fc:.3g} Hz" in note
+    # the frequency of the minimum is marked on every frequency axis
+    assert sum(any(line.get_gid() == "disk-margin-frequency" for line in ax.lines) for ax in fig.axes) == 3
+    _assert_inside_figure(fig, [ax.get_legend() for ax in fig.axes if ax.get_legend()] + [fig._suptitle], "legend")
+    _assert_no_empty_axes_and_units(fig)
+
+
+def test_margins_plot_of_a_sampled_loop_with_a_believed_environment_says_so(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    assert main(["margins", "--compensator", "lo-dob", "--env", "stiff", "--believed", "locked", "--sampled",
+                 "--plot", str(tmp_path / "m.png")]) in (0, 1)
+    title = kept["margins"][0]._suptitle.get_text()
+    for part in ("environment stiff (observer believes locked)", "LO-DOB", "controller PD", "sampled at 2000 Hz"):
+        assert part in title, (part, title)

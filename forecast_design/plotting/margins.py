@@ -348,6 +348,23 @@ def plot_disk_margin_curve(curves: DiskMarginCurve | Mapping[str, DiskMarginCurv
     return path
 
 
+def _loop_title(a: Mapping) -> str:
+    """Environment, compensator with its cutoff, controller and loop, from a LoopAnalysis' assumptions."""
+    comp = a["compensator"]
+    kind = comp["table"]["kind"]
+    comp_text = "no compensator" if kind == "none" else f"compensator {observer_label(kind)}" + (
+        f" at cutoff w_q = {comp['w_q_hz']:g} Hz" if comp["w_q_hz"] is not None else "")
+    loop = a["loop"]
+    loop_text = (f"sampled at {loop['rate_hz']:g} Hz, delay {loop['delay_samples']}" if loop["kind"] == "sampled"
+                 else "continuous")
+    believed = a.get("believed_environment")
+    env = a["environment"]["name"]
+    if isinstance(believed, Mapping):
+        env += " (observer believes " + ("locked" if believed.get("locked") else
+                                         f"k_e = {believed.get('k_e', float('nan')):g} N m/rad") + ")"
+    return f"environment {env}; {comp_text}; controller {a['controller']['label']} ({loop_text} loop)"
+
+
 def plot_loop_analysis(analysis, path: str | Path) -> Path:
     """The ``margins`` picture of one loop: disk margin over frequency, |S| and |T|, the Nyquist curve.
 
@@ -370,12 +387,16 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
     fig, axes = plt.subplots(2, 2, figsize=(11.0, 7.5))
     (ax_a, ax_n), (ax_s, ax_t) = axes
     try:
-        ax_a.semilogx(f_hz, r.alpha, color="C0")
+        ax_a.semilogx(f_hz, r.alpha, color="C0", gid="alpha")
         if dm.stable and math.isfinite(dm.frequency_rad_s):
+            # the curve's minimum is the disk margin: marked, labelled, and its frequency on every panel
             fc = dm.frequency_rad_s / (2.0 * math.pi)
-            ax_a.plot(fc, dm.alpha, "o", color="C3")
-            ax_a.annotate(f"disk margin {dm.alpha:.3f}\nat {fc:.3g} Hz", (fc, dm.alpha), textcoords="offset points",
-                          xytext=(10, 12), fontsize="small", color="C3")
+            ax_a.plot(fc, dm.alpha, "o", color="C3", gid="disk-margin")
+            ax_a.annotate(f"minimum: disk margin {dm.alpha:.3f}\nat {fc:.3g} Hz", (fc, dm.alpha),
+                          textcoords="offset points", xytext=(10, -28), fontsize="small", color="C3",
+                          arrowprops={"arrowstyle": "-", "color": "C3", "lw": 0.8})
+            for ax in (ax_a, ax_s, ax_t):
+                ax.axvline(fc, color="C3", lw=0.8, ls=":", gid="disk-margin-frequency")
         ax_a.set_ylabel("disk margin alpha(f) [-]")
         ax_a.set_xlabel("frequency [Hz]")
         ax_a.set_ylim(0.0, max(2.5, min(10.0, float(np.nanpercentile(r.alpha, 90)))))
@@ -401,7 +422,7 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
             # L stays outside the disk of -1/f for every f in the disk of radius alpha
             exclusion = -1.0 / (1.0 + (1.0 - dm.sigma) / 2.0 * dm.alpha * np.exp(1j * th)) * \
                 (1.0 - (1.0 + dm.sigma) / 2.0 * dm.alpha * np.exp(1j * th))
-            ax_n.fill(exclusion.real, exclusion.imag, color="C3", alpha=0.15, label=f"-1/f, f in disk({dm.alpha:.3g})")
+            ax_n.fill(exclusion.real, exclusion.imag, color="C3", alpha=0.15, label=f"kept clear by the\ndisk margin {dm.alpha:.3g}\n(-1/f, f in the disk)")
         ax_n.set_xlim(-4.0, 2.0)
         ax_n.set_ylim(-3.0, 3.0)
         ax_n.set_aspect("equal")
@@ -409,7 +430,7 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
         ax_n.axvline(0.0, color="0.6", lw=0.6)
         ax_n.set_xlabel("Re L [-]")
         ax_n.set_ylabel("Im L [-]")
-        ax_n.legend(loc="upper left", fontsize="x-small", framealpha=0.9)
+        ax_n.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="x-small", frameon=False)
         ax_n.set_title("Nyquist curve near -1")
         # Bode of L with the classical crossovers
         mag = 20 * np.log10(np.abs(r.L))
@@ -443,8 +464,8 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
         summary = (f"disk margin {dm.alpha:.3f}" + (f"; GM {gm.gain_margin_db:+.1f} dB at {gm.frequency_rad_s / (2 * math.pi):.3g} Hz"
                                                     if gm else "; GM inf")
                    + (f"; PM {pm.phase_margin_deg:.1f} deg at {pm.frequency_rad_s / (2 * math.pi):.3g} Hz" if pm else ""))
-        fig.suptitle(f"{analysis.title()}\n{summary}" + ("" if dm.stable else "  -- UNSTABLE closed loop"),
-                     fontsize="medium")
+        fig.suptitle(f"{_loop_title(analysis.assumptions)}\n{summary}"
+                     + ("" if dm.stable else "  -- UNSTABLE closed loop"), fontsize="medium")
         fig.tight_layout()
         path = save_figure(fig, path, dpi=110)
     finally:
