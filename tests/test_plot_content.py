@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -604,3 +605,51 @@ def test_margins_plot_of_a_sampled_loop_with_a_believed_environment_says_so(kept
     title = kept["margins"][0]._suptitle.get_text()
     for part in ("environment stiff (observer believes locked)", "LO-DOB", "controller PD", "sampled at 2000 Hz"):
         assert part in title, (part, title)
+
+
+def test_simulate_plot_says_what_ran_and_draws_the_motion_it_wrote(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+    from forecast_design.experiment import load_experiment
+
+    src = Path(__file__).resolve().parents[1] / "forecast_design" / "data" / "example_scenario.toml"
+    text = src.read_text().replace("duration_s = 8.0", "duration_s = 2.0")
+    scenario = tmp_path / "my_scenario.toml"
+    scenario.write_text(text)
+    assert main(["simulate", str(scenario), "--out", str(tmp_path / "run.toml"), "--plot", str(tmp_path / "r.png")]) == 0
+    (fig,) = kept["simulation"]
+    title = fig._suptitle.get_text()
+    assert "my_scenario" not in title and str(tmp_path) not in title                # what ran, not the file
+    for part in ("Fig. 7 (EA-FOB side)", "environment k_e = 100 N m/rad", "controller PD P=5 D=0.1",
+                 "compensator EA-FOB at w_q = 10 Hz"):
+        assert part in " ".join(title.split()), (part, title)
+    lines = {line.get_gid(): (ax, line) for ax in fig.axes for line in ax.lines if line.get_gid()}
+    assert set(lines) == {"tau_r", "tau_s", "tau_frc", "tau_frc_hat", "theta", "q", "omega", "v"}
+    # the motion panels draw the log it wrote (motor and environment angle) and the truth's velocities
+    exp = load_experiment(tmp_path / "run.toml")
+    np.testing.assert_array_equal(lines["theta"][1].get_ydata(), exp.signals.theta)
+    np.testing.assert_array_equal(lines["q"][1].get_ydata(), exp.signals.q)
+    assert lines["theta"][0].get_ylabel() == "angle [rad]" and lines["omega"][0].get_ylabel() == "velocity [rad/s]"
+    # the velocity is the angle's derivative (finite differences of the drawn angle, to the encoder's resolution)
+    t = lines["theta"][1].get_xdata()
+    dtheta = np.gradient(lines["theta"][1].get_ydata(), t)
+    omega = lines["omega"][1].get_ydata()
+    assert np.corrcoef(dtheta, omega)[0, 1] > 0.95
+    _assert_inside_figure(fig, [ax.get_legend() for ax in fig.axes] + [fig._suptitle], "legend/title")
+    _assert_no_empty_axes_and_units(fig)
+
+
+def test_simulate_plot_of_an_uncompensated_run_draws_no_estimate(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    src = Path(__file__).resolve().parents[1] / "forecast_design" / "data" / "example_scenario.toml"
+    text = src.read_text().replace("duration_s = 8.0", "duration_s = 1.0").replace('kind = "ea-fob"\nw_q_hz = 10.0\nq_family = "butterworth"\nq_order = 2', 'kind = "none"')
+    text = text.replace('description = "Fig. 7 (EA-FOB side): LuGre Table 2, PD 5/0.1, EA-FOB 10 Hz, stiff environment"',
+                        'description = ""')
+    scenario = tmp_path / "plain.toml"
+    scenario.write_text(text)
+    assert main(["simulate", str(scenario), "--out", str(tmp_path / "run.toml"), "--plot", str(tmp_path / "r.png")]) == 0
+    (fig,) = kept["simulation"]
+    gids = {line.get_gid() for ax in fig.axes for line in ax.lines}
+    assert "tau_frc_hat" not in gids and "tau_frc" in gids
+    title = fig._suptitle.get_text()
+    assert title.startswith("plain.toml") and "no compensator" in title
