@@ -653,3 +653,24 @@ def test_simulate_plot_of_an_uncompensated_run_draws_no_estimate(kept, tmp_path,
     assert "tau_frc_hat" not in gids and "tau_frc" in gids
     title = fig._suptitle.get_text()
     assert title.startswith("plain.toml") and "no compensator" in title
+
+
+def test_readme_shows_every_picture_the_script_draws_and_each_is_small():
+    import ast
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    shown = re.findall(r"!\[[^\]]+\]\((docs/images/[^)]+\.png)\)", readme)
+    script = ast.parse((root / "tools" / "readme_images.py").read_text())
+    pictures = next(node.value for node in script.body if isinstance(node, ast.Assign)
+                    and getattr(node.targets[0], "id", "") == "PICTURES")
+    drawn = [f"docs/images/{entry.elts[0].value}" for entry in pictures.elts]
+    assert sorted(shown) == sorted(drawn) and len(set(shown)) == len(shown) >= 8
+    for rel in shown:
+        data = (root / rel).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) < 150_000, rel
+        width = int.from_bytes(data[16:20], "big")
+        assert 600 <= width <= 1100, (rel, width)
+    # the first two commands stay at the top
+    assert readme.split("```sh\n", 1)[1].startswith("bash tools/setup.sh && .venv/bin/forecast-design pipeline")
