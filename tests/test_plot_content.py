@@ -674,3 +674,16 @@ def test_readme_shows_every_picture_the_script_draws_and_each_is_small():
         assert 600 <= width <= 1100, (rel, width)
     # the first two commands stay at the top
     assert readme.split("```sh\n", 1)[1].startswith("bash tools/setup.sh && .venv/bin/forecast-design pipeline")
+
+
+def test_margins_plot_of_an_unstable_loop_marks_no_minimum_and_says_why(kept, tmp_path, capsys):
+    # LD-DOB at 10 Hz in the stiff environment is unstable (paper, Fig. 6b: "the disappearance of the dark red disk")
+    from forecast_design.cli import main
+
+    assert main(["margins", "--compensator", "ld-dob", "--w-q-hz", "10", "--env", "stiff",
+                 "--plot", str(tmp_path / "m.png")]) == 1
+    (fig,) = kept["margins"]
+    ax_a = next(ax for ax in fig.axes if any(line.get_gid() == "alpha" for line in ax.lines))
+    assert not any(line.get_gid() in ("disk-margin", "disk-margin-frequency") for ax in fig.axes for line in ax.lines)
+    assert any("UNSTABLE" in t.get_text() for t in ax_a.texts) and "UNSTABLE" in fig._suptitle.get_text()
+    _assert_inside_figure(fig, list(ax_a.texts), "note")

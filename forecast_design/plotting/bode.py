@@ -82,7 +82,8 @@ def plot_bode(tfs: Mapping[str, RationalTF] | Sequence[tuple[str, RationalTF]], 
 
     items = _items(tfs)
     w = _default_grid(items) if w_rad_s is None else np.asarray(w_rad_s, dtype=float)
-    fig, (ax_mag, ax_phase) = plt.subplots(2, 1, sharex=True, figsize=(7.0, 6.0))
+    fig, (ax_mag, ax_phase) = plt.subplots(2, 1, sharex=True, figsize=(7.0, 6.0 + 0.2 * ((len(items) + 1) // 2)),
+                                           layout="constrained")
     try:
         colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
         styles = ("-", "--", ":", "-.")
@@ -97,7 +98,9 @@ def plot_bode(tfs: Mapping[str, RationalTF] | Sequence[tuple[str, RationalTF]], 
         ax_phase.set_xlabel("frequency [Hz]")
         for ax in (ax_mag, ax_phase):
             ax.grid(True, which="both", alpha=0.3)
-        ax_mag.legend(loc="best", fontsize="small")
+        # below the axes, two columns: as many curves as given, none covering the data
+        fig.legend(*ax_mag.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize="small",
+                   frameon=False)
         if title:
             ax_mag.set_title(title)
         path = save_figure(fig, path, dpi=120)

@@ -387,7 +387,11 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
     fig, axes = plt.subplots(2, 2, figsize=(11.0, 7.5))
     (ax_a, ax_n), (ax_s, ax_t) = axes
     try:
-        ax_a.semilogx(f_hz, r.alpha, color="C0", gid="alpha")
+        ax_a.semilogx(f_hz, r.alpha, color="C0" if dm.stable else "0.6", gid="alpha")
+        if not dm.stable:
+            ax_a.text(0.5, 0.5, "closed loop UNSTABLE: no disk margin\n(alpha(f) bounds nothing here)",
+                      transform=ax_a.transAxes, ha="center", va="center", color="C3", fontweight="bold",
+                      bbox={"facecolor": "white", "edgecolor": "C3", "alpha": 0.9})
         if dm.stable and math.isfinite(dm.frequency_rad_s):
             # the curve's minimum is the disk margin: marked, labelled, and its frequency on every panel
             fc = dm.frequency_rad_s / (2.0 * math.pi)
@@ -443,17 +447,17 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
         ax_p.semilogx(f_hz, np.degrees(np.unwrap(np.angle(r.L))), color="C4", lw=1.0, label="arg L [deg]")
         ax_p.set_ylabel("arg L [deg]", color="C4")
         cm_ = analysis.classical
-        for c in cm_.gain_crossovers:
+        # crossovers close in frequency get their labels stacked, not printed over each other
+        for i, c in enumerate(cm_.gain_crossovers):
             fx = c.frequency_rad_s / (2 * math.pi)
             ax_t.plot(fx, 0.0, "s", color="C2")
-            ax_t.annotate(f"PM {c.phase_margin_deg:.0f} deg", (fx, 0.0), textcoords="offset points", xytext=(5, 6),
-                          fontsize="x-small", color="C2")
-        for c in cm_.phase_crossovers:
+            ax_t.annotate(f"PM {c.phase_margin_deg:.0f} deg", (fx, 0.0), textcoords="offset points",
+                          xytext=(5, 6 + 10 * i), fontsize="x-small", color="C2")
+        for i, c in enumerate(c for c in cm_.phase_crossovers if c.frequency_rad_s > 0):
             fx = c.frequency_rad_s / (2 * math.pi)
-            if fx > 0:
-                ax_t.plot(fx, -c.gain_margin_db, "^", color="C3")
-                ax_t.annotate(f"GM {c.gain_margin_db:+.1f} dB", (fx, -c.gain_margin_db), textcoords="offset points",
-                              xytext=(5, -12), fontsize="x-small", color="C3")
+            ax_t.plot(fx, -c.gain_margin_db, "^", color="C3")
+            ax_t.annotate(f"GM {c.gain_margin_db:+.1f} dB", (fx, -c.gain_margin_db), textcoords="offset points",
+                          xytext=(5, -12 - 10 * i), fontsize="x-small", color="C3")
         ax_t.set_title("loop L: classical crossovers")
         ax_t.grid(True, which="both", alpha=0.3)
         for ax in (ax_a, ax_s):
