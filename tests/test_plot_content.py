@@ -687,3 +687,63 @@ def test_margins_plot_of_an_unstable_loop_marks_no_minimum_and_says_why(kept, tm
     assert not any(line.get_gid() in ("disk-margin", "disk-margin-frequency") for ax in fig.axes for line in ax.lines)
     assert any("UNSTABLE" in t.get_text() for t in ax_a.texts) and "UNSTABLE" in fig._suptitle.get_text()
     _assert_inside_figure(fig, list(ax_a.texts), "note")
+
+
+def test_diagnosis_and_tradeoff_plots_read_at_a_glance(coulomb_diagnosis, captured, tmp_path):
+    from forecast_design.gap.views import diagnosis_views
+    from forecast_design.plotting import gap as gp
+    from forecast_design.plotting.tuning import figure_tradeoff
+    from forecast_design.tuning.tradeoff import cutoff_tradeoff
+
+    v = diagnosis_views(coulomb_diagnosis)
+    for plot in (gp.plot_residual_time, gp.plot_residual_spectrum, gp.plot_residual_operating,
+                 gp.plot_before_after, gp.plot_replay):
+        plot(v, tmp_path / "x.png")
+    figs = list(captured) + [figure_tradeoff([cutoff_tradeoff(o, "soft,stiff", points=6)
+                                              for o in ("ea-fob", "lo-dob")])]
+    for fig in figs:
+        titles = [ax.get_title() for ax in fig.axes] + [fig._suptitle.get_text() if fig._suptitle else ""]
+        assert any(titles), "a plot without a title"
+        legends = fig.legends + [ax.get_legend() for ax in fig.axes if ax.get_legend()]
+        assert legends and all(leg.get_texts() for leg in legends)
+        _assert_inside_figure(fig, legends, "legend")
+        _assert_no_empty_axes_and_units(fig)
+
+
+def test_identify_plot_names_the_model_and_keeps_its_legend_inside(tmp_path, capsys, monkeypatch):
+    import forecast_design.plotting.friction as pf
+    from forecast_design.cli import main
+
+    figs = []
+    monkeypatch.setattr(pf, "save_figure", lambda fig, path, **kw: figs.append(fig) or path)
+    csv = _axis_csv(tmp_path / "rot.csv", "theta_rad", "tau_m_N_m")
+    assert main(["identify", "--csv", str(csv), "--time", "t_s", "--position", "theta_rad", "--force", "tau_m_N_m",
+                 "--model", "sfm", "--estimate-inertia", "--plot", str(tmp_path / "f.png")]) == 0
+    (fig,) = figs
+    assert "model sfm" in fig._suptitle.get_text() and "%" in fig._suptitle.get_text()
+    gids = {line.get_gid(): line for ax in fig.axes for line in ax.lines}
+    # measured points are drawn above the model's band, so both show where they agree
+    assert gids["measured|velocity"].get_zorder() > gids["estimated|velocity"].get_zorder()
+    assert sorted(_legend_texts(fig)) == [r"estimated $\hat\tau_{frc}$ (model)", r"measured $\tau_{frc}$"]
+    _assert_inside_figure(fig, fig.legends + [fig._suptitle], "legend/title")
+    _assert_no_empty_axes_and_units(fig)
+
+
+def test_simulate_repetitions_plot_overlays_the_runs_in_one_set_of_panels(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    src = Path(__file__).resolve().parents[1] / "forecast_design" / "data" / "example_scenario.toml"
+    text = src.read_text().replace("duration_s = 8.0", "duration_s = 0.5")
+    scenario = tmp_path / "reps.toml"
+    scenario.write_text(text + '\n[variability]\nrepetitions = 5\ninitial_angle = "random"\n')
+    assert main(["simulate", str(scenario), "--repetitions", "all", "--out", str(tmp_path / "r.toml"),
+                 "--plot", str(tmp_path / "r.png")]) == 0
+    (fig,) = kept["simulation"]
+    assert len(fig.axes) == 4                                         # not one column per repetition
+    gids = [line.get_gid() for ax in fig.axes for line in ax.lines]
+    assert sum(g.startswith("tau_s|") for g in gids) == 5 and sum(g.startswith("theta|") for g in gids) == 5
+    assert "5 repetitions overlaid" in fig._suptitle.get_text()
+    labels = _legend_texts(fig)
+    assert len(labels) == len(set(labels)) == 8                       # each signal named once
+    _assert_inside_figure(fig, [ax.get_legend() for ax in fig.axes] + [fig._suptitle], "legend/title")
+    _assert_no_empty_axes_and_units(fig)

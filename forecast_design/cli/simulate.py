@@ -166,8 +166,10 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     if args.plot:
         from ..plotting.simulation import plot_simulation, run_title
 
+        what = run_title(results[0], source=Path(args.scenario).name).replace(" (repetition 0)", "")
         plot_simulation({f"repetition {i}": result for i, result in enumerate(results)}, args.plot,
-                        title=run_title(results[0], source=Path(args.scenario).name).replace(" (repetition 0)", ""))
+                        title=what.replace("\n", f" ({len(results)} repetitions overlaid)\n", 1),
+                        overlay=True)
     if args.json:
         _write_json(args.json, {**_compensator_keys(scenario.design.compensator),
                                 "controller": _controller_label(scenario.design.controller),

@@ -47,10 +47,41 @@ def run_title(result, *, source: str | None = None) -> str:
     return f"{head}\nenvironment {env_text}\n{loop}; {comp_text}"
 
 
+def _draw_run(column, r, sel, *, motion: bool, first: bool, gid: str, alpha: float) -> None:
+    """One run's signals into a column of axes (forces, friction[, angle, velocity]); legend labels
+    only when ``first`` (overlaid runs share one legend)."""
+
+    def lab(text: str) -> str:
+        return text if first else "_nolegend_"
+
+    t = r.t
+    top, bottom = column[0], column[1]
+    if r.tau_r is not None:
+        top.plot(t[sel], r.tau_r[sel], color="0.6", lw=1.5, label=lab(r"$\tau_r$ reference"), gid=f"tau_r{gid}")
+    top.plot(t[sel], r.tau_s[sel], color="k", lw=1.0, alpha=alpha, label=lab(r"$\tau_s$ spring (measured)"),
+             gid=f"tau_s{gid}")
+    bottom.plot(t[sel], r.truth.tau_frc[sel], color="tab:red", lw=1.0, alpha=alpha, label=lab(r"$\tau_{frc}$ true"),
+                gid=f"tau_frc{gid}")
+    comp = r.design.compensator
+    if comp is not None and comp.kind != "none":
+        bottom.plot(t[sel], r.tau_frc_hat[sel], color="tab:blue", lw=1.0, ls="--", alpha=alpha,
+                    label=lab(r"$\hat\tau_{frc}$ " + observer_label(comp.kind)), gid=f"tau_frc_hat{gid}")
+    if motion:
+        ang, vel = column[2], column[3]
+        ang.plot(t[sel], r.theta[sel], color="tab:purple", lw=1.0, alpha=alpha, label=lab(r"$\theta$ motor"),
+                 gid=f"theta{gid}")
+        ang.plot(t[sel], r.q[sel], color="tab:olive", lw=1.0, ls="--", alpha=alpha, label=lab(r"$q$ environment"),
+                 gid=f"q{gid}")
+        vel.plot(t[sel], r.truth.omega[sel], color="tab:purple", lw=0.9, alpha=alpha,
+                 label=lab(r"$\dot\theta$ motor (true)"), gid=f"omega{gid}")
+        vel.plot(t[sel], r.truth.v[sel], color="tab:olive", lw=0.9, ls="--", alpha=alpha,
+                 label=lab(r"$\dot q$ environment (true)"), gid=f"v{gid}")
+
+
 def plot_simulation(results: Mapping[str, object] | Sequence[tuple[str, object]], path: str | Path | None = None,
                     *, t_range: tuple[float, float] | None = None, title: str | None = None,
-                    motion: bool = True):
-    """One column per run: tau_r and tau_s, true and estimated friction, and the motion (Fig. 7 and more).
+                    motion: bool = True, overlay: bool = False):
+    """Torque tracking, true and estimated friction, and the motion of simulated runs (Fig. 7 and more).
 
     Parameters
     ----------
@@ -63,54 +94,45 @@ def plot_simulation(results: Mapping[str, object] | Sequence[tuple[str, object]]
     title : str, optional
         Figure title, e.g. :func:`run_title` of the run.
     motion : bool
-        Add the motion rows: motor angle theta and environment angle q [rad], motor and
+        Add the motion panels: motor angle theta and environment angle q [rad], motor and
         environment velocity [rad/s] (the simulator's truth).
+    overlay : bool
+        Draw every run into the same panels (repetitions of one scenario) instead of one column
+        per run.
 
     Returns
     -------
     matplotlib.figure.Figure
-        The figure; lines carry gids ``"tau_r"``, ``"tau_s"``, ``"tau_frc"``, ``"tau_frc_hat"``,
-        ``"theta"``, ``"q"``, ``"omega"``, ``"v"``.
+        The figure. One run (or ``overlay``): forces on the left, motion on the right. Lines carry
+        gids ``"tau_r"``, ``"tau_s"``, ``"tau_frc"``, ``"tau_frc_hat"``, ``"theta"``, ``"q"``,
+        ``"omega"``, ``"v"`` (overlaid: suffixed ``"|LABEL"``).
     """
     plt = _pyplot()
 
     import textwrap
 
     items = _items(results)
-    single = motion and len(items) == 1          # one run: forces on the left, motion on the right
+    one = overlay or len(items) == 1
+    single = motion and one                      # forces on the left, motion on the right
     nrows = 2 if single or not motion else 4
-    ncols = 2 if single else len(items)
+    ncols = 2 if single else (1 if one else len(items))
     width = 5.4 * ncols + 0.4
     fig, grid = plt.subplots(nrows, ncols, sharex=True, squeeze=False,
                              figsize=(width, 2.6 * nrows + (1.0 if title else 0.3)), layout="constrained")
-    panels = [list(grid.T.ravel())] if single else [list(grid[:, c]) for c in range(ncols)]
-    for col, (label, r) in enumerate(items):
-        t = r.t
-        sel = slice(None) if t_range is None else (t >= t_range[0]) & (t <= t_range[1])
-        column = panels[col]
-        top, bottom = column[0], column[1]
-        if r.tau_r is not None:
-            top.plot(t[sel], r.tau_r[sel], color="0.6", lw=1.5, label=r"$\tau_r$ reference", gid="tau_r")
-        top.plot(t[sel], r.tau_s[sel], color="k", lw=1.0, label=r"$\tau_s$ spring (measured)", gid="tau_s")
-        if len(items) > 1 or not title:
-            top.set_title(str(label), fontsize="medium")
-        top.set_ylabel("torque [N m]")
-        bottom.plot(t[sel], r.truth.tau_frc[sel], color="tab:red", lw=1.0, label=r"$\tau_{frc}$ true", gid="tau_frc")
-        comp = r.design.compensator
-        if comp is not None and comp.kind != "none":
-            bottom.plot(t[sel], r.tau_frc_hat[sel], color="tab:blue", lw=1.0, ls="--",
-                        label=r"$\hat\tau_{frc}$ " + observer_label(comp.kind), gid="tau_frc_hat")
-        bottom.set_ylabel("friction [N m]")
+    panels = [list(grid.T.ravel())] if one else [list(grid[:, c]) for c in range(ncols)]
+    for k, (label, r) in enumerate(items):
+        sel = slice(None) if t_range is None else (r.t >= t_range[0]) & (r.t <= t_range[1])
+        column = panels[0 if one else k]
+        _draw_run(column, r, sel, motion=motion, first=k == 0 or not overlay,
+                  gid=f"|{label}" if overlay else "", alpha=0.55 if overlay and len(items) > 1 else 1.0)
+        if not one or not title:
+            column[0].set_title(str(label), fontsize="medium")
+    for column in panels:
+        column[0].set_ylabel("torque [N m]")
+        column[1].set_ylabel("friction [N m]")
         if motion:
-            ang, vel = column[2], column[3]
-            ang.plot(t[sel], r.theta[sel], color="tab:purple", lw=1.0, label=r"$\theta$ motor", gid="theta")
-            ang.plot(t[sel], r.q[sel], color="tab:olive", lw=1.0, ls="--", label=r"$q$ environment", gid="q")
-            ang.set_ylabel("angle [rad]")
-            vel.plot(t[sel], r.truth.omega[sel], color="tab:purple", lw=0.9, label=r"$\dot\theta$ motor (true)",
-                     gid="omega")
-            vel.plot(t[sel], r.truth.v[sel], color="tab:olive", lw=0.9, ls="--",
-                     label=r"$\dot q$ environment (true)", gid="v")
-            vel.set_ylabel("velocity [rad/s]")
+            column[2].set_ylabel("angle [rad]")
+            column[3].set_ylabel("velocity [rad/s]")
         for ax in column:
             if ax in grid[-1]:
                 ax.set_xlabel("t [s]")
