@@ -747,3 +747,19 @@ def test_simulate_repetitions_plot_overlays_the_runs_in_one_set_of_panels(kept, 
     assert len(labels) == len(set(labels)) == 8                       # each signal named once
     _assert_inside_figure(fig, [ax.get_legend() for ax in fig.axes] + [fig._suptitle], "legend/title")
     _assert_no_empty_axes_and_units(fig)
+
+
+def test_fig7_plot_titles_carry_the_reproductions_maes_and_its_legends_fit(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    assert main(["reproduce", "fig7", "--json", str(tmp_path / "f7.json"), "--plot", str(tmp_path / "f7.png")]) == 0
+    data = json.loads((tmp_path / "f7.json").read_text())
+    fig = kept["simulation"][-1]
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles == [f"SFM (friction MAE {data['mae_friction_sfm']:.3f} N m)",
+                      f"EA-FOB (friction MAE {data['mae_friction_eafob']:.3f} N m)"]
+    # the paper's layout: forces over friction, no motion rows; each estimate named after its compensator
+    assert len(fig.axes) == 4
+    assert {"$\\hat\\tau_{frc}$ SFM", "$\\hat\\tau_{frc}$ EA-FOB"} <= set(_legend_texts(fig))
+    _assert_inside_figure(fig, [ax.get_legend() for ax in fig.axes], "legend")
+    _assert_no_empty_axes_and_units(fig)
