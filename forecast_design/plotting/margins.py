@@ -8,7 +8,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..margins import DiskMarginCurve, disk_center_radius, disk_gain_margin
+from ..margins import DiskMarginCurve, disk_center_radius
 from ..reproduce import MarginRow
 from ..errors import ParameterError
 from . import _pyplot, save_figure
