@@ -17,6 +17,7 @@ The testbed is resolved the same way by :func:`resolve_testbed`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import math
@@ -32,8 +33,10 @@ from .experiment_io import FORMAT
 from .experiment_io import parse_toml as _parse_toml
 from .experiment_io import read_toml_document as _read_toml
 from .limits import check_limit, limit_of
+from .plausibility import benchtop_warnings
 from .params import (
     ENVIRONMENT_PRESETS,
+    TABLE1_LINK,
     Design,
     Environment,
     Testbed,
@@ -46,6 +49,7 @@ __all__ = [
     "EnvironmentSet",
     "resolve_environments",
     "resolve_testbed",
+    "document_design",
     "ENVIRONMENT_KEYS",
     "TESTBED_KEYS",
     "RANDOM_RANGES",
@@ -53,8 +57,9 @@ __all__ = [
 
 #: Keys of one environment in an inline value or a ``[[environment]]`` table.
 ENVIRONMENT_KEYS = ("name", "J_e", "d_e", "k_e", "J_l", "d_l", "locked")
-#: Keys of a testbed (the experiment format's ``[testbed]``).
-TESTBED_KEYS = ("J_m", "d_m", "k")
+#: Keys of a testbed file's ``[testbed]`` and of inline testbed values: the experiment format's three
+#: and, optionally, the SEA's link (J_l, d_l; the default of every environment that sets none).
+TESTBED_KEYS = ("J_m", "d_m", "k", "J_l", "d_l")
 #: ``random:N`` draws log-uniformly in these ranges (k_e [N m/rad], J_e [kg m^2]), d_e critical.
 RANDOM_RANGES = {"k_e": (0.1, 1000.0), "J_e": (1e-3, 1.0)}
 _NUMERIC = ("J_e", "d_e", "k_e", "J_l", "d_l")
@@ -206,9 +211,10 @@ def resolve_environments(spec: Any, *, testbed: Testbed | None = None, seed: int
         file (``docs/environments.md``); a mapping of names to any of these; or an iterable
         mixing them (concatenated in order; an identical repeat is kept once).
     testbed : Testbed or None
-        The testbed the environments attach to. J_l and d_l default to its link when it
-        carries ``J_l``/``d_l`` attributes, otherwise to Table 1's link (0.0018 kg m^2,
-        0.35 N m s/rad).
+        The testbed the environments attach to. When it carries the SEA's link (``J_l``,
+        ``d_l``), J_l and d_l default to it, and presets (defined on Table 1's link) take it;
+        otherwise they default to Table 1's link (0.0018 kg m^2, 0.35 N m s/rad) or, for the
+        tables of a file with a ``[testbed]`` carrying a link, to that file's.
     seed : int
         Seed of ``random:N``.
 
@@ -329,9 +335,15 @@ def _from_text(spec: str | os.PathLike, link: dict[str, float], seed: int) -> li
             path, name = _file_member(item)
             out.append(_member(_from_file(Path(path), link), name, path))
         else:
-            env = environment_preset(item)
-            out.append(EnvironmentSet((item,), (env,), source=None))
+            out.append(EnvironmentSet((item,), (_with_link(environment_preset(item), link),), source=None))
     return out
+
+
+def _with_link(env: Environment, link: Mapping[str, float]) -> Environment:
+    """A preset on the default link takes the testbed's (the link belongs to the SEA, not the preset)."""
+    if (env.J_l, env.d_l) == TABLE1_LINK and (link["J_l"], link["d_l"]) != TABLE1_LINK:
+        return dataclasses.replace(env, J_l=link["J_l"], d_l=link["d_l"])
+    return env
 
 
 def _file_member(text: str) -> tuple[str, str] | None:
@@ -457,6 +469,10 @@ def _from_file(path: Path, link: dict[str, float]) -> EnvironmentSet:
     if "environment" not in doc:
         raise ExperimentFormatError(f"{label}: no [environment] table or [[environment]] tables",
                                     path=label, key="environment")
+    if (link["J_l"], link["d_l"]) == TABLE1_LINK and isinstance(doc.get("testbed"), Mapping):
+        own = _testbed_table(doc["testbed"], label).link    # the file's testbed: the default of its tables
+        if own is not None:
+            link = {"J_l": own[0], "d_l": own[1]}
     tables = doc["environment"]
     single = isinstance(tables, Mapping)
     if single:
@@ -488,18 +504,101 @@ def _from_file(path: Path, link: dict[str, float]) -> EnvironmentSet:
 
 def _formatted_design(doc: Mapping[str, Any], label: str) -> tuple[Testbed, Environment]:
     """Testbed and environment of a run's TOML (its CSV unread) or of another format's file
-    (e.g. a simulation scenario) holding the experiment format's ``[testbed]``/``[environment]``."""
+    (e.g. a simulation scenario, :func:`document_design`). A run's testbed carries its environment's
+    link (the SEA's), so ``--testbed RUN.toml`` gives it to the environments it is used with."""
     if doc["format"] == FORMAT:
         design = _parse_toml(doc, label)[0]
-        return design.testbed, design.environment
-    tables = []
-    for key in ("testbed", "environment"):
-        table = doc.get(key)
-        if not isinstance(table, Mapping):
-            raise ExperimentFormatError(f"{label}: [{key}] table missing (format {doc['format']!r})",
-                                        path=label, key=key)
-        tables.append(table)
-    return (Testbed.from_mapping(tables[0], source=label), Environment.from_mapping(tables[1], source=label))
+        env = design.environment
+        return dataclasses.replace(design.testbed, J_l=env.J_l, d_l=env.d_l), env
+    testbed, env, _ = document_design(doc, label)
+    return testbed, env
+
+
+def document_design(doc: Mapping[str, Any], source: str | None, *,
+                    what: str = "a scenario") -> tuple[Testbed, Environment, tuple[str, ...]]:
+    """The nominal testbed and environment of a file in a toolbox format (a scenario): the one resolution.
+
+    ``testbed`` is a ``[testbed]`` table (``J_m``, ``d_m``, ``k`` and optionally the link ``J_l``,
+    ``d_l``) or a string naming one as ``--testbed`` does (a testbed file, relative to the file's
+    folder; inline ``k=..``; ``table1``). ``environment`` is an ``[environment]`` table (its ``J_l``,
+    ``d_l`` may be left to the testbed's link) or a string naming one environment (a preset, inline
+    values, a file holding one, ``FILE.toml#NAME``), whose defaults come from the testbed's link.
+
+    Parameters
+    ----------
+    doc : Mapping
+        The parsed document.
+    source : str or None
+        Its file, for relative paths and messages.
+    what : str
+        Who needs one environment, for the message.
+
+    Returns
+    -------
+    (Testbed, Environment, tuple of str)
+        The testbed, the environment and notes on the defaults filled in.
+
+    Raises
+    ------
+    ExperimentFormatError
+        One line naming the file and the key.
+    """
+    prefix = f"{source}: " if source else ""
+    value = doc.get("testbed")
+    if isinstance(value, str):
+        with _naming(prefix, "testbed", value, source):
+            testbed = resolve_testbed(_beside(value, source))
+    elif isinstance(value, Mapping):
+        testbed = _testbed_table(value, source, full=True)
+    else:
+        raise ExperimentFormatError(f"{prefix}missing required table [testbed]" if value is None else
+                                    f"{prefix}[testbed] must be a table or a testbed spec, got {value!r}",
+                                    path=source, key="testbed")
+    value = doc.get("environment")
+    if isinstance(value, str):
+        with _naming(prefix, "environment", value, source):
+            envset = resolve_environments(_beside(value, source), testbed=testbed)
+            return testbed, envset.single(what)[1], envset.notes
+    if not isinstance(value, Mapping):
+        raise ExperimentFormatError(f"{prefix}missing required table [environment]" if value is None else
+                                    f"{prefix}[environment] must be a table or an environment spec, got {value!r}",
+                                    path=source, key="environment")
+    if testbed.link is not None:
+        value = {"J_l": testbed.J_l, "d_l": testbed.d_l, **value}
+    return testbed, Environment.from_mapping(value, source=source), ()
+
+
+def _beside(spec: str, source: str | None) -> str:
+    """A file a document names (``F.toml``, ``F.toml#NAME``), relative to the document's folder."""
+    spec = spec.strip()
+    path, sep, member = spec.rpartition("#") if ".toml#" in spec.lower() else (spec, "", "")
+    if path.lower().endswith(".toml") and source is not None and not os.path.isabs(path):
+        return os.path.join(os.path.dirname(source), path) + sep + member
+    return spec
+
+
+@contextlib.contextmanager
+def _naming(prefix: str, key: str, value: str, source: str | None) -> Iterator[None]:
+    try:
+        yield
+    except (ParameterError, ExperimentFormatError) as exc:
+        raise ExperimentFormatError(f"{prefix}{key} = {value!r}: {str(exc).splitlines()[0]}", path=source,
+                                    key=key) from None
+
+
+def _testbed_table(table: Mapping[str, Any], label: str | None, *, full: bool = False) -> Testbed:
+    """A testbed file's or a scenario's ``[testbed]`` (with the optional link), plausibility warnings said.
+    ``full``: all three keys required (a scenario); else missing keys keep Table 1's (a testbed file)."""
+    if not full and isinstance(table, Mapping):
+        table = {**Testbed().to_mapping(), **table}
+    testbed = Testbed.from_mapping(table, source=label, link=True)
+    _warn_benchtop(testbed, f"{label}: [testbed]" if label else "[testbed]")
+    return testbed
+
+
+def _warn_benchtop(testbed: Testbed, where: str) -> None:
+    benchtop_warnings({"J_m": testbed.J_m, "d_m": testbed.d_m, "k": testbed.k, "J_l": testbed.J_l,
+                       "d_l": testbed.d_l}, where)
 
 
 def _expand_table(table: Any, section: str, label: str, link: dict[str, float], *,
@@ -594,13 +693,17 @@ def resolve_testbed(spec: Any = None) -> Testbed:
     ----------
     spec : None, Testbed, Design, str or path
         None or ``"table1"``: the paper's Table 1; a Testbed (or a Design's testbed); inline
-        values ``"k=40[,J_m=..][,d_m=..]"`` (missing keys keep Table 1's); a TOML file with a
-        ``[testbed]`` table (missing keys keep Table 1's) or a run's TOML (its CSV is not read).
+        values ``"k=40[,J_m=..][,d_m=..][,J_l=..,d_l=..]"`` (missing keys keep Table 1's); a TOML
+        file with a ``[testbed]`` table (the same keys; missing ones keep Table 1's) or a run's or
+        a scenario's TOML (its CSV is not read; the testbed carries its environment's link).
+        ``J_l`` and ``d_l``, given together, are the SEA's link: the default of every environment
+        used with this testbed that sets none (:func:`resolve_environments`, :class:`Design`).
 
     Returns
     -------
     Testbed
-        J_m [kg m^2], d_m [N m s/rad], k [N m/rad].
+        J_m [kg m^2], d_m [N m s/rad], k [N m/rad], and the link J_l [kg m^2], d_l [N m s/rad]
+        or None.
 
     Raises
     ------
@@ -608,6 +711,12 @@ def resolve_testbed(spec: Any = None) -> Testbed:
         Malformed inline value.
     ExperimentFormatError
         Malformed TOML file (one line naming the file and key).
+
+    Warns
+    -----
+    ImplausibleInputWarning
+        A given number outside what a benchtop SEA can be
+        (:data:`~forecast_design.plausibility.BENCHTOP_SEA`), e.g. a value in the wrong unit.
     """
     if spec is None:
         return Testbed()
@@ -637,9 +746,11 @@ def resolve_testbed(spec: Any = None) -> Testbed:
                 raise ParameterError(f"{where}{key} must be a number, got {value!r}", name=key,
                                      value=value) from None
         try:
-            return dataclasses.replace(Testbed(), **values)
+            testbed = dataclasses.replace(Testbed(), **values)
         except ParameterError as exc:
             raise ParameterError(f"{where}{exc}", name=exc.name, value=exc.value) from None
+        _warn_benchtop(testbed, f"testbed '{text}':")
+        return testbed
     path = Path(text)
     label = str(path)
     if not path.is_file():
@@ -653,4 +764,4 @@ def resolve_testbed(spec: Any = None) -> Testbed:
     if not isinstance(table, Mapping):
         raise ExperimentFormatError(f"{label}: [testbed] must be a table, got {table!r}", path=label,
                                     key="testbed")
-    return Testbed.from_mapping({**Testbed().to_mapping(), **table}, source=label)
+    return _testbed_table(table, label)

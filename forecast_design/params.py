@@ -7,6 +7,8 @@ Field names are the symbols of the experiment format (``J_m``, ``k_e``,
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
@@ -21,6 +23,7 @@ __all__ = [
     "critically_damped",
     "Compensator",
     "Design",
+    "TABLE1_LINK",
     "ENVIRONMENT_PRESETS",
     "COMPENSATOR_KINDS",
     "Q_FAMILIES",
@@ -84,6 +87,36 @@ def _from_mapping(cls, mapping: Mapping[str, Any], *, section: str, source: str 
         ) from None
 
 
+def _named_parameters(cls):
+    """Make a parameter dataclass refuse an unknown, missing or positional argument with the project's
+    one-line ParameterError naming it (and the nearest field: ``w_q`` -> ``w_q_hz``), not a raw TypeError."""
+    init = cls.__init__
+    fields = dataclasses.fields(cls)
+    names = [f.name for f in fields]
+    required = [f.name for f in fields if f.default is dataclasses.MISSING
+                and f.default_factory is dataclasses.MISSING]
+
+    @functools.wraps(init)
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        if args:
+            raise ParameterError(f"{cls.__name__}() takes keyword arguments only ({', '.join(names)}), got "
+                                 f"{len(args)} positional: {args!r:.60}", name=names[0], value=args)
+        for key in kwargs:
+            if key not in names:
+                near = [n for n in names if n.startswith(key)] or difflib.get_close_matches(key, names, n=1, cutoff=0.5)
+                hint = f"; did you mean {near[0]}?" if near else ""
+                raise ParameterError(f"{cls.__name__}() has no parameter '{key}'{hint} (its parameters: "
+                                     f"{', '.join(names)})", name=key, value=kwargs[key])
+        missing = [key for key in required if key not in kwargs]
+        if missing:
+            raise ParameterError(f"{cls.__name__}() needs {', '.join(missing)}", name=missing[0])
+        init(self, **kwargs)
+
+    cls.__init__ = __init__
+    return cls
+
+
+@_named_parameters
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Testbed:
     """Nominal series elastic actuator (experiment format section ``[testbed]``).
@@ -96,6 +129,10 @@ class Testbed:
     J_m: float = 0.133  # motor reflected inertia        [kg m^2]
     d_m: float = 0.3    # motor viscous friction         [N m s/rad]
     k: float = 58.0     # series spring stiffness        [N m/rad]
+    # the SEA's link, the default of every environment that sets none (None: not given; environments
+    # then keep their own link, Table 1's by default)
+    J_l: float | None = None  # link inertia                   [kg m^2]
+    d_l: float | None = None  # link damping                   [N m s/rad]
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "J_m", _number("[testbed]", "J_m", self.J_m, positive=True))
@@ -103,6 +140,19 @@ class Testbed:
         object.__setattr__(self, "k", _number("[testbed]", "k", self.k, positive=True))
         for name in ("J_m", "d_m", "k"):   # documented plausible ranges (limits.PHYSICAL_RANGES)
             check_physical("[testbed]", name, getattr(self, name))
+        if (self.J_l is None) != (self.d_l is None):
+            given, missing = ("J_l", "d_l") if self.d_l is None else ("d_l", "J_l")
+            raise ParameterError(f"[testbed] {given} given without {missing}: give the link's J_l [kg m^2] and "
+                                 "d_l [N m s/rad] together", name=missing, value=None)
+        if self.J_l is not None:
+            for name in ("J_l", "d_l"):
+                object.__setattr__(self, name, _number("[testbed]", name, getattr(self, name)))
+                check_physical("[testbed]", name, getattr(self, name))
+
+    @property
+    def link(self) -> tuple[float, float] | None:
+        """The link ``(J_l [kg m^2], d_l [N m s/rad])`` this testbed carries, or None when it carries none."""
+        return None if self.J_l is None else (self.J_l, self.d_l)
 
     def spring_torque(self, theta: Any, q: Any) -> Any:
         """The spec's spring equation ``tau_s = k (theta - q)`` [N m] (the logger's derived column).
@@ -125,15 +175,45 @@ class Testbed:
         return cls()
 
     @classmethod
-    def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None) -> "Testbed":
-        """Build from a ``[testbed]`` table; unknown or missing keys are errors."""
+    def from_mapping(cls, mapping: Mapping[str, Any], *, source: str | None = None,
+                     link: bool = False) -> "Testbed":
+        """Build from a ``[testbed]`` table; unknown or missing keys are errors.
+
+        Parameters
+        ----------
+        mapping : Mapping
+            The table: ``J_m`` [kg m^2], ``d_m`` [N m s/rad], ``k`` [N m/rad].
+        source : str, optional
+            The file, for messages.
+        link : bool
+            Also accept the link ``J_l`` [kg m^2] and ``d_l`` [N m s/rad] (testbed files and
+            scenarios); False for the experiment format, whose ``[testbed]`` has the three keys
+            only and whose ``[environment]`` carries the link.
+
+        Returns
+        -------
+        Testbed
+            The testbed.
+        """
+        if not link and isinstance(mapping, Mapping):
+            for key in ("J_l", "d_l"):
+                if key in mapping:
+                    where = f"{source}: " if source else ""
+                    raise ExperimentFormatError(
+                        f"{where}[testbed] unknown key '{key}'; allowed: J_m, d_m, k (an experiment's link is "
+                        "in its [environment])", path=source, key=f"testbed.{key}")
         return _from_mapping(cls, mapping, section="testbed", source=source, required=("J_m", "d_m", "k"))
 
     def to_mapping(self) -> dict[str, float]:
-        """The ``[testbed]`` table."""
+        """The experiment format's ``[testbed]`` table (J_m, d_m, k; the link goes with each environment)."""
         return {"J_m": self.J_m, "d_m": self.d_m, "k": self.k}
 
 
+#: The Forecast testbed's link (J_l [kg m^2], d_l [N m s/rad]): an Environment's default link.
+TABLE1_LINK = (0.0018, 0.35)
+
+
+@_named_parameters
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Environment:
     """Environment E(s) = J s^2 + d s + k_e with J = J_e + J_l, d = d_e + d_l.
@@ -145,8 +225,8 @@ class Environment:
     J_e: float            # environment inertia            [kg m^2]
     d_e: float            # environment damping            [N m s/rad]
     k_e: float            # environment stiffness          [N m/rad]
-    J_l: float = 0.0018   # link inertia                   [kg m^2]
-    d_l: float = 0.35     # link damping                   [N m s/rad]
+    J_l: float = 0.0018   # link inertia (TABLE1_LINK)     [kg m^2]
+    d_l: float = 0.35     # link damping (TABLE1_LINK)     [N m s/rad]
     locked: bool = False  # output locked, q == 0
 
     def __post_init__(self) -> None:
@@ -278,6 +358,7 @@ def environment_preset(name: str) -> Environment:
         ) from None
 
 
+@_named_parameters
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Compensator:
     """Friction compensator / disturbance observer: the value of a ``[compensator]`` table.
@@ -424,9 +505,17 @@ class Compensator:
 _OBSERVER_KEYS = ("w_q_hz", "q_family", "q_order", "q_damping")
 
 
+@_named_parameters
 @dataclass(frozen=True, slots=True, kw_only=True)
 class Design:
-    """Everything the nominal model says about one set-up."""
+    """Everything the nominal model says about one set-up.
+
+    A testbed that carries its link (``Testbed.J_l``, ``d_l``) gives it to an environment left on
+    the default link (:data:`TABLE1_LINK`, e.g. a preset): the link belongs to the SEA, so a user's
+    testbed never runs with the paper's link by default. An environment with a link of its own
+    keeps it. ``environment`` may be a one-member
+    :class:`~forecast_design.environments.EnvironmentSet` (e.g. ``resolve_environments("f.toml#name")``).
+    """
 
     testbed: Testbed = field(default_factory=Testbed)
     environment: Environment = field(default_factory=lambda: ENVIRONMENT_PRESETS["soft"])
@@ -434,6 +523,10 @@ class Design:
     compensator: Compensator | None = None
 
     def __post_init__(self) -> None:
+        from .environments import EnvironmentSet   # layer 0 both; imported here, environments imports params
+
+        if isinstance(self.environment, EnvironmentSet):
+            object.__setattr__(self, "environment", self.environment.single("Design(environment=...)")[1])
         # a wrong type here would surface much later as a raw AttributeError deep in a model
         for name, kind, optional in (("testbed", Testbed, False), ("environment", Environment, False),
                                      ("controller", Controller, True), ("compensator", Compensator, True)):
@@ -442,6 +535,9 @@ class Design:
                 hint = " (use Design.nominal(NAME) for a preset)" if name == "environment" else ""
                 raise ParameterError(f"Design {name} must be a {kind.__name__}{' or None' if optional else ''}, "
                                      f"got {type(value).__name__} {value!r}{hint}", name=name, value=value)
+        link, env = self.testbed.link, self.environment
+        if link is not None and (env.J_l, env.d_l) == TABLE1_LINK and link != TABLE1_LINK:
+            object.__setattr__(self, "environment", dataclasses.replace(env, J_l=link[0], d_l=link[1]))
 
     @classmethod
     def nominal(cls, environment: str | Environment = "soft", **kwargs: Any) -> "Design":

@@ -57,6 +57,13 @@ backlash width            ``2 encoder steps <= width <= 2 deflection_max`` (belo
 environment scales        ``0.1 <= scale <= 10`` of the declared value.
 ========================  ==============================================================
 
+Numbers a user *gives* for the nominal testbed are judged too: :data:`BENCHTOP_SEA` holds what a
+benchtop series elastic actuator can be, and :func:`benchtop_warnings` says, in one line per
+number, which given value lies outside it (most often a value in the wrong unit: ``k = 150000``
+given in N mm/rad, ``J_m = 60`` in g m^2). It warns rather than refuses: such a value still has a
+meaning for the models (the hard limits, where the numbers stop meaning anything, are
+:data:`forecast_design.limits.PHYSICAL_RANGES`).
+
 Datasheet tolerances of the nominal model (:data:`DATASHEET_TOLERANCE`) bound
 how far the gap diagnosis may re-calibrate ``J_m`` and the spring before it
 blames an effect; a re-calibration at that bound is itself reported.
@@ -65,6 +72,7 @@ blames an effect; a re-calibration at that bound is itself reported.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Iterable, Mapping
 
@@ -72,6 +80,9 @@ import numpy as np
 
 
 __all__ = [
+    "BENCHTOP_SEA",
+    "ImplausibleInputWarning",
+    "benchtop_warnings",
     "STATUSES",
     "RELATIVE_PRECISION",
     "DATASHEET_TOLERANCE",
@@ -533,3 +544,53 @@ def effect_bound(name: str, scales: LogScales, *, static: float | None = None) -
     if name.endswith("_scale"):
         return Bound(0.1, 10.0, "the real environment within a factor 10 of the declared one")
     return None
+
+
+#: What a benchtop SEA can be: name -> (lowest, highest, unit, why). The Forecast testbed (Table 1:
+#: J_m 0.133, d_m 0.3, k 58, link 0.0018 / 0.35) sits well inside every range.
+BENCHTOP_SEA: Mapping[str, tuple[float, float, str, str]] = {
+    "J_m": (1e-6, 10.0, "kg m^2", "a rotor of 1e-7 to 1e-3 kg m^2 reflected through a gear of 1 to 100"),
+    "d_m": (0.0, 50.0, "N m s/rad", "the viscous friction of a geared motor at the output"),
+    "k": (0.5, 2e4, "N m/rad", "the series spring: compliant enough to measure force by its deflection"),
+    "J_l": (0.0, 10.0, "kg m^2", "a link a bench can hold"),
+    "d_l": (0.0, 50.0, "N m s/rad", "the link's bearing damping"),
+}
+
+
+class ImplausibleInputWarning(UserWarning):
+    """A given number outside what a benchtop SEA can be (:data:`BENCHTOP_SEA`); the CLI prints it as
+    ``forecast-design: warning: ...``."""
+
+
+def benchtop_warnings(values: Mapping[str, float | None], where: str = "[testbed]", *,
+                      warn: bool = True) -> list[str]:
+    """One line per value outside :data:`BENCHTOP_SEA`, naming it, its unit and the range.
+
+    Parameters
+    ----------
+    values : Mapping[str, float or None]
+        Testbed numbers by name (``J_m`` [kg m^2], ``d_m`` [N m s/rad], ``k`` [N m/rad],
+        ``J_l`` [kg m^2], ``d_l`` [N m s/rad]); None and unknown names are skipped.
+    where : str
+        Where the numbers come from (a file and its table), first in each line.
+    warn : bool
+        Also issue each line as an :class:`ImplausibleInputWarning`.
+
+    Returns
+    -------
+    list of str
+        The lines (empty when every value is plausible).
+    """
+    lines = []
+    for name, value in values.items():
+        if name not in BENCHTOP_SEA or value is None:
+            continue
+        lo, hi, unit, why = BENCHTOP_SEA[name]
+        if not lo <= value <= hi:
+            lines.append(f"{where} {name} = {value:g} {unit} is outside what a benchtop SEA has ([{lo:g}, {hi:g}] "
+                         f"{unit}: {why}); check its unit (SI: kg m^2, N m s/rad, N m/rad): the results take "
+                         "it as given")
+    if warn:
+        for line in lines:
+            warnings.warn(line, ImplausibleInputWarning, stacklevel=2)
+    return lines

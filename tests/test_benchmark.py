@@ -6,6 +6,8 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from forecast_design.benchmark import (BenchmarkSpec, parse_compensators, parse_controller, parse_reference,
                                        repeatability_per_run, result_rows, result_table, run_benchmark,
@@ -27,21 +29,65 @@ control = pytest.importorskip("control")
 # --- indicators -------------------------------------------------------------------------------
 
 
+def _step_info_relative_to_the_step(t, y, amplitude):
+    """python-control's step_info read with the benchmark's conventions: the final value is the mean of
+    the last 10 %, the settling band 2 % of the reference step |A| (a threshold relative to y_f of
+    0.02 |A| / |y_f|), overshoot rescaled from y_f to |A|; settled when the band holds over that window."""
+    window = int(y.size * 0.1)
+    yf = float(np.mean(y[-window:]))
+    info = control.step_info(y, t, yfinal=yf, SettlingTimeThreshold=0.02 * abs(amplitude) / abs(yf),
+                             RiseTimeLimits=(0.1, 0.9))
+    settled = math.isfinite(info["SettlingTime"]) and info["SettlingTime"] <= t[y.size - window]
+    return {"rise_time_s": info["RiseTime"], "overshoot_percent": info["Overshoot"] * abs(yf) / abs(amplitude),
+            "settling_time_s": info["SettlingTime"] if settled else math.nan, "settled": settled,
+            "steady_state_error_N_m": amplitude - yf}
+
+
 def test_step_metrics_match_python_control_step_info():
     # a second-order step response, closed form, checked against python-control's step_info
     wn, zeta = 20.0, 0.3
     sys_ = control.tf([0.8 * wn**2], [1.0, 2 * zeta * wn, wn**2])
     t = np.linspace(0.0, 3.0, 6001)
     _, y = control.step_response(sys_, t)
-    ref = control.step_info(y, t, yfinal=0.8, SettlingTimeThreshold=0.02, RiseTimeLimits=(0.1, 0.9))
-    m = step_metrics(t, 0.2 * y / 0.8 * 0.8, amplitude=0.2)   # response to a 0.2 step of gain 0.8 -> 0.16
-    ref02 = control.step_info(0.2 * y, t, yfinal=0.16, SettlingTimeThreshold=0.02, RiseTimeLimits=(0.1, 0.9))
-    assert m["rise_time_s"] == pytest.approx(ref02["RiseTime"], abs=2 * (t[1] - t[0]))
-    assert m["overshoot_percent"] == pytest.approx(ref["Overshoot"], rel=1e-3)
-    assert m["settling_time_s"] == pytest.approx(ref02["SettlingTime"], abs=2 * (t[1] - t[0]))
+    y = 0.2 * y                                   # response to a 0.2 N m step of gain 0.8 -> 0.16
+    m = step_metrics(t, y, amplitude=0.2)
+    ref = _step_info_relative_to_the_step(t, y, 0.2)
+    assert m["settled"] and ref["settled"]
+    assert m["rise_time_s"] == pytest.approx(ref["rise_time_s"], abs=2 * (t[1] - t[0]))
+    assert m["overshoot_percent"] == pytest.approx(ref["overshoot_percent"], rel=1e-3)
+    assert m["settling_time_s"] == pytest.approx(ref["settling_time_s"], abs=2 * (t[1] - t[0]))
     assert m["steady_state_error_N_m"] == pytest.approx(0.2 - 0.16, abs=1e-6)
-    # closed-form overshoot of a 2nd-order system
-    assert m["overshoot_percent"] == pytest.approx(100 * math.exp(-zeta * math.pi / math.sqrt(1 - zeta**2)), rel=1e-3)
+    # closed-form overshoot of a 2nd-order system, relative to the step: 0.8 exp(-zeta pi / sqrt(1 - zeta^2))
+    assert m["overshoot_percent"] == pytest.approx(
+        0.8 * 100 * math.exp(-zeta * math.pi / math.sqrt(1 - zeta**2)), rel=1e-3)
+
+
+def test_a_run_that_never_settles_has_no_settling_time():
+    # a sustained oscillation of 5 % of the step around 0.16 N m: never within 2 % of the step
+    t = np.linspace(0.0, 1.0, 2001)
+    y = 0.16 * (1 - np.exp(-t / 0.02)) + 0.01 * np.sin(2 * math.pi * 7.3 * t)
+    m = step_metrics(t, y, amplitude=0.2)
+    ref = _step_info_relative_to_the_step(t, y, 0.2)
+    assert not m["settled"] and not ref["settled"]
+    assert math.isnan(m["settling_time_s"]) and math.isnan(ref["settling_time_s"])
+    # entering the band only near the end is not settling either: the band must hold over the final window
+    late = np.where(t < 0.95, 0.16 + 0.01 * np.sin(2 * math.pi * 7.3 * t), 0.16)
+    m = step_metrics(t, late, amplitude=0.2)
+    assert not m["settled"] and math.isnan(m["settling_time_s"])
+
+
+@settings(max_examples=60, deadline=None)
+@given(final=st.floats(1e-4, 0.5), peak=st.floats(0.0, 0.5), amplitude=st.sampled_from([0.2, -0.2, 1.0]))
+def test_overshoot_is_bounded_by_the_excursion_relative_to_the_step(final, peak, amplitude):
+    # a run that rises to final + peak and falls back to a final value however small: its overshoot is
+    # the excursion over the reference step, never the excursion over its own (tiny) final value
+    t = np.linspace(0.0, 1.0, 1001)
+    sign = math.copysign(1.0, amplitude)
+    y = sign * (final + peak * np.exp(-((t - 0.05) / 0.01) ** 2))
+    m = step_metrics(t, y, amplitude=amplitude)
+    excursion = float(np.max(sign * y) - np.mean(sign * y[-100:]))
+    assert m["overshoot_percent"] == pytest.approx(100 * excursion / abs(amplitude), rel=1e-9, abs=1e-9)
+    assert m["overshoot_percent"] <= 100 * peak / abs(amplitude) + 1e-9
 
 
 def test_tracking_bandwidth_of_the_frictionless_loop_matches_its_transfer_function():
@@ -382,20 +428,25 @@ def test_a_users_testbed_is_benchmarked_on_itself_with_the_substeps_its_plant_ne
                  "--compensator", "none,sfm", "--testbed", SMALL_SEA,
                  "--envs", "stiff", "--repetitions", "2", "--reference", "step:0.05", "--duration", "1.5",
                  "--out", str(out), "--no-plots", "--json", str(tmp_path / "s.json")])
-    assert code == 0
+    assert code == 1          # unstable cells: flagged, written, and the exit code says so
     doc = json.loads((tmp_path / "s.json").read_text())
     assert doc["benchmark"]["testbed"] == small.to_mapping()
     # the frictionless reference of this PD on this SEA diverges when sampled (margins --sampled says
     # UNSTABLE): its MAE is not scored, in words, never a number of 1e7 N m
     err = capsys.readouterr().err
     assert "expected response" in err and "diverges" in err
+    assert "warning: pd:2:0.001:0.0007957747154594767:discretization=tustin + none in stiff" in err
     table = pd.read_csv(out / "results.csv")
     assert table["mae_N_m"].isna().all()
+    assert not table[table["kind"] != "set"]["stable"].any() and (table[table["kind"] == "set"]["excluded_cells"] == 1).all()
     # the disk margin is the sampled loop's that the runs were made with: 0 (unstable), where the
     # continuous loop would claim about 0.5
     from forecast_design.analysis import loop_margins
 
-    assert (table["disk_margin"] == 0.0).all()
+    cells = table[table["kind"] != "set"]
+    assert (cells["disk_margin"] == 0.0).all()
+    # every cell is unstable: the set rows aggregate none of them (NaN), never an unstable loop's numbers
+    assert table[table["kind"] == "set"][["disk_margin", "repeatability"]].isna().all().all()
     assert float(loop_margins(Design(testbed=small, environment=env, controller=PD(P=2.0, D=0.001)),
                               parse_compensators(["none"])[0]).alpha) > 0.4
     # the testbed is part of every cell's key: the paper's testbed is not served from this cache
@@ -420,3 +471,257 @@ def test_benchmark_testbed_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, 
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("forecast-design: error:") and words in err[0]
     assert not (out / "results.csv").exists()
+
+
+# --- a lab's SEA with an unstable cell: flags, aggregates, files that reproduce the indicators, plots ------
+
+LAB_SEA = "k=150,J_m=0.06,d_m=0.12"     # issue 26's newcomer: J_m 0.06, d_m 0.12, k 150, link 0.004 / 0.2
+LAB_ENVS = """
+[[environment]]
+name = "e10"
+k_e = 10.0
+J_e = 0.01
+J_l = 0.004
+d_l = 0.2
+[[environment]]
+name = "locked"
+locked = true
+J_l = 0.004
+d_l = 0.2
+"""
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    """pd:5:0.1 and pd:8:0 with none and ea-fob:10 on the lab's SEA; pd:8:0 on the locked output is unstable."""
+    import contextlib
+    import io
+
+    folder = tmp_path_factory.mktemp("lab")
+    (folder / "envs.toml").write_text(LAB_ENVS)
+    out = folder / "out"
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()) as stdout:
+        code = main(["benchmark", "--testbed", LAB_SEA, "--envs", str(folder / "envs.toml"), "--controller", "pd:5:0.1",
+                     "--controller", "pd:8:0", "--compensator", "none,ea-fob", "--repetitions", "3",
+                     "--reference", "step:0.2:0.6", "--out", str(out), "--workers", "1"])
+    return {"code": code, "out": out, "err": err.getvalue(), "stdout": stdout.getvalue(),
+            "table": pd.read_parquet(out / "results.parquet"), "traces": pd.read_parquet(out / "traces.parquet")}
+
+
+def test_an_unstable_cell_is_flagged_everywhere_and_left_out_of_the_set(lab):
+    from forecast_design.analysis import loop_margins
+    from forecast_design.environments import resolve_environments, resolve_testbed
+
+    df, tr = lab["table"], lab["traces"]
+    assert lab["code"] == 1
+    cells = df[df["kind"] == "environment"].drop_duplicates(["controller", "compensator", "environment"])
+    bad = {(r.controller, r.compensator, r.environment) for r in cells.itertuples() if not pd.isna(r.stable) and not r.stable}
+    assert bad == {("pd:8:0", "none", "locked"), ("pd:8:0", "ea-fob:10", "locked")}
+    # the flag is the loop analysis' (sampled, delay 0), and the frictionless expected response agrees with it:
+    # it grows on the unstable loop (issue 26: 0.54 -> 0.96 N m within 1 s) and decays to its final value elsewhere
+    tb = resolve_testbed(LAB_SEA)
+    envs = resolve_environments(str(lab["out"].parent / "envs.toml"), testbed=tb)
+    for r in cells.itertuples():
+        design = Design(testbed=tb, environment=dict(envs.items())[r.environment], controller=parse_controller(r.controller))
+        comp = parse_compensators(r.compensator)[0]
+        assert bool(r.stable) == loop_margins(design, comp, sampled=True, rate_hz=2000.0, delay_samples=0).stable
+        e = tr[(tr["controller"] == r.controller) & (tr["compensator"] == r.compensator)
+               & (tr["environment"] == r.environment) & (tr["repetition"] == 0)]["tau_s_expected"].to_numpy()
+        n = e.size
+        grows = np.ptp(e[int(0.8 * n):]) > np.ptp(e[int(0.2 * n):int(0.4 * n)])   # its swing at the end vs earlier
+        assert grows == (not r.stable)
+    # stderr names each unstable cell in one warning line; the report and the summary list them
+    warn = [ln for ln in lab["err"].splitlines() if "unstable (disk margin" in ln]
+    assert len(warn) == 2 and all(ln.startswith("forecast-design: warning: pd:8:0 + ") and " in locked " in ln
+                                  for ln in warn)
+    report = (lab["out"] / "report.md").read_text()
+    assert "2 unstable cell(s)" in report and "- pd:8:0 + none in locked" in report
+    summary = json.loads((lab["out"] / "summary.json").read_text())
+    assert {(c["controller"], c["environment"]) for c in summary["flags"]["unstable_cells"]} == {("pd:8:0", "locked")}
+    assert "relative to the reference step" in summary["indicators"]["overshoot_percent"]
+    # the set rows aggregate the stable environments only, and count what they left out
+    for comp in ("none", "ea-fob:10"):
+        sets = df[(df["kind"] == "set") & (df["controller"] == "pd:8:0") & (df["compensator"] == comp)]
+        assert (sets["excluded_cells"] == 1).all()
+        env_mean = df[(df["kind"] == "environment") & (df["statistic"] == "mean") & (df["controller"] == "pd:8:0")
+                      & (df["compensator"] == comp)]
+        stable_mae = env_mean[env_mean["stable"].astype(bool)]["mae_N_m"].to_numpy()
+        assert sets[sets["statistic"] == "mean"]["mae_N_m"].iloc[0] == pytest.approx(float(np.mean(stable_mae)), rel=1e-12)
+        assert sets[sets["statistic"] == "worst"]["mae_N_m"].iloc[0] < 0.3      # never the unstable cell's error
+    assert (df[(df["kind"] == "set") & (df["controller"] == "pd:5:0.1")]["excluded_cells"] == 0).all()
+    assert "1 unstable cell(s) left out" in lab["stdout"]
+
+
+def test_settled_and_settling_time_columns_agree(lab):
+    df = lab["table"]
+    runs = df[df["kind"] == "run"]
+    assert runs["settled"].dtype == "boolean" and runs["stable"].dtype == "boolean"
+    assert runs["settled"].notna().all()
+    assert (runs["settling_time_s"].isna() == ~runs["settled"].astype(bool)).all()
+    env = df[(df["kind"] == "environment") & (df["statistic"] == "mean")]
+    for r in env.itertuples():
+        mine = runs[(runs["controller"] == r.controller) & (runs["compensator"] == r.compensator)
+                    & (runs["environment"] == r.environment)]
+        assert r.unsettled_runs == int((~mine["settled"].astype(bool)).sum())
+    csv = pd.read_csv(lab["out"] / "results.csv")
+    assert csv.loc[~csv["settled"].astype("boolean").fillna(True), "settling_time_s"].isna().all()
+
+
+def test_the_indicators_recompute_from_the_written_traces_with_independent_code(lab):
+    # every run's indicators from traces.parquet alone: python-control's step_info (the benchmark's
+    # conventions spelled in its arguments), numpy for the MAE, scipy's pearsonr for the repeatability
+    from scipy.stats import pearsonr
+
+    df, tr = lab["table"], lab["traces"]
+    runs = df[df["kind"] == "run"]
+    checked = 0
+    for (ctrl, comp, env), cell in tr.groupby(["controller", "compensator", "environment"], observed=True):
+        reps = sorted(cell["repetition"].unique())
+        ys = {i: cell[cell["repetition"] == i] for i in reps}
+        t = ys[0]["t"].to_numpy()
+        assert t.size == round(0.6 * 2000) and np.allclose(np.diff(t), 1 / 2000.0, rtol=1e-9)   # every sample
+        for i in reps:
+            row = runs[(runs["controller"] == ctrl) & (runs["compensator"] == comp) & (runs["environment"] == env)
+                       & (runs["repetition"] == i)].iloc[0]
+            y = ys[i]["tau_s"].to_numpy()
+            ref = _step_info_relative_to_the_step(t, y, 0.2)
+            assert bool(row["settled"]) == ref["settled"]
+            for m in ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m"):
+                # rise: python-control takes the first sample at or past a level, the benchmark interpolates
+                tol = 2.0 / 2000 if m == "rise_time_s" else 1e-9
+                assert row[m] == pytest.approx(ref[m], abs=tol, rel=1e-9, nan_ok=True), (ctrl, comp, env, i, m)
+            assert row["mae_N_m"] == pytest.approx(np.mean(np.abs(y - ys[i]["tau_s_expected"].to_numpy())), rel=1e-12)
+            others = [pearsonr(y, ys[j]["tau_s"].to_numpy())[0] for j in reps if j != i]
+            assert row["repeatability"] == pytest.approx(np.mean(others), rel=1e-9)
+            checked += 1
+    assert checked == len(runs) == 2 * 2 * 2 * 3
+
+
+def _inside(fig, artist) -> bool:
+    """The artist's drawn extent lies within the figure's canvas (one pixel of slack)."""
+    fig.canvas.draw()
+    box, canvas = artist.get_window_extent(), fig.bbox
+    return box.x0 >= canvas.x0 - 1 and box.y0 >= canvas.y0 - 1 and box.x1 <= canvas.x1 + 1 and box.y1 <= canvas.y1 + 1
+
+
+def _has_data(ax) -> bool:
+    return bool(ax.lines or ax.images or ax.collections or ax.patches)
+
+
+def test_benchmark_indicators_plot_reads_at_a_glance(lab):
+    import matplotlib.pyplot as plt
+
+    from forecast_design.plotting.benchmark import UNITS, plot_indicators
+
+    df = lab["table"]
+    fig = plot_indicators(df)
+    try:
+        step_metrics_drawn = [m for m in ("repeatability", "mae_N_m", "rise_time_s", "overshoot_percent",
+                                          "settling_time_s", "disk_margin")]
+        assert len(fig.axes) == len(step_metrics_drawn)             # no empty panel (bandwidth: no chirp here)
+        assert fig.get_suptitle()
+        series = {f"{c} + {k}" for c, k in zip(df["controller"], df["compensator"])}
+        labels = [t.get_text() for t in fig.legends[0].get_texts()]
+        assert series <= set(labels) and any("unstable" in x for x in labels)
+        assert len(fig.legends) == 1 and _inside(fig, fig.legends[0])
+        env = df[(df["kind"] == "environment") & (df["statistic"] == "mean")]
+        for ax, m in zip(fig.axes, step_metrics_drawn):
+            assert _has_data(ax) and ax.get_ylabel() == UNITS[m] and "[" in ax.get_ylabel()
+            assert ax.get_xlabel() == "environment stiffness k_e [N m/rad]"
+            ticks = [t.get_text() for t in ax.get_xticklabels()]
+            assert ticks[-1] == "locked"
+            locked_x = ax.get_xticks()[-1]
+            # the locked output is a category of its own: never the end of a stiffness line, and right of a
+            # separator, not at a stiffness of ~4000
+            for line in ax.lines:
+                x = np.asarray(line.get_xdata(), dtype=float)
+                if x.size > 1 and line.get_linestyle() not in ("None", "none", ""):
+                    assert locked_x not in x
+            assert locked_x > math.log10(10.0) + 1
+            # the unstable cells are marked and do not set the scale
+            assert any(line.get_gid() == "unstable" for line in ax.lines)
+            good = env[env["stable"].astype(bool)][m].to_numpy(dtype=float)
+            lo, hi = ax.get_ylim()
+            assert lo <= np.nanmin(good) and hi >= np.nanmax(good)
+        mae = fig.axes[step_metrics_drawn.index("mae_N_m")]
+        bad = env[~env["stable"].astype(bool)]["mae_N_m"].max()
+        assert mae.get_ylim()[1] < bad          # the unstable cells' ~0.5 N m errors would flatten it
+        # pd:5:0.1's disk margins with and without the EA-FOB coincide within 1 % of the axis: drawn once, named
+        disk = fig.axes[step_metrics_drawn.index("disk_margin")]
+        note = disk.get_legend()
+        assert note is not None and note.get_gid() == "merged"
+        assert any("pd:5:0.1 + none" in t.get_text() and "pd:5:0.1 + ea-fob:10" in t.get_text()
+                   for t in note.get_texts())
+    finally:
+        plt.close(fig)
+
+
+def test_benchmark_indicators_plot_puts_the_legend_in_a_free_panel_slot(lab):
+    import matplotlib.pyplot as plt
+
+    from forecast_design.plotting.benchmark import plot_indicators
+
+    fig = plot_indicators(lab["table"], metrics=("repeatability", "mae_N_m", "rise_time_s", "overshoot_percent",
+                                                 "disk_margin"))
+    try:
+        assert len(fig.axes) == 5 and all(_has_data(ax) for ax in fig.axes)
+        legend = fig.legends[0]
+        fig.canvas.draw()
+        box = legend.get_window_extent()
+        # bottom right of the 2 x 3 grid: right of the second row's panels, not over any of them
+        assert _inside(fig, legend)
+        assert all(not box.overlaps(ax.get_window_extent()) for ax in fig.axes)
+    finally:
+        plt.close(fig)
+
+
+def test_benchmark_overlays_show_every_controller_and_mark_unstable_cells(lab):
+    import matplotlib.pyplot as plt
+
+    from forecast_design.benchmark.runner import CellResult
+    from forecast_design.plotting.benchmark import plot_overlays
+
+    doc = json.loads((lab["out"] / "summary.json").read_text())
+    assert doc["files"]["traces"] == "traces.parquet"
+    cells = [CellResult.load(lab["out"] / "cells", p.stem) for p in sorted((lab["out"] / "cells").glob("*.json"))]
+    fig = plot_overlays([c.thinned() for c in cells])
+    try:
+        assert len(fig.axes) == 4 * 2 and all(_has_data(ax) and len(ax.lines) == 3 + 1 for ax in fig.axes)
+        titles = [ax.get_title() for ax in fig.axes]
+        for ctrl in ("pd:5:0.1", "pd:8:0"):
+            assert sum(f"{ctrl} + " in t for t in titles) == 4
+        unstable = [ax for ax in fig.axes if ax.get_title().startswith("UNSTABLE")]
+        assert {ax.get_title().split("\n")[0] for ax in unstable} == {"UNSTABLE pd:8:0 + none | locked",
+                                                                      "UNSTABLE pd:8:0 + ea-fob:10 | locked"}
+        assert all(ax.get_facecolor() != fig.axes[0].get_facecolor() or ax in unstable for ax in fig.axes)
+        for ax in fig.axes:
+            assert ax.get_ylabel() in ("", r"$\tau_s$ [N m]")
+        assert all(ax.get_xlabel() == "t [s]" for ax in fig.axes[-2:])
+        assert _inside(fig, fig.legends[0])
+        assert any("unstable" in t.get_text() for t in fig.legends[0].get_texts())
+    finally:
+        plt.close(fig)
+
+
+def test_benchmark_heatmap_marks_unstable_cells_outside_its_colour_scale(lab):
+    import matplotlib.pyplot as plt
+
+    from forecast_design.plotting.benchmark import UNITS, plot_heatmap
+
+    df = lab["table"]
+    env = df[(df["kind"] == "environment") & (df["statistic"] == "mean")]
+    fig = plot_heatmap(df)
+    try:
+        panels = [ax for ax in fig.axes if ax.images]
+        assert [ax.get_title() for ax in panels] == [UNITS["repeatability"], UNITS["mae_N_m"]]
+        for ax, m in zip(panels, ("repeatability", "mae_N_m")):
+            marks = [p for p in ax.patches if p.get_gid() == "unstable"]
+            assert len(marks) == int((~env["stable"].astype(bool)).sum()) == 2
+            vmin, vmax = ax.images[0].norm.vmin, ax.images[0].norm.vmax
+            good = env[env["stable"].astype(bool)][m].to_numpy(dtype=float)
+            assert vmin == pytest.approx(good.min()) and vmax == pytest.approx(good.max())
+            assert ax.get_xlabel() == "environment"
+        assert "hatched: unstable" in fig.get_suptitle()
+    finally:
+        plt.close(fig)

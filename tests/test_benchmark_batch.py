@@ -6,7 +6,6 @@ import json
 import numpy as np
 
 from forecast_design.benchmark import BenchmarkSpec, parse_compensators, parse_reference, run_cell
-from forecast_design.benchmark.runner import _decimate
 from forecast_design.effects import Stiction
 from forecast_design.environments import environment_preset
 from forecast_design.executor import LocalExecutor
@@ -50,8 +49,9 @@ def test_cells_equal_the_single_run_path_bit_for_bit_in_process_and_in_workers()
         there = ex.map(run_cell, tasks)
     for task, a, b in zip(tasks, here, there):
         tau, expected = _single_run_cell(task)
-        dec = _decimate(tau.shape[1])
-        assert np.array_equal(a.tau_s, tau[:, dec]) and np.array_equal(b.tau_s, tau[:, dec])
+        # the cell holds every sample of every run (the indicators recompute from its traces)
+        assert a.trace_step == 1 and np.array_equal(a.tau_s, tau) and np.array_equal(b.tau_s, tau)
+        assert np.array_equal(a.expected, expected)
         for i, row in enumerate(a.runs):
             assert row["mae_N_m"] == float(np.mean(np.abs(tau[i] - expected)))
         assert json.dumps(a.to_mapping(), sort_keys=True) == json.dumps(b.to_mapping(), sort_keys=True)  # NaN-safe

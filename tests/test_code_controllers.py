@@ -511,10 +511,10 @@ def test_the_emulated_board_runs_the_c_controller_it_was_built_with(tmp_path):
         try:
             port = emu.stdout.readline().strip()
             assert port.startswith("/dev/"), emu.stderr.read() if emu.poll() is not None else port
-            other = _cli("run", "--port", port, "--controller", "pd:5:0.1", "--duration", "0.05",
+            other = _cli("run", "--port", port, "--controller", "pd:5:0.1", "--duration", "0.05", "--timeout", "30",
                          "--out", "pd.toml", cwd=tmp_path, timeout=300)
             assert other.returncode == 0, other.stderr                      # linear programs are uploaded
-            p = _cli("run", "--port", port, "--controller", code, "--duration", "0.1", "--out", "run.toml",
+            p = _cli("run", "--port", port, "--controller", code, "--duration", "0.1", "--timeout", "30", "--out", "run.toml",
                      "--json", "-", cwd=tmp_path, timeout=300)
             assert p.returncode == expect, p.stderr
             if expect == 0:

@@ -80,7 +80,7 @@ def test_emulate_scenario_run_and_diagnose_name_the_scenarios_effect(capsys, tmp
     proc, port = _start_emulator(scenario)
     try:
         code, out, err = _cli(capsys, "run", "--port", port, "--experiment", scenario, "--compensator", "none",
-                              "--reference", "square:0.5:1", "--duration", "3", "--out", tmp_path / "rec.toml",
+                              "--reference", "square:0.5:1", "--duration", "3", "--timeout", "30", "--out", tmp_path / "rec.toml",
                               "--json")
         assert code == 0, err
         summary = json.loads(out)

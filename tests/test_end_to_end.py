@@ -51,7 +51,7 @@ def test_run_against_emulator_feeds_identify_and_diagnose(tmp_path, capsys):
     proc, port = _start_emulator()
     try:
         out = tmp_path / "run.toml"
-        code = main(["run", "--port", port, "--compensator", "ea-fob", "--reference", "square:0.2:0.5",
+        code = main(["run", "--port", port, "--compensator", "ea-fob", "--reference", "square:0.2:0.5", "--timeout", "30",
                      "--duration", "1.5", "--out", str(out), "--json", str(tmp_path / "summary.json")])
     finally:
         _stop(proc)
@@ -75,7 +75,7 @@ def test_faulty_stream_counts_every_lost_sample(tmp_path, capsys):
     proc, port = _start_emulator("flip:0.0005", "drop:0.0005", "seed:3")
     try:
         out = tmp_path / "run.toml"
-        code = main(["run", "--port", port, "--duration", "1.5", "--out", str(out),
+        code = main(["run", "--port", port, "--duration", "1.5", "--timeout", "30", "--out", str(out),
                      "--json", str(tmp_path / "s.json")])
     finally:
         _stop(proc)

@@ -1,5 +1,6 @@
 """Environment sets and testbeds from presets, inline values and TOML files (forecast_design.environments)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -107,7 +108,9 @@ def test_one_environment_table_and_a_runs_toml(tmp_path):
     assert resolve_environments(path).environments == (ENVIRONMENT_PRESETS["exp-soft"],)
     design = load_experiment(SPEC_EXAMPLE).design
     assert resolve_environments(SPEC_EXAMPLE).environments == (design.environment,)
-    assert resolve_testbed(SPEC_EXAMPLE) == design.testbed
+    # a run's testbed carries the run's link (the SEA's), the default of environments used with it
+    env = design.environment
+    assert resolve_testbed(SPEC_EXAMPLE) == dataclasses.replace(design.testbed, J_l=env.J_l, d_l=env.d_l)
 
 
 def test_a_set_written_as_toml_reads_back_equal(tmp_path):
@@ -191,12 +194,15 @@ def test_missing_files_and_bad_testbeds_are_one_line_errors(tmp_path):
         resolve_environments(tmp_path / "nope.toml")
     with pytest.raises(ExperimentFormatError, match="testbed file not found"):
         resolve_testbed(str(tmp_path / "nope.toml"))
-    with pytest.raises(ParameterError, match="expected key=value with keys J_m, d_m, k"):
+    with pytest.raises(ParameterError, match="expected key=value with keys J_m, d_m, k, J_l, d_l"):
         resolve_testbed("kk=40")
     with pytest.raises(ParameterError, match="k must be > 0"):
         resolve_testbed("k=0")
     path = _write(tmp_path, "[testbed]\nk = 40.0\nJ_l = 1.0\n", name="tb.toml")
-    with pytest.raises(ExperimentFormatError, match=r"\[testbed\] unknown key 'J_l'"):
+    with pytest.raises(ExperimentFormatError, match=r"tb\.toml: \[testbed\] J_l given without d_l"):
+        resolve_testbed(path)
+    path = _write(tmp_path, "[testbed]\nk = 40.0\nJ_l = 0.01\nd_l = 0.1\nK_l = 1\n", name="tb2.toml")
+    with pytest.raises(ExperimentFormatError, match=r"tb2\.toml: \[testbed\] unknown key 'K_l'"):
         resolve_testbed(path)
 
 

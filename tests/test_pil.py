@@ -95,3 +95,79 @@ def test_pil_runs_every_controller_kind_bit_identical_to_the_python_loop(tmp_pat
         assert np.max(np.abs(res.arrays[name] - py[name])) <= PIL_BOUND_N_M, name
     assert load_experiment(res.path).design.controller == fw.design.controller   # the log says what ran
     assert 2.0 * res.instructions_per_step < 0.05 * 84_000
+
+
+# --- a scenario in the loop (issue 26): friction and effects in a processor-in-the-loop run -------------------
+
+
+def _user_scenario(tmp_path, text=None):
+    from test_user_testbed import MYSEA, SCENARIO
+
+    (tmp_path / "mysea.toml").write_text(MYSEA)
+    path = tmp_path / "sc.toml"
+    path.write_text(SCENARIO if text is None else text)
+    return path
+
+
+@pytest.mark.slow
+def test_pil_runs_a_scenario_with_its_friction_on_the_users_sea(tmp_path):
+    """pil --scenario: the scenario's design on the firmware, its Coulomb friction, seed and noise in the
+    virtual testbed; bit-identical to the float32 Python loop on the same hardware, and the friction acts."""
+    from forecast_design.export.firmware import export_firmware
+    from forecast_design.runtime.pil import run_pil_scenario, scenario_reference
+    from forecast_design.simulation.scenario import load_scenario
+    from test_user_testbed import D_L, J_L, J_M
+
+    scenario = load_scenario(_user_scenario(tmp_path))
+    res = run_pil_scenario(scenario, out=tmp_path / "run.toml", work_dir=tmp_path / "fw")
+    assert res.fault is None and res.samples == res.expected == 400          # duration_s 0.2 at 2 kHz
+    opts = FirmwareOptions(link_timeout_ms=PIL_LINK_TIMEOUT_MS)
+    fw = export_firmware(scenario.design, tmp_path / "fw2", rate_hz=scenario.rate_hz, options=opts)
+    rep = scenario.repetition(0)
+    ref = scenario_reference(scenario.reference)
+    py = python_closed_loop(fw.program, fw.design, ref, res.samples, options=opts, effects=rep.effects, seed=rep.seed)
+    for name in ("tau_m", "theta", "q", "tau_s", "tau_r", "u", "tau_frc_hat"):
+        assert np.max(np.abs(res.arrays[name] - py[name])) <= PIL_BOUND_N_M, name
+    frictionless = python_closed_loop(fw.program, fw.design, ref, res.samples, options=opts, seed=rep.seed)
+    # the Coulomb friction acted: 170 encoder counts apart (measured 5.4e-4 rad; same seed, same noise)
+    assert np.max(np.abs(frictionless["theta"] - res.arrays["theta"])) > 50 * 2 * np.pi / opts.encoder_counts
+    exp = load_experiment(res.path)
+    assert exp.design.testbed.J_m == J_M and (exp.design.environment.J_l, exp.design.environment.d_l) == (J_L, D_L)
+    assert exp.design.compensator.kind == "ea-fob" and "sc.toml" in exp.description
+
+
+def test_pil_scenario_refusals_are_one_line(tmp_path, capsys):
+    from forecast_design.cli import main
+    from test_user_testbed import SCENARIO
+
+    path = _user_scenario(tmp_path)
+    for extra, words in ((["--compensator", "none"], "--compensator"), (["--testbed", "k=40"], "--testbed")):
+        code = main(["pil", "--scenario", str(path), "--out", str(tmp_path / "r.toml"), *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and words in err and "not both" in err and len(err.strip().splitlines()) == 1
+    chirp = SCENARIO.replace('kind = "square"\nhigh = 0.3\nlow = -0.3\nperiod_s = 0.1',
+                             'kind = "chirp"\namplitude = 0.2\nf0_hz = 1.0\nf1_hz = 10.0\nduration_s = 0.2')
+    path = _user_scenario(tmp_path, chirp)
+    code = main(["pil", "--scenario", str(path), "--out", str(tmp_path / "r.toml")])
+    err = capsys.readouterr().err
+    assert code == 2 and "chirp" in err and "--reference" in err and len(err.strip().splitlines()) == 1
+    open_loop = SCENARIO.replace('[controller]\nkind = "pd"\nP = 3.0\nD = 0.02\n', "").replace(
+        '[compensator]\nkind = "ea-fob"\nw_q_hz = 10.0\n', "")
+    code = main(["pil", "--scenario", str(_user_scenario(tmp_path, open_loop)), "--out", str(tmp_path / "r.toml")])
+    err = capsys.readouterr().err
+    assert code == 2 and "open loop" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("mapping", [
+    {"kind": "step", "amplitude": 0.3, "t0": 0.01, "offset": -0.1},
+    {"kind": "square", "high": 0.5, "low": -0.1, "period_s": 0.04},
+    {"kind": "sine", "amplitude": 0.2, "frequency_hz": 7.0, "offset": 0.05},
+    {"kind": "constant", "value": 0.25},
+])
+def test_a_scenario_reference_becomes_the_same_firmware_reference(mapping):
+    from forecast_design.runtime.pil import scenario_reference
+    from forecast_design.simulation.references import reference_from_mapping
+
+    signal = reference_from_mapping(mapping)
+    t = np.arange(400) / 2000.0
+    np.testing.assert_allclose(scenario_reference(signal).signal()(t), signal(t), rtol=0, atol=1e-15)

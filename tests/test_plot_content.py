@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -97,19 +98,6 @@ def test_fig6_unstable_row_has_no_disk_and_is_named_in_the_bars(fig6_rows):
     assert ("stiff", "ld-dob", "10.0") not in _disk_patches(fig)
     stiff_bars = [ax for ax in fig.axes if ax.get_xlabel().startswith("disk margin")][1]
     assert "unstable" in [t.get_text() for t in stiff_bars.texts]
-
-
-def test_fig6_disks_beyond_the_frame_are_reported(fig6_rows):
-    # alpha = 1.96 reaches Re f = (2 + alpha)/(2 - alpha) = 99: the soft panel says so instead of clipping silently
-    from forecast_design.margins import disk_gain_margin
-    from forecast_design.plotting.margins import figure_fig6
-
-    fig = figure_fig6(fig6_rows)
-    soft = fig.axes[0]
-    reach = max(disk_gain_margin(r.disk_margin)[1] for r in fig6_rows if r.environment == "soft")
-    beyond = sum(1 for r in fig6_rows if r.environment == "soft" and disk_gain_margin(r.disk_margin)[1] > soft.get_xlim()[1])
-    note = " ".join(t.get_text() for t in soft.texts)
-    assert f"{beyond} disks" in note and f"{reach:.3g}" in note
 
 
 # --- the Q trade-off ---------------------------------------------------------------------------
@@ -428,3 +416,350 @@ def test_identify_on_a_prismatic_log_labels_and_prints_n_and_m(tmp_path, capsys,
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "N s/m" in out and "N m" not in out
+
+
+# --- plots at a glance (issue 26): shared checks on what a reader sees --------------------------
+
+
+def _drawn(fig):
+    """Lay the figure out and draw it once (legends and constrained layout get their final places)."""
+    if not hasattr(fig.canvas, "get_renderer"):          # a figure the plot closed after writing it
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        FigureCanvasAgg(fig)
+    fig.canvas.draw()
+    return fig.canvas.get_renderer()
+
+
+def _assert_inside_figure(fig, artists, what):
+    renderer = _drawn(fig)
+    box = fig.bbox
+    for a in artists:
+        ext = a.get_window_extent(renderer)
+        assert (ext.x0 >= box.x0 - 1 and ext.y0 >= box.y0 - 1 and ext.x1 <= box.x1 + 1
+                and ext.y1 <= box.y1 + 1), f"{what} {a} at {ext} leaves the figure {box}"
+
+
+def _assert_no_empty_axes_and_units(fig):
+    """Every axes draws something and labels its numeric axes with a unit in brackets (an axis whose
+    tick labels are names, like the bars of Fig. 6, or hidden, needs none)."""
+    import re
+
+    _drawn(fig)
+    for ax in fig.axes:
+        assert ax.lines or ax.patches or ax.collections or ax.images, f"empty axes {ax.get_title()!r}"
+        for label, ticks in ((ax.get_xlabel(), ax.get_xticklabels()), (ax.get_ylabel(), ax.get_yticklabels())):
+            shown = [t.get_text() for t in ticks if t.get_text() and t.get_visible()]
+            named = any(re.search("[A-Za-z]{2}", t) for t in shown)
+            if label or (shown and not named):    # hidden ticks (a shared axis below) need no label
+                assert re.search(r"\[[^\]]+\]", label), f"axis label without a unit: {label!r} ({ax.get_title()!r})"
+
+
+def _legend_texts(fig):
+    return [t.get_text() for leg in fig.legends + [ax.get_legend() for ax in fig.axes if ax.get_legend()]
+            for t in leg.get_texts() if t.get_text()]
+
+
+@pytest.fixture
+def kept(monkeypatch):
+    """Figures the CLI's plots draw, kept open instead of written: {module name: [figures]}."""
+    import importlib
+
+    figs = {}
+    for name in ("bode", "margins", "simulation"):
+        mod = importlib.import_module(f"forecast_design.plotting.{name}")
+        for writer in ("save_figure", "write_figure"):
+            if hasattr(mod, writer):
+                monkeypatch.setattr(mod, writer,
+                                    lambda fig, path, _n=name, **kw: figs.setdefault(_n, []).append(fig) or path)
+    return figs
+
+
+def test_tf_plot_has_one_panel_per_environment_a_colour_per_plant_and_a_legend_inside(kept, tmp_path, capsys):
+    from matplotlib.colors import to_rgb
+
+    from forecast_design.cli import main
+    from forecast_design.plotting.style import PLANT_KINDS
+    from forecast_design.params import Testbed
+
+    envs = ["soft", "stiff", "fig7", "exp-soft", "locked", "link-only"]
+    assert main(["tf", "--env", ",".join(envs), "--plot", str(tmp_path / "tf.png")]) == 0
+    (fig,) = kept["bode"]
+    lines = {line.get_gid(): line for ax in fig.axes for line in ax.lines if line.get_gid()}
+    # every environment has its magnitude and phase panel with the four plants, named in its title
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles == [f"environment {e}" for e in envs]
+    for env in envs:
+        for kind in PLANT_KINDS:
+            assert f"mag|{env}|{kind}" in lines and f"phase|{env}|{kind}" in lines
+    # one look per plant kind, the same in every panel, and four different looks
+    looks = {kind: {(to_rgb(lines[f"{p}|{e}|{kind}"].get_color()), str(lines[f"{p}|{e}|{kind}"].get_linestyle()))
+                    for e in envs for p in ("mag", "phase")} for kind in PLANT_KINDS}
+    assert all(len(v) == 1 for v in looks.values()) and len({next(iter(v)) for v in looks.values()}) == 4
+    # the nominal plants are drawn above the true plant (P underneath, never hiding EA)
+    assert all(lines[f"mag|soft|{k}"].get_zorder() > lines["mag|soft|P"].get_zorder() for k in ("EA", "LO", "LD"))
+    # a real fact in the locked panel: DC gain 1 (0 dB) and the resonance at sqrt(k / J_m) [rad/s]
+    tb = Testbed()
+    mag = lines["mag|locked|P"]
+    f, m = mag.get_xdata(), mag.get_ydata()
+    assert m[0] == pytest.approx(0.0, abs=1e-3)
+    assert f[np.argmax(m)] == pytest.approx(math.sqrt(tb.k / tb.J_m) / (2 * math.pi), rel=0.01)
+    # one figure legend names the four plants; it lies inside the figure
+    labels = _legend_texts(fig)
+    assert len(labels) == 4 and all(any(s in lab for lab in labels) for s in ("P", "EA", "LO", "LD"))
+    _assert_inside_figure(fig, fig.legends, "legend")
+    _assert_no_empty_axes_and_units(fig)
+    assert fig._suptitle is not None and "nominal plants" in fig._suptitle.get_text()
+
+
+def _fig6_frames_by_env(fig):
+    """{env: [axes drawing its half-disks]} (patches carry 'env|observer|w_q' gids)."""
+    out = {}
+    for ax in fig.axes:
+        envs = {p.get_gid().split("|")[0] for p in ax.patches if p.get_gid() and not hasattr(p, "get_height")}
+        for env in envs:
+            out.setdefault(env, []).append(ax)
+    return out
+
+
+def test_fig6_every_disk_is_whole_in_a_frame_and_ea_fob_shows_above_the_plant(fig6_rows):
+    from forecast_design.margins import disk_center_radius
+    from forecast_design.plotting.margins import figure_fig6
+
+    fig = figure_fig6(fig6_rows)
+    frames = _fig6_frames_by_env(fig)
+    assert set(frames) == {"soft", "stiff"}
+    # every stable disk lies whole inside one frame of its environment: its real-axis extent and top
+    for r in (r for r in fig6_rows if r.stable):
+        c, rad, exterior = disk_center_radius(r.disk_margin)
+        assert not exterior
+
+        def holds(ax):
+            (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+            return x0 <= c - rad and c + rad <= x1 and rad <= y1
+
+        assert any(holds(ax) for ax in frames[r.environment]), f"{r.environment} {r.observer} {r.w_q_hz}"
+    # no "beyond the frame" notes; the soft set spans 0.02 .. 99: a frame near f = 1 beside the whole one
+    assert not any("beyond" in t.get_text() for ax in fig.axes for t in ax.texts)
+    assert len(frames["soft"]) == 2 and len(frames["stiff"]) == 1
+    near = frames["soft"][1]
+    assert near.get_xlim()[1] < 10.0 and near.get_title().startswith("near f = 1")
+    # the EA-FOB disks are drawn above the plant's, and carry markers on their arcs at their own angles
+    for env, axes in frames.items():
+        ax = axes[0]
+        patches = {p.get_gid(): p for p in ax.patches if p.get_gid()}
+        plant = patches[f"{env}|none|None"]
+        for wq in ("1.0", "5.0", "10.0"):
+            assert patches[f"{env}|ea-fob|{wq}"].get_zorder() > plant.get_zorder()
+        markers = {line.get_gid(): line for line in ax.lines if (line.get_gid() or "").startswith("marker|")}
+        ea = [markers[f"marker|{env}|ea-fob|{wq}"] for wq in ("1.0", "5.0", "10.0")]
+        assert all(m.get_zorder() > plant.get_zorder() and m.get_marker() == "o" for m in ea)
+        # the markers sit on their disk's boundary, and no two disks put a marker at the same angle
+        places = []
+        for gid, m in markers.items():
+            _, _, obs, wq = gid.split("|")
+            r = next(r for r in fig6_rows if r.environment == env and r.observer == obs and str(r.w_q_hz) == wq)
+            c, rad, _ = disk_center_radius(r.disk_margin)
+            np.testing.assert_allclose(np.hypot(m.get_xdata() - c, m.get_ydata()), rad, rtol=1e-9)
+            places += np.round(np.arctan2(m.get_ydata(), m.get_xdata() - c), 3).tolist()
+        assert len(places) == len(set(places)) >= 3 * len(ea)
+    # the legend names the plant and every observer and cutoff, inside the figure; axes labelled with units
+    labels = _legend_texts(fig)
+    assert "plant" in labels and sum(lab.startswith(("EA-FOB", "LO-DOB", "LD-DOB")) for lab in labels) == 9
+    _assert_inside_figure(fig, fig.legends, "legend")
+    _assert_no_empty_axes_and_units(fig)
+
+
+def test_margins_plot_names_the_loop_and_labels_the_minimum_at_the_disk_margin(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    args = ["margins", "--controller", "pid:6:20:0.05:0.002", "--compensator", "ea-fob", "--w-q-hz", "7",
+            "--env", "exp-soft", "--plot", str(tmp_path / "m.png"), "--json", str(tmp_path / "m.json")]
+    assert main(args) == 0
+    data = json.loads((tmp_path / "m.json").read_text())
+    (fig,) = kept["margins"]
+    title = fig._suptitle.get_text()
+    for part in ("environment exp-soft", "EA-FOB", "w_q = 7 Hz", "PID P=6 I=20 D=0.05", "continuous"):
+        assert part in title, (part, title)
+    # the minimum of alpha(f) is the exact disk margin, marked there and labelled with its value and frequency
+    ax_a = next(ax for ax in fig.axes if any(line.get_gid() == "alpha" for line in ax.lines))
+    curve = next(line for line in ax_a.lines if line.get_gid() == "alpha")
+    (fx,), (ay,) = next(line for line in ax_a.lines if line.get_gid() == "disk-margin").get_data()
+    fc = data["frequency_rad_s"] / (2 * math.pi)
+    assert ay == pytest.approx(data["disk_margin"], rel=1e-12) and fx == pytest.approx(fc, rel=1e-12)
+    assert np.min(curve.get_ydata()) >= data["disk_margin"] * (1 - 1e-9)            # nothing below the margin
+    assert np.min(curve.get_ydata()) == pytest.approx(data["disk_margin"], rel=1e-3)  # and the grid reaches it
+    note = " ".join(t.get_text() for t in ax_a.texts)
+    assert "minimum" in note and f"{data['disk_margin']:.3f}" in note and f"{fc:.3g} Hz" in note
+    # the frequency of the minimum is marked on every frequency axis
+    assert sum(any(line.get_gid() == "disk-margin-frequency" for line in ax.lines) for ax in fig.axes) == 3
+    _assert_inside_figure(fig, [ax.get_legend() for ax in fig.axes if ax.get_legend()] + [fig._suptitle], "legend")
+    _assert_no_empty_axes_and_units(fig)
+
+
+def test_margins_plot_of_a_sampled_loop_with_a_believed_environment_says_so(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    assert main(["margins", "--compensator", "lo-dob", "--env", "stiff", "--believed", "locked", "--sampled",
+                 "--plot", str(tmp_path / "m.png")]) in (0, 1)
+    title = kept["margins"][0]._suptitle.get_text()
+    for part in ("environment stiff (observer believes locked)", "LO-DOB", "controller PD", "sampled at 2000 Hz"):
+        assert part in title, (part, title)
+
+
+def test_simulate_plot_says_what_ran_and_draws_the_motion_it_wrote(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+    from forecast_design.experiment import load_experiment
+
+    src = Path(__file__).resolve().parents[1] / "forecast_design" / "data" / "example_scenario.toml"
+    text = src.read_text().replace("duration_s = 8.0", "duration_s = 2.0")
+    scenario = tmp_path / "my_scenario.toml"
+    scenario.write_text(text)
+    assert main(["simulate", str(scenario), "--out", str(tmp_path / "run.toml"), "--plot", str(tmp_path / "r.png")]) == 0
+    (fig,) = kept["simulation"]
+    title = fig._suptitle.get_text()
+    assert "my_scenario" not in title and str(tmp_path) not in title                # what ran, not the file
+    for part in ("Fig. 7 (EA-FOB side)", "environment k_e = 100 N m/rad", "controller PD P=5 D=0.1",
+                 "compensator EA-FOB at w_q = 10 Hz"):
+        assert part in " ".join(title.split()), (part, title)
+    lines = {line.get_gid(): (ax, line) for ax in fig.axes for line in ax.lines if line.get_gid()}
+    assert set(lines) == {"tau_r", "tau_s", "tau_frc", "tau_frc_hat", "theta", "q", "omega", "v"}
+    # the motion panels draw the log it wrote (motor and environment angle) and the truth's velocities
+    exp = load_experiment(tmp_path / "run.toml")
+    np.testing.assert_array_equal(lines["theta"][1].get_ydata(), exp.signals.theta)
+    np.testing.assert_array_equal(lines["q"][1].get_ydata(), exp.signals.q)
+    assert lines["theta"][0].get_ylabel() == "angle [rad]" and lines["omega"][0].get_ylabel() == "velocity [rad/s]"
+    # the velocity is the angle's derivative (finite differences of the drawn angle, to the encoder's resolution)
+    t = lines["theta"][1].get_xdata()
+    dtheta = np.gradient(lines["theta"][1].get_ydata(), t)
+    omega = lines["omega"][1].get_ydata()
+    assert np.corrcoef(dtheta, omega)[0, 1] > 0.95
+    _assert_inside_figure(fig, [ax.get_legend() for ax in fig.axes] + [fig._suptitle], "legend/title")
+    _assert_no_empty_axes_and_units(fig)
+
+
+def test_simulate_plot_of_an_uncompensated_run_draws_no_estimate(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    src = Path(__file__).resolve().parents[1] / "forecast_design" / "data" / "example_scenario.toml"
+    text = src.read_text().replace("duration_s = 8.0", "duration_s = 1.0").replace('kind = "ea-fob"\nw_q_hz = 10.0\nq_family = "butterworth"\nq_order = 2', 'kind = "none"')
+    text = text.replace('description = "Fig. 7 (EA-FOB side): LuGre Table 2, PD 5/0.1, EA-FOB 10 Hz, stiff environment"',
+                        'description = ""')
+    scenario = tmp_path / "plain.toml"
+    scenario.write_text(text)
+    assert main(["simulate", str(scenario), "--out", str(tmp_path / "run.toml"), "--plot", str(tmp_path / "r.png")]) == 0
+    (fig,) = kept["simulation"]
+    gids = {line.get_gid() for ax in fig.axes for line in ax.lines}
+    assert "tau_frc_hat" not in gids and "tau_frc" in gids
+    title = fig._suptitle.get_text()
+    assert title.startswith("plain.toml") and "no compensator" in title
+
+
+def test_readme_shows_every_picture_the_script_draws_and_each_is_small():
+    import ast
+    import re
+
+    root = Path(__file__).resolve().parents[1]
+    readme = (root / "README.md").read_text()
+    shown = re.findall(r"!\[[^\]]+\]\((docs/images/[^)]+\.png)\)", readme)
+    script = ast.parse((root / "tools" / "readme_images.py").read_text())
+    pictures = next(node.value for node in script.body if isinstance(node, ast.Assign)
+                    and getattr(node.targets[0], "id", "") == "PICTURES")
+    drawn = [f"docs/images/{entry.elts[0].value}" for entry in pictures.elts]
+    assert sorted(shown) == sorted(drawn) and len(set(shown)) == len(shown) >= 8
+    for rel in shown:
+        data = (root / rel).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) < 150_000, rel
+        width = int.from_bytes(data[16:20], "big")
+        assert 600 <= width <= 1100, (rel, width)
+    # the first two commands stay at the top
+    assert readme.split("```sh\n", 1)[1].startswith("bash tools/setup.sh && .venv/bin/forecast-design pipeline")
+
+
+def test_margins_plot_of_an_unstable_loop_marks_no_minimum_and_says_why(kept, tmp_path, capsys):
+    # LD-DOB at 10 Hz in the stiff environment is unstable (paper, Fig. 6b: "the disappearance of the dark red disk")
+    from forecast_design.cli import main
+
+    assert main(["margins", "--compensator", "ld-dob", "--w-q-hz", "10", "--env", "stiff",
+                 "--plot", str(tmp_path / "m.png")]) == 1
+    (fig,) = kept["margins"]
+    ax_a = next(ax for ax in fig.axes if any(line.get_gid() == "alpha" for line in ax.lines))
+    assert not any(line.get_gid() in ("disk-margin", "disk-margin-frequency") for ax in fig.axes for line in ax.lines)
+    assert any("UNSTABLE" in t.get_text() for t in ax_a.texts) and "UNSTABLE" in fig._suptitle.get_text()
+    _assert_inside_figure(fig, list(ax_a.texts), "note")
+
+
+def test_diagnosis_and_tradeoff_plots_read_at_a_glance(coulomb_diagnosis, captured, tmp_path):
+    from forecast_design.gap.views import diagnosis_views
+    from forecast_design.plotting import gap as gp
+    from forecast_design.plotting.tuning import figure_tradeoff
+    from forecast_design.tuning.tradeoff import cutoff_tradeoff
+
+    v = diagnosis_views(coulomb_diagnosis)
+    for plot in (gp.plot_residual_time, gp.plot_residual_spectrum, gp.plot_residual_operating,
+                 gp.plot_before_after, gp.plot_replay):
+        plot(v, tmp_path / "x.png")
+    figs = list(captured) + [figure_tradeoff([cutoff_tradeoff(o, "soft,stiff", points=6)
+                                              for o in ("ea-fob", "lo-dob")])]
+    for fig in figs:
+        titles = [ax.get_title() for ax in fig.axes] + [fig._suptitle.get_text() if fig._suptitle else ""]
+        assert any(titles), "a plot without a title"
+        legends = fig.legends + [ax.get_legend() for ax in fig.axes if ax.get_legend()]
+        assert legends and all(leg.get_texts() for leg in legends)
+        _assert_inside_figure(fig, legends, "legend")
+        _assert_no_empty_axes_and_units(fig)
+
+
+def test_identify_plot_names_the_model_and_keeps_its_legend_inside(tmp_path, capsys, monkeypatch):
+    import forecast_design.plotting.friction as pf
+    from forecast_design.cli import main
+
+    figs = []
+    monkeypatch.setattr(pf, "save_figure", lambda fig, path, **kw: figs.append(fig) or path)
+    csv = _axis_csv(tmp_path / "rot.csv", "theta_rad", "tau_m_N_m")
+    assert main(["identify", "--csv", str(csv), "--time", "t_s", "--position", "theta_rad", "--force", "tau_m_N_m",
+                 "--model", "sfm", "--estimate-inertia", "--plot", str(tmp_path / "f.png")]) == 0
+    (fig,) = figs
+    assert "model sfm" in fig._suptitle.get_text() and "%" in fig._suptitle.get_text()
+    gids = {line.get_gid(): line for ax in fig.axes for line in ax.lines}
+    # measured points are drawn above the model's band, so both show where they agree
+    assert gids["measured|velocity"].get_zorder() > gids["estimated|velocity"].get_zorder()
+    assert sorted(_legend_texts(fig)) == [r"estimated $\hat\tau_{frc}$ (model)", r"measured $\tau_{frc}$"]
+    _assert_inside_figure(fig, fig.legends + [fig._suptitle], "legend/title")
+    _assert_no_empty_axes_and_units(fig)
+
+
+def test_simulate_repetitions_plot_overlays_the_runs_in_one_set_of_panels(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    src = Path(__file__).resolve().parents[1] / "forecast_design" / "data" / "example_scenario.toml"
+    text = src.read_text().replace("duration_s = 8.0", "duration_s = 0.5")
+    scenario = tmp_path / "reps.toml"
+    scenario.write_text(text + '\n[variability]\nrepetitions = 5\ninitial_angle = "random"\n')
+    assert main(["simulate", str(scenario), "--repetitions", "all", "--out", str(tmp_path / "r.toml"),
+                 "--plot", str(tmp_path / "r.png")]) == 0
+    (fig,) = kept["simulation"]
+    assert len(fig.axes) == 4                                         # not one column per repetition
+    gids = [line.get_gid() for ax in fig.axes for line in ax.lines]
+    assert sum(g.startswith("tau_s|") for g in gids) == 5 and sum(g.startswith("theta|") for g in gids) == 5
+    assert "5 repetitions overlaid" in fig._suptitle.get_text()
+    labels = _legend_texts(fig)
+    assert len(labels) == len(set(labels)) == 8                       # each signal named once
+    _assert_inside_figure(fig, [ax.get_legend() for ax in fig.axes] + [fig._suptitle], "legend/title")
+    _assert_no_empty_axes_and_units(fig)
+
+
+def test_fig7_plot_titles_carry_the_reproductions_maes_and_its_legends_fit(kept, tmp_path, capsys):
+    from forecast_design.cli import main
+
+    assert main(["reproduce", "fig7", "--json", str(tmp_path / "f7.json"), "--plot", str(tmp_path / "f7.png")]) == 0
+    data = json.loads((tmp_path / "f7.json").read_text())
+    fig = kept["simulation"][-1]
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles == [f"SFM (friction MAE {data['mae_friction_sfm']:.3f} N m)",
+                      f"EA-FOB (friction MAE {data['mae_friction_eafob']:.3f} N m)"]
+    # the paper's layout: forces over friction, no motion rows; each estimate named after its compensator
+    assert len(fig.axes) == 4
+    assert {"$\\hat\\tau_{frc}$ SFM", "$\\hat\\tau_{frc}$ EA-FOB"} <= set(_legend_texts(fig))
+    _assert_inside_figure(fig, [ax.get_legend() for ax in fig.axes], "legend")
+    _assert_no_empty_axes_and_units(fig)

@@ -26,7 +26,7 @@ from forecast_design.limits import COMPUTATION_LIMITS, PHYSICAL_RANGES, require_
 
 FUZZ = settings(derandomize=True, max_examples=25, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture])
-CASE_SECONDS = 20.0          # wall-clock bound of one CLI case
+CASE_SECONDS = 120.0         # wall-clock bound of one CLI case: catches a hang, not a slow case on a busy CI machine
 CASE_MEGABYTES = 500.0       # growth bound of the peak resident memory over one case
 
 

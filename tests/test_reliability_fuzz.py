@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
-from test_reliability import assert_one_line_error, cli, memory_bound, time_bound, write_experiment
+from test_reliability import CASE_SECONDS, assert_one_line_error, cli, memory_bound, time_bound, write_experiment
 
 import forecast_design
 from forecast_design.cli import build_parser
@@ -346,7 +346,7 @@ def _call_hostile(name, param, value, folder):
     if param is not None:
         kwargs[param] = value
     try:
-        with time_bound(20.0), memory_bound():
+        with time_bound(CASE_SECONDS), memory_bound():
             result = func(**kwargs)
     except FORBIDDEN as exc:
         pytest.fail(f"{name}({param}={value!r}) raised {type(exc).__name__}: {exc}")
@@ -394,7 +394,7 @@ def test_fuzz_public_functions_raise_forecast_errors_not_raw_python_errors(call,
 @pytest.mark.parametrize("value", [1.5, [], object(), b"\x00"])
 def test_run_pipeline_refuses_an_out_dir_of_the_wrong_type(value, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    with time_bound(20.0), pytest.raises(ALLOWED):
+    with time_bound(CASE_SECONDS), pytest.raises(ALLOWED):
         forecast_design.run_pipeline(value)
 
 
@@ -445,7 +445,7 @@ def test_diagnose_is_finite_or_a_one_line_error_for_every_plausible_testbed_and_
         event("design refused")
         return
     ref = refs.Multisine(amplitudes=(0.6, 0.4, 0.3), frequencies_hz=(0.7, 2.3, 6.1), phases_rad=(0.0, 1.0, 2.0))
-    with time_bound(60.0), memory_bound():
+    with time_bound(CASE_SECONDS), memory_bound():
         try:
             experiment = simulate(design, reference=ref, duration_s=1.0, seed=1, closed_loop=closed,
                                   initial_angle=0.3).to_experiment()
@@ -527,7 +527,7 @@ def test_fuzz_findings_in_the_api_are_parameter_errors(index):
 
     assert len(_api_cases()) == 16
     call, words = _api_cases()[index]
-    with time_bound(20.0), pytest.raises(ParameterError, match=re.escape(words)) as info:
+    with time_bound(CASE_SECONDS), pytest.raises(ParameterError, match=re.escape(words)) as info:
         call()
     assert "\n" not in str(info.value)
 

@@ -465,7 +465,7 @@ def test_run_writes_its_json_summary_after_a_late_write_failure_and_says_so(tmp_
     th = threading.Thread(target=serve_emulator, args=(master,), kwargs={"stop": stop}, daemon=True)
     th.start()
     try:
-        code, out, err = cli(["run", "--port", path, "--out", lab / "run.toml", "--duration", "0.05",
+        code, out, err = cli(["run", "--port", path, "--out", lab / "run.toml", "--duration", "0.05", "--timeout", "30",
                               "--json", tmp_path / "summary.json"], capsys)
     finally:
         stop.set()

@@ -477,7 +477,8 @@ def test_plots_write_png_files(tmp_path):
     r = simulate(Design.nominal("locked", compensator=Compensator(kind="ea-fob")), reference=Step(amplitude=0.2),
                  duration_s=0.1, effects=[Stiction()])
     fig = plot_simulation({"EA-FOB": r}, tmp_path / "fig7.png")
-    assert (tmp_path / "fig7.png").stat().st_size > 1000 and len(fig.axes) == 2
+    assert (tmp_path / "fig7.png").stat().st_size > 1000 and len(fig.axes) == 4          # forces and motion
+    assert len(plot_simulation({"EA-FOB": r}, motion=False).axes) == 2
     plot_step_responses({"locked": [r, r]}, tmp_path / "steps.png", expected={"locked": r})
     assert (tmp_path / "steps.png").exists()
     import matplotlib.pyplot as plt

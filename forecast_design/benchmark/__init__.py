@@ -18,10 +18,10 @@ grouped into cells by their TOML). Plots: :mod:`forecast_design.plotting.benchma
 """
 
 from .aggregate import COLUMNS, read_results, result_rows, result_table, summary, write_summary, write_tables
-from .metrics import METRICS, repeatability_per_run, step_metrics, tracking_bandwidth_hz
+from .metrics import INDICATOR_DEFINITIONS, METRICS, repeatability_per_run, step_metrics, tracking_bandwidth_hz
 from .recorded import find_runs, group_runs, run_recorded
 from .report import markdown_report, write_report
-from .runner import CellResult, run_benchmark, run_cell
+from .runner import CellResult, run_benchmark, run_cell, write_traces
 from .spec import BenchmarkSpec, Cell, parse_compensators, parse_controller, parse_reference
 
 __all__ = [
@@ -29,5 +29,5 @@ __all__ = [
     "run_benchmark", "run_cell", "result_rows", "result_table", "write_tables", "summary", "write_summary",
     "read_results",
     "markdown_report", "write_report", "step_metrics", "tracking_bandwidth_hz", "repeatability_per_run",
-    "METRICS", "COLUMNS", "run_recorded", "find_runs", "group_runs",
+    "METRICS", "COLUMNS", "run_recorded", "find_runs", "group_runs", "write_traces", "INDICATOR_DEFINITIONS",
 ]

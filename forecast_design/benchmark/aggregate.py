@@ -12,6 +12,13 @@ controller, compensator and reference: the Forecast methodology's average, best-
 and worst-case performance over a whole set of environments (Section 2). "Best" is the
 largest repeatability, bandwidth and disk margin and the smallest MAE, rise time,
 overshoot, settling time and |steady-state error|.
+
+Flags: ``stable`` (run and environment rows) is the cell's (:func:`~.runner.cell_stable`);
+``settled`` is the run's (step references; an environment row's is True when every run settled);
+``unsettled_runs`` counts the step runs without a settling time (environment rows: the cell's;
+set rows: those of the environments aggregated). A cell that is not stable keeps its run and
+environment rows (flagged) but is left out of its set rows, whose ``excluded_cells`` counts them:
+one unstable loop's error cannot pass for the set's performance.
 """
 
 from __future__ import annotations
@@ -26,19 +33,22 @@ import numpy as np
 
 from ..errors import OutputError
 
-from .metrics import HIGHER_IS_BETTER, METRICS, xcorr_se_from_per_run
+from .metrics import HIGHER_IS_BETTER, INDICATOR_DEFINITIONS, METRICS, xcorr_se_from_per_run
 from ..fileio import atomic_open, atomic_write, verify_manifest
 from .runner import CellResult, _jsonable
 
 __all__ = ["result_rows", "result_table", "write_tables", "summary", "read_results", "COLUMNS", "LABELS",
-           "ENV_COLUMNS", "STATISTICS"]
+           "ENV_COLUMNS", "FLAG_COLUMNS", "STATISTICS"]
 
 #: Label columns of a cell.
 LABELS = ("controller", "compensator", "environment", "reference")
 #: Environment parameter columns [SI].
 ENV_COLUMNS = ("J_e", "d_e", "k_e", "J_l", "d_l", "locked")
+#: Flag and count columns (see the module docstring).
+FLAG_COLUMNS = ("stable", "settled", "unsettled_runs", "excluded_cells")
 #: Every column of the table, in order.
-COLUMNS = ("kind", "statistic", *LABELS, "repetition", "initial_angle_rad", "which", *ENV_COLUMNS, *METRICS)
+COLUMNS = ("kind", "statistic", *LABELS, "repetition", "initial_angle_rad", "which", *ENV_COLUMNS, *FLAG_COLUMNS,
+           *METRICS)
 
 
 def _score(metric: str, values: np.ndarray) -> np.ndarray:
@@ -77,6 +87,15 @@ def _standard_error(metric: str, values: Sequence[float]) -> float:
     return float(np.std(v, ddof=1) / math.sqrt(v.size))
 
 
+def _settled_flags(runs: Sequence[Mapping[str, Any]]) -> tuple[bool | None, int | None]:
+    """(every step run settled, how many did not) of a cell; (None, None) when no run is a scored step."""
+    flags = [r.get("settled") for r in runs]
+    scored = [f for f in flags if f is not None]
+    if not scored:
+        return None, None
+    return all(scored), sum(1 for f in scored if not f)
+
+
 def result_rows(cells: Iterable[CellResult]) -> list[dict[str, Any]]:
     """The tidy rows (see the module docstring) of a benchmark's cells.
 
@@ -92,18 +111,20 @@ def result_rows(cells: Iterable[CellResult]) -> list[dict[str, Any]]:
     """
     cells = list(cells)
     rows: list[dict[str, Any]] = []
-    env_means: dict[tuple, list[tuple[str, dict[str, float]]]] = {}
+    env_means: dict[tuple, list[tuple[str, dict[str, float], dict[str, float]]]] = {}
+    excluded: dict[tuple, int] = {}
     for c in cells:
         env = {k: c.environment.get(k) for k in ENV_COLUMNS}
-        base = {**{k: c.labels[k] for k in LABELS}, **env}
+        base = {**{k: c.labels[k] for k in LABELS}, **env, "stable": c.stable}
         for r in c.runs:
             rows.append({"kind": "run", "statistic": "value", **base, "repetition": int(r["repetition"]),
                          "initial_angle_rad": float(r["initial_angle_rad"]), "which": None,
-                         **{m: float(r[m]) for m in METRICS}})
+                         "settled": r.get("settled"), **{m: float(r[m]) for m in METRICS}})
+        settled, unsettled = _settled_flags(c.runs)
         per_env = {}
         for stat in STATISTICS:
             row = {"kind": "environment", "statistic": stat, **base, "repetition": None,
-                   "initial_angle_rad": math.nan, "which": None}
+                   "initial_angle_rad": math.nan, "which": None, "settled": settled, "unsettled_runs": unsettled}
             for m in METRICS:
                 vals = [float(r[m]) for r in c.runs]
                 if stat == "mean":
@@ -117,13 +138,20 @@ def result_rows(cells: Iterable[CellResult]) -> list[dict[str, Any]]:
                 row["repeatability"] = float(c.repeatability)
             per_env[stat] = row
             rows.append(row)
-        env_means.setdefault((c.labels["controller"], c.labels["compensator"], c.labels["reference"]),
-                             []).append((c.labels["environment"], per_env["mean"], per_env["se"]))
+        group = (c.labels["controller"], c.labels["compensator"], c.labels["reference"])
+        excluded.setdefault(group, 0)
+        env_means.setdefault(group, [])
+        if c.stable is False:          # flagged above, kept out of the set's aggregates (counted)
+            excluded[group] += 1
+        else:
+            env_means[group].append((c.labels["environment"], per_env["mean"], per_env["se"]))
     for (ctrl, comp, ref), items in env_means.items():
+        counts = [r["unsettled_runs"] for _, r, _ in items if r["unsettled_runs"] is not None]
         for stat in STATISTICS:
             row = {"kind": "set", "statistic": stat, "controller": ctrl, "compensator": comp,
                    "environment": "(set)", "reference": ref, "repetition": None, "initial_angle_rad": math.nan,
-                   "which": None, **dict.fromkeys(ENV_COLUMNS)}
+                   "which": None, **dict.fromkeys(ENV_COLUMNS), "stable": None, "settled": None,
+                   "unsettled_runs": sum(counts) if counts else None, "excluded_cells": excluded[(ctrl, comp, ref)]}
             which = []
             for m in METRICS:
                 vals = [r[m] for _, r, _ in items]
@@ -156,7 +184,10 @@ def result_table(cells: Iterable[CellResult]):
 
     df = pd.DataFrame(result_rows(cells), columns=list(COLUMNS))
     df["repetition"] = df["repetition"].astype("Int64")
-    df["locked"] = df["locked"].astype("boolean")
+    for col in ("locked", "stable", "settled"):
+        df[col] = df[col].astype("boolean")
+    for col in ("unsettled_runs", "excluded_cells"):
+        df[col] = df[col].astype("Int64")
     for col in ("J_e", "d_e", "k_e", "J_l", "d_l", "initial_angle_rad", *METRICS):
         df[col] = df[col].astype(float)
     return df
@@ -200,9 +231,14 @@ def summary(rows: Sequence[Mapping[str, Any]], spec: Mapping[str, Any], info: Ma
     sets = [r for r in rows if r["kind"] == "set"]
     envs = [r for r in rows if r["kind"] == "environment" and r["statistic"] == "mean"]
     doc = {"format": "forecast-benchmark/1", "benchmark": dict(spec), "run": dict(info),
-           "set": [{k: r[k] for k in ("controller", "compensator", "reference", "statistic", "which", *METRICS)}
-                   for r in sets],
-           "environments": [{k: r[k] for k in (*LABELS, *METRICS)} for r in envs]}
+           "indicators": dict(INDICATOR_DEFINITIONS),
+           "flags": {"unstable_cells": [{k: r[k] for k in LABELS} for r in envs if r["stable"] is False],
+                     "unsettled_runs": sum(r["unsettled_runs"] or 0 for r in envs),
+                     "step_runs": sum(1 for r in rows if r["kind"] == "run" and r["settled"] is not None)},
+           "set": [{k: r[k] for k in ("controller", "compensator", "reference", "statistic", "which",
+                                      "unsettled_runs", "excluded_cells", *METRICS)} for r in sets],
+           "environments": [{k: r[k] for k in (*LABELS, "stable", "settled", "unsettled_runs", *METRICS)}
+                            for r in envs]}
     return _jsonable(doc)
 
 

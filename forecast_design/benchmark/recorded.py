@@ -16,7 +16,7 @@ each cell gets the indicators of :mod:`.metrics`, exactly as a simulated cell do
 * rise time, overshoot, settling time and steady-state error when ``tau_r`` is a step
   (two levels, one jump); NaN otherwise (the bandwidth needs the chirp's band, which an
   experiment does not record: NaN);
-* ``disk_margin``: of the declared loop (:func:`~.metrics.disk_margin_of`).
+* ``disk_margin``: of the declared loop and ``stable`` (:func:`~.metrics.sampled_loop_margin`).
 
 Open-loop runs (no ``[controller]`` or no ``tau_r``) are skipped and counted. A cell's key
 hashes its files' bytes, so reruns with ``--out`` reuse unchanged cells.
@@ -42,8 +42,8 @@ from ..experiment import load_experiment
 from ..experiment_io import FORMAT, parse_toml, read_toml
 from ..params import Compensator
 from ..limits import limit_of
-from .metrics import disk_margin_of, pairwise_xcorr, repeatability_per_run, step_metrics
-from .runner import _STEP_KEYS, CellResult, _decimate, _expected_response, _run_metrics
+from .metrics import pairwise_xcorr, sampled_loop_margin, repeatability_per_run, step_metrics
+from .runner import _STEP_KEYS, CellResult, _expected_response, _run_metrics, cell_stable
 from .spec import compensator_label, controller_label
 
 __all__ = ["find_runs", "group_runs", "recorded_cell", "run_recorded", "step_of"]
@@ -181,7 +181,7 @@ def _load_run(path: Path):
 
 
 def _cell_key(paths: tuple[Path, ...]) -> str:
-    h = hashlib.sha256(b"recorded-cell/1")
+    h = hashlib.sha256(b"recorded-cell/2")
     for p in paths:
         exp_toml = Path(p)
         h.update(exp_toml.name.encode())
@@ -221,11 +221,12 @@ def recorded_cell(task: tuple) -> CellResult:
     tau_r = np.asarray(exps[0].signals.tau_r[:n], dtype=float)
     t = np.arange(n) / rate
     if design.controller.has_equations:
-        expected = _expected_response(design, tau_r, n / rate, rate).tau_s
-        margin = disk_margin_of(design, comp, rate)
+        sim = _expected_response(design, tau_r, n / rate, rate)
+        expected, dm = sim.tau_s, sampled_loop_margin(design, comp, rate)
+        margin, diverged = float(dm.alpha), sim.diverged_at_s is not None
     else:   # an 'other' controller: no equations, so no expected response nor margin; the rest goes on
         expected = np.full(n, math.nan)
-        margin = math.nan
+        margin, dm, diverged = math.nan, None, False
     step = step_of(tau_r, rate)
     per_run = repeatability_per_run(tau) if len(exps) >= 2 else np.full(1, math.nan)
     rows = []
@@ -235,10 +236,9 @@ def recorded_cell(task: tuple) -> CellResult:
             sm = step_metrics(t, y - step[2], amplitude=step[0], t0=step[1])
             m.update({k: sm[k] for k in _STEP_KEYS})
         rows.append({"repetition": i, "initial_angle_rad": math.nan, "source": str(paths[i]), **m})
-    dec = _decimate(n)
     return CellResult(key=key, labels=labels, environment=design.environment.to_mapping(), runs=tuple(rows),
                       repeatability=pairwise_xcorr(tau) if len(exps) >= 2 else math.nan, disk_margin=margin,
-                      t=t[dec], tau_s=tau[:, dec], expected=np.asarray(expected)[dec], tau_r=tau_r[dec])
+                      t=t, tau_s=tau, expected=np.asarray(expected), tau_r=tau_r, stable=cell_stable(dm, diverged))
 
 
 def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] | None = None,
@@ -293,13 +293,13 @@ def run_recorded(folder: str | os.PathLike[str], *, out: str | os.PathLike[str] 
         for k in keys:
             stored = CellResult.load(store, k)
             if stored is not None:
-                found[k] = stored
+                found[k] = stored.thinned()
     todo = [(k, lab, p, derivative_on) for k, (lab, p) in zip(keys, groups) if k not in found]
     ex = executor or LocalExecutor(1)
     for res in ex.map(recorded_cell, todo, progress=progress):
-        found[res.key] = res
         if store is not None:
-            res.save(store)
+            res.save(store)           # full rate on disk, a thinned copy in memory
+        found[res.key] = res.thinned()
     info = {"runs": len(paths), "cells": len(groups), "computed": len(todo), "reused": len(groups) - len(todo),
             "skipped": skipped, "unreadable": unreadable,
             "single_run_cells": [dict(lab) for lab, p in groups if len(p) < 2],

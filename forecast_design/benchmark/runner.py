@@ -7,8 +7,12 @@ plus the frictionless expected response, simulated where the executor puts it
 ``i``-th initial angle of :class:`~forecast_design.simulation.scenario.Variability`
 and draws process noise with seed ``seed + 1 + i``, the same in every cell, so cells
 differ only by what is benchmarked). Finished cells are stored as
-``OUT/cells/<key>.json`` (metrics) and ``<key>.npz`` (traces); the key hashes every input
+``OUT/cells/<key>.json`` (metrics) and ``<key>.npz`` (the traces at the full control rate, so every
+indicator can be recomputed from them); the key hashes every input
 (:meth:`~.spec.BenchmarkSpec.cell_key`), so a rerun computes only missing or changed cells.
+:func:`run_benchmark` returns the cells with every ``trace_step``-th sample of their traces
+(at most :data:`TRACE_POINTS` per trace, for plots: the memory of a large benchmark stays bounded);
+:func:`write_traces` writes the full-rate traces of the stored cells as one Parquet file.
 """
 
 from __future__ import annotations
@@ -27,20 +31,21 @@ import numpy as np
 from ..errors import ParameterError
 from ..limits import check_limit
 from ..executor import Executor, LocalExecutor
-from ..fileio import atomic_write
+from ..fileio import atomic_open, atomic_write
 from ..params import Compensator, Design
 from ..reproduce import identify_extended_sfm
 from ..simulation import Chirp, simulate
 from ..simulation.batch import BatchRun, simulate_batch
 from ..simulation.plant import stable_substeps
 from ..simulation.scenario import Variability
-from .metrics import METRICS, disk_margin_of, pairwise_xcorr, repeatability_per_run, step_metrics, \
+from .metrics import METRICS, pairwise_xcorr, repeatability_per_run, sampled_loop_margin, step_metrics, \
     tracking_bandwidth_hz
 from .spec import BenchmarkSpec, Cell
 
-__all__ = ["CellResult", "run_cell", "run_benchmark", "TRACE_POINTS"]
+__all__ = ["CellResult", "run_cell", "run_benchmark", "write_traces", "TRACE_POINTS", "TRACE_COLUMNS"]
 
-#: Samples kept per stored trace (decimated) for the overlay plots [-].
+#: Samples at most per trace that :func:`run_benchmark` keeps in memory for the plots [-]
+#: (the files hold every sample).
 TRACE_POINTS = 1000
 
 
@@ -63,8 +68,13 @@ class CellResult:
     disk_margin : float
         The loop's disk margin [-].
     t, tau_s, expected, tau_r : ndarray
-        Decimated traces: times [s], tau_s per repetition (rows), the frictionless
-        expected response and the reference [N m].
+        Traces: times [s], tau_s per repetition (rows), the frictionless expected response and
+        the reference [N m]; every ``trace_step``-th sample of the run.
+    stable : bool or None
+        The cell's sampled loop is nominally stable and nothing diverged (None: no linear model
+        and nothing diverged).
+    trace_step : int
+        Samples of the run per sample of the traces held here [-] (1: full rate).
     """
 
     key: str
@@ -77,12 +87,29 @@ class CellResult:
     tau_s: np.ndarray
     expected: np.ndarray
     tau_r: np.ndarray
+    stable: bool | None = None
+    trace_step: int = 1
+
+    def thinned(self, points: int = TRACE_POINTS) -> "CellResult":
+        """This cell with at most about `points` samples per trace (every n-th sample; ``trace_step`` says n).
+
+        Parameters
+        ----------
+        points : int
+            Samples to keep per trace at most [-].
+        """
+        step = max(1, int(math.ceil(self.t.size / points)))
+        if step == 1:
+            return self
+        sl = slice(None, None, step)
+        return dataclasses.replace(self, t=self.t[sl], tau_s=self.tau_s[:, sl], expected=self.expected[sl],
+                                   tau_r=self.tau_r[sl], trace_step=self.trace_step * step)
 
     def to_mapping(self) -> dict[str, Any]:
         """Metrics without traces (the ``cells/<key>.json`` file)."""
         return {"key": self.key, "labels": dict(self.labels), "environment": dict(self.environment),
                 "runs": [dict(r) for r in self.runs], "repeatability": self.repeatability,
-                "disk_margin": self.disk_margin}
+                "disk_margin": self.disk_margin, "stable": self.stable, "trace_step": self.trace_step}
 
     def save(self, folder: Path) -> None:
         """Write ``<key>.npz`` then ``<key>.json`` (the JSON last: its presence marks a finished cell).
@@ -117,9 +144,14 @@ class CellResult:
 
             with np.load(io.BytesIO(traces)) as npz:
                 arrays = {k: npz[k] for k in ("t", "tau_s", "expected", "tau_r")}
-            runs = tuple({k: (math.nan if v is None else v) for k, v in r.items()} for r in doc["runs"])
+            runs = tuple({k: (math.nan if v is None and k != "settled" else v) for k, v in r.items()}
+                         for r in doc["runs"])
+            stable = doc["stable"]
+            if stable is not None and not isinstance(stable, bool):
+                return None
             return cls(key=key, labels=doc["labels"], environment=doc["environment"], runs=runs,
-                       repeatability=_num(doc["repeatability"]), disk_margin=_num(doc["disk_margin"]), **arrays)
+                       repeatability=_num(doc["repeatability"]), disk_margin=_num(doc["disk_margin"]), stable=stable,
+                       trace_step=int(doc["trace_step"]), **arrays)
         except Exception:     # noqa: BLE001 - any damage (BadZipFile, EOFError, KeyError, TypeError...) means recompute
             return None
 
@@ -140,12 +172,10 @@ def _jsonable(x: Any) -> Any:
     return x
 
 
-def _decimate(n: int) -> slice:
-    return slice(None, None, max(1, int(math.ceil(n / TRACE_POINTS))))
-
-
 #: The :func:`~.metrics.step_metrics` a step reference adds to a run's metrics.
-_STEP_KEYS = ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m")
+_STEP_KEYS = ("rise_time_s", "overshoot_percent", "settling_time_s", "steady_state_error_N_m", "settled")
+#: Run keys that a run not scored (diverged, faulted) keeps.
+_KEPT = ("diverged_at_s", "disk_margin", "expected_diverged_at_s")
 
 
 def _expected_response(design: Design, reference: Any, duration_s: float, rate_hz: float):
@@ -157,8 +187,9 @@ def _expected_response(design: Design, reference: Any, duration_s: float, rate_h
 
 
 def _run_metrics(tau_s: np.ndarray, expected: np.ndarray, repeatability: float, margin: float) -> dict[str, Any]:
-    """One run's :data:`~.metrics.METRICS`: repeatability, MAE and disk margin; the rest NaN until filled."""
-    m: dict[str, Any] = dict.fromkeys(METRICS, math.nan)
+    """One run's :data:`~.metrics.METRICS`: repeatability, MAE and disk margin; the rest NaN until filled
+    (``settled`` None: not a step, or not scored)."""
+    m: dict[str, Any] = {**dict.fromkeys(METRICS, math.nan), "settled": None}
     m.update(repeatability=float(repeatability), mae_N_m=float(np.mean(np.abs(tau_s - expected))),
              disk_margin=margin)
     return m
@@ -200,8 +231,9 @@ def run_cell(task: tuple) -> CellResult:
     tau = np.array([r.tau_s for r in runs])
     t = runs[0].t
     per_run_rep = repeatability_per_run(tau)
-    margin = disk_margin_of(design, design.compensator if not sfm else design.with_friction(sfm_params).compensator,
-                            spec.rate_hz)
+    dm = sampled_loop_margin(design, design.compensator if not sfm else design.with_friction(sfm_params).compensator,
+                             spec.rate_hz)
+    margin = math.nan if dm is None else float(dm.alpha)
     chirp = isinstance(cell.reference, Chirp)
     rows = []
     expected_diverged = expected.diverged_at_s is not None
@@ -215,31 +247,57 @@ def run_cell(task: tuple) -> CellResult:
         if expected_diverged:
             m["mae_N_m"] = math.nan
             m["expected_diverged_at_s"] = expected.diverged_at_s
-        if at is not None:
-            m.update({k: math.nan for k in m if k not in ("diverged_at_s", "disk_margin", "expected_diverged_at_s")})
         if chirp:
             m["bandwidth_hz"] = tracking_bandwidth_hz(r.tau_r, r.tau_s, spec.rate_hz, cell.reference.f0_hz,
                                                       cell.reference.f1_hz)
         else:
             sm = step_metrics(t, r.tau_s, amplitude=cell.reference.amplitude, t0=cell.reference.t0)
             m.update({k: sm[k] for k in _STEP_KEYS})
+        if at is not None:
+            _unscored(m)
         # a controller written as code that failed stopped its run (zero torque from then on), or the
         # expected response's: nothing of the run is scored, the fault is kept
         fault = r.fault or expected.fault
         if fault is not None:
-            m.update({k: math.nan for k in m if k not in ("diverged_at_s", "disk_margin", "expected_diverged_at_s")})
+            _unscored(m)
             m["controller_fault_at_s"] = fault["t_s"]
             row["controller_fault"] = ("expected response: " if r.fault is None else "") + fault["reason"]
         row.update(m)
         rows.append(row)
-    dec = _decimate(t.size)
     clean = [i for i, r in enumerate(runs) if r.fault is None]   # a faulted run's zero torque is no repetition
     repeatability = pairwise_xcorr(tau) if len(clean) == len(runs) else (
         pairwise_xcorr(tau[clean]) if len(clean) >= 2 else math.nan)
+    diverged = expected_diverged or any(r.diverged_at_s is not None for r in runs)
     return CellResult(key=key, labels=cell.labels, environment=cell.environment.to_mapping(), runs=tuple(rows),
-                      repeatability=repeatability, disk_margin=margin, t=np.array(t[dec]),
-                      tau_s=np.array(tau[:, dec]), expected=np.array(expected.tau_s[dec]),
-                      tau_r=np.array(runs[0].tau_r[dec]))
+                      repeatability=repeatability, disk_margin=margin, t=np.array(t), tau_s=tau,
+                      expected=np.array(expected.tau_s), tau_r=np.array(runs[0].tau_r),
+                      stable=cell_stable(dm, diverged))
+
+
+def cell_stable(margin: Any, diverged: bool) -> bool | None:
+    """The ``stable`` flag of a cell: its loop's nominal stability, False when something diverged.
+
+    Parameters
+    ----------
+    margin : DiskMargin or None
+        :func:`~.metrics.sampled_loop_margin` (None: no linear model of the controller).
+    diverged : bool
+        A run or the frictionless expected response left every physical range.
+
+    Returns
+    -------
+    bool or None
+        None when the loop cannot be analysed and nothing diverged.
+    """
+    if diverged:
+        return False
+    return None if margin is None else bool(margin.stable)
+
+
+def _unscored(m: dict[str, Any]) -> None:
+    """Blank a run's indicators (it diverged or faulted); its times and the loop's margin are kept."""
+    m.update({k: math.nan for k in m if k not in _KEPT})
+    m["settled"] = None
 
 
 def run_benchmark(spec: BenchmarkSpec, *, out: str | os.PathLike[str] | None = None, executor: Executor | None = None,
@@ -264,7 +322,8 @@ def run_benchmark(spec: BenchmarkSpec, *, out: str | os.PathLike[str] | None = N
     Returns
     -------
     cells : list of CellResult
-        In :meth:`~.spec.BenchmarkSpec.cells` order.
+        In :meth:`~.spec.BenchmarkSpec.cells` order, their traces thinned to about
+        :data:`TRACE_POINTS` samples (``trace_step``; the full-rate ones are in ``out/cells``).
     info : dict
         ``computed`` and ``reused`` cell counts, the SFM parameters and the executor.
     """
@@ -284,7 +343,7 @@ def run_benchmark(spec: BenchmarkSpec, *, out: str | os.PathLike[str] | None = N
         for k in keys:
             stored = CellResult.load(folder, k)
             if stored is not None:
-                found[k] = stored
+                found[k] = stored.thinned()
     todo = [(k, c, spec, sfm) for k, c in zip(keys, cells) if k not in found]
     ex = executor or LocalExecutor(1)
     # rounds of a few tasks per worker: each round's cells are stored before the next starts,
@@ -294,9 +353,58 @@ def run_benchmark(spec: BenchmarkSpec, *, out: str | os.PathLike[str] | None = N
         chunk = todo[start:start + step]
         report = None if progress is None else (lambda d, n, s=start: progress(s + d, len(todo)))
         for res in ex.map(run_cell, chunk, progress=report):
-            found[res.key] = res
             if folder is not None:
-                res.save(folder)
+                res.save(folder)          # full rate on disk, a thinned copy in memory
+            found[res.key] = res.thinned()
     info = {"cells": len(cells), "computed": len(todo), "reused": len(cells) - len(todo), "sfm_params": sfm,
             **ex.describe()}
     return [found[k] for k in keys], info
+
+
+#: Columns of ``traces.parquet``: the cell's labels, the repetition, then t [s] and tau_r, tau_s and the
+#: frictionless expected response tau_s_expected [N m], one row per sample at the control rate.
+TRACE_COLUMNS = ("controller", "compensator", "environment", "reference", "repetition", "t", "tau_r", "tau_s",
+                 "tau_s_expected")
+
+
+def write_traces(cells: list[CellResult], path: str | os.PathLike[str], store: str | os.PathLike[str] | None = None
+                 ) -> dict[str, Any]:
+    """Write every run's trace as one Parquet file (:data:`TRACE_COLUMNS`), a cell at a time.
+
+    Parameters
+    ----------
+    cells : list of CellResult
+        The benchmark's cells (their labels and keys).
+    path : path
+        The Parquet file to write (atomically).
+    store : path, optional
+        The ``cells`` folder holding each cell's full-rate traces (``<key>.npz``); a cell not found
+        there is written with the traces it holds.
+
+    Returns
+    -------
+    dict
+        ``trace_step``: samples of the run per written sample (1: the full control rate), and
+        ``rows`` written.
+    """
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    schema = pa.schema([*((name, pa.dictionary(pa.int32(), pa.string())) for name in TRACE_COLUMNS[:4]),
+                        ("repetition", pa.int32()), *((name, pa.float64()) for name in TRACE_COLUMNS[5:])])
+    steps, rows = set(), 0
+    with atomic_open(Path(path)) as fh, pq.ParquetWriter(fh, schema) as writer:
+        for c in cells:
+            full = None if store is None else CellResult.load(Path(store), c.key)
+            full = full if full is not None else c
+            steps.add(full.trace_step)
+            m, n = full.tau_s.shape
+            cols = {name: pa.DictionaryArray.from_arrays(pa.array(np.zeros(m * n, dtype=np.int32)),
+                                                         pa.array([str(full.labels[name])]))
+                    for name in TRACE_COLUMNS[:4]}
+            cols.update(repetition=pa.array(np.repeat(np.arange(m, dtype=np.int32), n)),
+                        t=pa.array(np.tile(full.t, m)), tau_r=pa.array(np.tile(full.tau_r, m)),
+                        tau_s=pa.array(full.tau_s.reshape(-1)), tau_s_expected=pa.array(np.tile(full.expected, m)))
+            writer.write_table(pa.table(cols, schema=schema))
+            rows += m * n
+    return {"trace_step": max(steps) if steps else 1, "rows": rows}

@@ -167,11 +167,9 @@ def _cmd_tf(args: argparse.Namespace) -> int:
             progress(len(results), len(designs))
     require_no_nan({label: tfs.to_mapping() for label, tfs in results}, "tf")
     if args.plot:
-        from ..plotting.bode import plot_bode
+        from ..plotting.bode import plot_plants
 
-        curves = [(f"{key} ({label})" if len(results) > 1 else key, getattr(tfs, key).tf)
-                  for label, tfs in results for key in ("P", "EA", "LO", "LD")]
-        plot_bode(curves, args.plot)
+        plot_plants(results, args.plot)
     if args.json:
         _write_json(args.json, results[0][1].to_mapping() if len(results) == 1
                     else {label: tfs.to_mapping() for label, tfs in results})

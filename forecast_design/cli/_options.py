@@ -14,7 +14,12 @@ __all__: list[str] = []
 
 
 def _float_range(text: str) -> float:
-    value = float(text)
+    """A number option's value (argparse ``type``): a finite or infinite float, never NaN; the message
+    names the value, not this function."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if value != value:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}")
     return value
@@ -66,8 +71,9 @@ def _add_environment_options(p: argparse.ArgumentParser, *, default: str, many: 
     p.set_defaults(env_default=default)
     if testbed:
         p.add_argument("--testbed", metavar="SPEC",
-                       help="testbed: inline (k=40[,J_m=..][,d_m=..]) or a TOML file with [testbed] "
-                            "(default: the paper's Table 1)")
+                       help="testbed: inline (k=40[,J_m=..][,d_m=..][,J_l=..,d_l=..]) or a TOML file with "
+                            "[testbed]; its link J_l, d_l is the default of every environment (default: the "
+                            "paper's Table 1)")
         p.add_argument("--experiment", metavar="RUN.toml",
                        help="take testbed and environment from a log's TOML (its CSV is not read)")
     if believed:

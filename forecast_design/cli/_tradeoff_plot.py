@@ -10,7 +10,8 @@ from ..params import OBSERVER_KINDS
 __all__ = ["plot_tune_q_tradeoff"]
 
 
-def plot_tune_q_tradeoff(args: argparse.Namespace, result: Any, envs: Any) -> dict[str, Any]:
+def plot_tune_q_tradeoff(args: argparse.Namespace, result: Any, envs: Any, *, testbed: Any = None,
+                         controller: Any = None) -> dict[str, Any]:
     """Compute the trade-off for every observer on the tuner's set and draw it to ``args.plot``.
 
     Parameters
@@ -21,6 +22,10 @@ def plot_tune_q_tradeoff(args: argparse.Namespace, result: Any, envs: Any) -> di
         The tuner's answer (its cutoff and, in ``--max-margin`` mode, its Q damping).
     envs : Any
         The environment set exactly as it was given to the tuner.
+    testbed : Testbed, optional
+        The tuner's testbed (None: Table 1).
+    controller : Controller, optional
+        The tuner's force controller (None: the paper's PD).
 
     Returns
     -------
@@ -35,7 +40,9 @@ def plot_tune_q_tradeoff(args: argparse.Namespace, result: Any, envs: Any) -> di
         band = (min(band[0], result.w_q_hz), max(band[1], result.w_q_hz))
     common = dict(band_hz=band, min_ratio=args.min_ratio, uncertainty=args.uncertainty, q_family=args.q_family,
                   q_order=args.q_order, break_at=args.break_at, sampled=args.sampled, rate_hz=args.rate_hz,
-                  delay_samples=args.delay_samples, seed=args.seed)
+                  delay_samples=args.delay_samples, seed=args.seed, testbed=testbed)
+    if controller is not None:
+        common["controller"] = controller
     if result.q_damping is not None:
         common.update(q_family="butterworth", q_order=2)
     main = cutoff_tradeoff(result.observer, envs, chosen=result, q_damping=result.q_damping, **common)

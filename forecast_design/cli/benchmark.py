@@ -49,7 +49,7 @@ def _configure(p: argparse.ArgumentParser) -> None:
 def _cmd_benchmark(args: argparse.Namespace) -> int:
     from ..benchmark import (BenchmarkSpec, markdown_report, parse_compensators, parse_reference,
                              result_rows, result_table, run_benchmark, run_recorded, summary, write_report,
-                             write_summary, write_tables)
+                             write_summary, write_tables, write_traces)
     from ..controllers import resolve_controller, with_derivative_on
     from ..environments import resolve_environments, resolve_testbed
     from ..errors import ParameterError
@@ -112,6 +112,8 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
     # (read_results refuses a folder whose manifest is missing or does not match); cells/ stays a cache
     with staged_set(args.out) as staging:
         write_tables(df, staging)
+        traced = write_traces(cells, staging / "traces.parquet", store=os.path.join(args.out, "cells"))
+        info["trace_step"] = traced["trace_step"]
         if not args.no_plots:
             from ..plotting.benchmark import plot_heatmap, plot_indicators, plot_overlays
 
@@ -125,8 +127,8 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
                 plt.close(fig)
                 plots[caption] = name
         doc = summary(rows, spec_doc, info)
-        doc["files"] = {"parquet": "results.parquet", "csv": "results.csv", "report": "report.md", "plots": plots,
-                        "manifest": MANIFEST}
+        doc["files"] = {"parquet": "results.parquet", "csv": "results.csv", "traces": "traces.parquet",
+                        "report": "report.md", "plots": plots, "manifest": MANIFEST}
         write_summary(doc, staging)
         write_report(markdown_report(rows, spec_doc, info, plots), staging)
     if args.json:
@@ -136,19 +138,25 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             if r["statistic"] == "mean":
                 vals = ", ".join(f"{k} {r[k]:.4g}" for k in ("repeatability", "mae_N_m", "bandwidth_hz", "disk_margin")
                                  if r.get(k) is not None)
-                print(f"{r['controller']} + {r['compensator']} ({r['reference']}): set mean {vals}")
+                left = f" ({r['excluded_cells']} unstable cell(s) left out)" if r.get("excluded_cells") else ""
+                print(f"{r['controller']} + {r['compensator']} ({r['reference']}): set mean {vals}{left}")
         print(f"{info['computed']} cells computed, {info['reused']} reused, {info['elapsed_s']:.1f} s; "
               f"report: {args.out}/report.md")
     unstable = 0
     for c in cells:
         where = f"{c.labels['controller']} + {c.labels['compensator']} in {c.labels['environment']}"
         runs = [r for r in c.runs if isinstance(r, dict)]
+        if c.stable is False:
+            unstable += 1
+            print(f"forecast-design: warning: {where} ({c.labels['reference']}): unstable (disk margin "
+                  f"{c.disk_margin:.3g} of the sampled loop"
+                  + (", a run diverged" if any(not math.isnan(float(r.get("diverged_at_s", math.nan))) for r in runs)
+                     else "") + "): flagged stable = false, left out of the set aggregates", file=sys.stderr)
         if any(r.get("expected_diverged_at_s") is not None for r in runs):
             print(f"forecast-design: warning: {where}: the frictionless expected response (nominal plant, d_m = 0) "
                   "diverges: mae_N_m is not scored", file=sys.stderr)
         bad = [r["repetition"] for r in runs if not math.isnan(float(r.get("diverged_at_s", math.nan)))]
         if bad:
-            unstable += 1
             print(f"forecast-design: warning: {where}: repetitions {', '.join(map(str, bad))} diverged (unstable "
                   "closed loop): not scored", file=sys.stderr)
         faulted = [r for r in runs if r.get("controller_fault")]
@@ -157,4 +165,9 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
             print(f"forecast-design: warning: {where}: the controller stopped with a fault in repetitions "
                   f"{', '.join(str(r['repetition']) for r in faulted)} ({faulted[0]['controller_fault']}): zero "
                   "torque from then on, not scored", file=sys.stderr)
+    flags = doc["flags"]
+    if flags["unsettled_runs"]:
+        print(f"forecast-design: note: {flags['unsettled_runs']} of {flags['step_runs']} step runs did not settle "
+              "(within 2 % of the step around their final value over the last 10 % of the run): no settling time, "
+              "counted in unsettled_runs", file=sys.stderr)
     return 1 if unstable else 0

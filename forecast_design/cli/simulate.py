@@ -45,9 +45,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     result = scenario.run()
     paths = save_simulation(result, args.out)
     if args.plot:
-        from ..plotting.simulation import plot_simulation
+        from ..plotting.simulation import plot_simulation, run_title
 
-        plot_simulation({args.scenario: result}, args.plot)
+        plot_simulation({args.scenario: result}, args.plot, title=run_title(result, source=Path(args.scenario).name))
     if args.json:
         _write_json(args.json, {**{key: str(value) for key, value in paths.items()},
                                 **_compensator_keys(result.design.compensator),
@@ -164,9 +164,12 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
                     results.append(result)
             progress(stop, n)
     if args.plot:
-        from ..plotting.simulation import plot_simulation
+        from ..plotting.simulation import plot_simulation, run_title
 
-        plot_simulation({f"repetition {i}": result for i, result in enumerate(results)}, args.plot)
+        what = run_title(results[0], source=Path(args.scenario).name).replace(" (repetition 0)", "")
+        plot_simulation({f"repetition {i}": result for i, result in enumerate(results)}, args.plot,
+                        title=what.replace("\n", f" ({len(results)} repetitions overlaid)\n", 1),
+                        overlay=True)
     if args.json:
         _write_json(args.json, {**_compensator_keys(scenario.design.compensator),
                                 "controller": _controller_label(scenario.design.controller),

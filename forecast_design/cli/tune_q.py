@@ -78,7 +78,7 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
     if args.plot:
         from ._tradeoff_plot import plot_tune_q_tradeoff
 
-        mapping["tradeoff"] = plot_tune_q_tradeoff(args, result, args.envs)
+        mapping["tradeoff"] = plot_tune_q_tradeoff(args, result, args.envs, testbed=testbed, controller=controller)
     if args.json:
         _write_json(args.json, mapping)
     if args.json != "-":

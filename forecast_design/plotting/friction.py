@@ -48,18 +48,25 @@ def plot_friction_fit(fit: FrictionFit, data: IdentificationData, path: str | os
         inertial = fit.params["inertia"] * data.acceleration
         y, y_hat = y - inertial, y_hat - inertial
     t = np.arange(y.size) * data.dt
-    fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
-    ax_t.plot(t, y, color="black", lw=0.8, label=r"measured $\tau_{frc}$")
-    ax_t.plot(t, y_hat, color="tab:blue", lw=0.8, ls="--", label=r"estimated $\hat\tau_{frc}$")
+    fig, (ax_t, ax_v) = plt.subplots(1, 2, figsize=(11, 4.3), layout="constrained")
+    ax_t.plot(t, y, color="black", lw=0.9, label=r"measured $\tau_{frc}$", gid="measured")
+    ax_t.plot(t, y_hat, color="tab:orange", lw=0.9, ls="--", label=r"estimated $\hat\tau_{frc}$ (model)",
+              gid="estimated")
     ax_t.set_xlabel("time [s]")
     units = axis_units(prismatic)
     ax_t.set_ylabel(f"friction [{units['force']}]")
-    ax_t.legend(loc="best")
-    ax_t.set_title(f"{fit.model.name}: fit {fit.fit_percent_estimation:.2f} %")
+    ax_t.set_title("against time", fontsize="medium")
+    # the model as a wide pale band, the measured points small on top: both stay visible where they agree
     order = np.argsort(data.velocity, kind="stable")
-    ax_v.plot(data.velocity, y, ".", color="black", ms=1.5, alpha=0.4, label="measured")
-    ax_v.plot(data.velocity[order], y_hat[order], ".", color="tab:blue", ms=1.5, label="estimated")
+    ax_v.plot(data.velocity[order], y_hat[order], ".", color="tab:orange", ms=4.0, alpha=0.3, zorder=2.0,
+              gid="estimated|velocity")
+    ax_v.plot(data.velocity, y, ".", color="black", ms=0.8, zorder=3.0, gid="measured|velocity")
     ax_v.set_xlabel(f"velocity [{units['velocity']}]")
     ax_v.set_ylabel(f"friction [{units['force']}]")
-    ax_v.legend(loc="best")
+    ax_v.set_title("against velocity", fontsize="medium")
+    for ax in (ax_t, ax_v):
+        ax.grid(True, alpha=0.3)
+    fig.legend(loc="outside lower center", ncol=2, fontsize="small", frameon=False)
+    fig.suptitle(f"Friction identified: model {fit.model.name}, fit {fit.fit_percent_estimation:.2f} % "
+                 "on the estimation data", fontsize="medium")
     return save_figure(fig, path, dpi=120)

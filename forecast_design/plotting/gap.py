@@ -63,7 +63,7 @@ def plot_residual_time(views, path: str | Path) -> Path:
             ax.axvspan(t0, t1, color="tab:red", alpha=0.12)
         ax.set_ylabel(f"{eq} residual [N m]")
         ax.grid(True, alpha=0.3)
-    axes[0, 0].legend(loc="upper right", fontsize=8)
+    axes[0, 0].legend(loc="best", fontsize=8, framealpha=0.9)
     axes[0, 0].set_title("Equation error over time (shaded: windows with most residual energy)")
     axes[-1, 0].set_xlabel("t [s]")
     _dropped_note(fig, views)
@@ -204,9 +204,9 @@ def plot_before_after(views, path: str | Path) -> Path:
                     gid=f"model|{eq}")
             ax.plot(t, views.after[eq][sel], lw=1.0, color=AFTER_COLOUR, label="after: left over",
                     gid=f"after|{eq}")
-        ax.set_ylabel(f"{eq} [N m]")
+        ax.set_ylabel(f"{eq} equation error [N m]")
         ax.grid(True, alpha=0.3)
-    axes[0, 0].legend(fontsize=8, loc="upper right")
+    axes[0, 0].legend(fontsize=8, loc="best", framealpha=0.9)
     reduction = 1.0 - views.gap_after / views.gap_before if views.gap_before > 0 else 0.0
     axes[0, 0].set_title(f"Held-out data: gap {views.gap_before:.3g} -> {views.gap_after:.3g} N m "
                          f"({100 * reduction:.0f} % less)")
@@ -250,7 +250,7 @@ def plot_replay(views, path: str | Path) -> Path:
         ax.set_ylabel(f"{key} [{unit}]")
         ax.grid(True, alpha=0.3)
     ax2.set_xlabel("t [s]")
-    ax1.legend(fontsize=8, loc="upper right")
+    ax1.legend(fontsize=8, loc="best", framealpha=0.9)
     ax1.set_title("Output-error replay from the recorded tau_m, started from the measured state "
                   "(worst window of the nominal model)", fontsize=9)
     return save_figure(fig, path)

@@ -8,11 +8,11 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from ..margins import DiskMarginCurve, disk_center_radius, disk_gain_margin
+from ..margins import DiskMarginCurve, disk_center_radius
 from ..reproduce import MarginRow
 from ..errors import ParameterError
 from . import _pyplot, save_figure
-from .style import cutoff_style, observer_colour, observer_label
+from .style import OBSERVER_MARKERS, cutoff_style, observer_colour, observer_label
 
 __all__ = ["figure_fig6", "plot_fig6", "plot_disk_margin_curve", "disk_upper_boundary", "plot_loop_analysis"]
 
@@ -68,15 +68,37 @@ def _half_disk_patch(disk_alpha: float, sigma: float, xlim: tuple[float, float],
     return PathPatch(MplPath(verts, codes), **kw)
 
 
-def _fig6_limits(rows: Sequence[MarginRow], sigma: float) -> tuple[tuple[float, float], tuple[float, float]]:
-    """Common axes limits: every bounded disk that fits within Re f <= 10 is shown whole."""
-    lo, hi = -0.25, 4.0
-    for r in rows:
-        if r.stable and r.disk_margin > 0.0:
-            g_lo, g_hi = disk_gain_margin(r.disk_margin, sigma)
-            if math.isfinite(g_hi) and g_hi <= 10.0:
-                hi = max(hi, 1.05 * g_hi)
-    return (lo, hi), (0.0, 0.5 * (hi - lo) + 0.05)
+_NEAR_ONE = (-0.25, 4.0)   # Re f shown around the nominal f = 1 at least [-]
+
+
+def _disk_extent(r: MarginRow, sigma: float) -> tuple[float, float, float] | None:
+    """(gamma_min, gamma_max, radius) of a bounded disk [-]; None for no disk or an unbounded one."""
+    if not r.stable or r.disk_margin <= 0.0:
+        return None
+    center, radius, exterior = disk_center_radius(r.disk_margin, sigma)
+    if exterior or not math.isfinite(center):
+        return None
+    return center - radius, center + radius, radius
+
+
+def _frame(extents: Sequence[tuple[float, float, float]]) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Limits holding every extent whole, the unit circle and f = 1 (equal aspect: y up to half the width)."""
+    lo = min([_NEAR_ONE[0]] + [1.04 * e[0] if e[0] < 0 else 0.0 for e in extents])
+    hi = max([_NEAR_ONE[1]] + [e[1] for e in extents])
+    hi = lo + 1.04 * (hi - lo)
+    top = max([0.5 * (hi - lo)] + [1.04 * e[2] for e in extents])
+    return (lo, hi), (0.0, top)
+
+
+def _fig6_frames(env_rows: Sequence[MarginRow], sigma: float) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    """One frame holding every bounded disk whole; a second one near f = 1 when the first makes the
+    small disks tiny (the largest reaches more than 3 times as far as the frame near f = 1)."""
+    extents = [e for e in (_disk_extent(r, sigma) for r in env_rows) if e is not None]
+    whole = _frame(extents)
+    near = _frame([e for e in extents if e[1] <= 10.0])
+    if whole[0][1] - whole[0][0] > 3.0 * (near[0][1] - near[0][0]):
+        return [whole, near]
+    return [whole]
 
 
 def figure_fig6(rows: Sequence[MarginRow], *, sigma: float = 0.0,
@@ -84,11 +106,14 @@ def figure_fig6(rows: Sequence[MarginRow], *, sigma: float = 0.0,
                 title: str | None = "Disk margins of the DOB solutions (cf. paper Fig. 6)"):
     """Draw the paper's Fig. 6 and return the open matplotlib figure (see :func:`plot_fig6`).
 
-    One row per environment: the upper half-disks of tolerated gain/phase variations on the
-    left, a bar per observer and cutoff with its disk margin alpha on the right (disks of
-    nearly equal alpha coincide on the left; the bars keep each one readable). Colours follow
+    One row per environment: the upper half-disks of tolerated gain/phase variations (one
+    frame holding every disk whole, and beside it a frame near f = 1 when the largest disks
+    would make the others tiny), then a bar per observer and cutoff with its disk margin alpha
+    (disks of nearly equal alpha coincide; the bars keep each one readable). Colours follow
     :mod:`forecast_design.plotting.style`: one hue per observer, darker and more solid for
-    higher cutoffs, the same in every panel; the plant alone is black.
+    higher cutoffs, the same in every panel. The plant is a thick pale band underneath; each
+    observer's disk carries its marker at its own places along the arc, so a disk of the
+    plant's size (EA-FOB) shows on top of the plant's.
     """
     plt = _pyplot()
     from matplotlib.lines import Line2D
@@ -98,55 +123,65 @@ def figure_fig6(rows: Sequence[MarginRow], *, sigma: float = 0.0,
         raise ParameterError("plot_fig6 needs at least one MarginRow", name="rows", value=rows)
     envs = list(dict.fromkeys(r.environment for r in rows))
     cutoffs = sorted({r.w_q_hz for r in rows if r.w_q_hz is not None})
-    auto_x, auto_y = _fig6_limits(rows, sigma)
-    xlim = xlim or auto_x
-    ylim = ylim or (auto_y if xlim == auto_x else (0.0, 0.5 * (xlim[1] - xlim[0]) + 0.05))
-    fig = plt.figure(figsize=(11.0, 3.9 * len(envs) + 1.3), layout="constrained")
-    grid = fig.add_gridspec(len(envs), 2, width_ratios=(2.1, 1.0))
+    frames = {env: ([(xlim, ylim or (0.0, 0.5 * (xlim[1] - xlim[0]) + 0.05))] if xlim else
+                    _fig6_frames([r for r in rows if r.environment == env], sigma)) for env in envs}
+    two = any(len(f) == 2 for f in frames.values())
+    fig = plt.figure(figsize=(14.5 if two else 11.0, 3.9 * len(envs) + 1.3), layout="constrained")
+    grid = fig.add_gridspec(len(envs), 3 if two else 2, width_ratios=(1.2, 1.2, 1.0) if two else (2.1, 1.0))
     legend: dict[str, Line2D] = {}
+    others = [r for r in rows if r.observer != "none"]
+    order = list(dict.fromkeys((r.observer, r.w_q_hz) for r in others))
 
     def style_of(r: MarginRow) -> dict:
         shade, ls = cutoff_style(r.w_q_hz, cutoffs)
-        return {"color": observer_colour(r.observer, shade), "linestyle": ls,
-                "linewidth": 2.4 if r.observer == "none" else 1.7}
+        if r.observer == "none":
+            return {"color": observer_colour("none"), "linestyle": "-", "linewidth": 5.0, "alpha": 0.3}
+        return {"color": observer_colour(r.observer, shade), "linestyle": ls, "linewidth": 1.5}
 
     def name_of(r: MarginRow) -> str:
         return observer_label(r.observer) + ("" if r.w_q_hz is None else f" {r.w_q_hz:g} Hz")
 
+    def marker_of(r: MarginRow) -> dict:
+        st = style_of(r)
+        return {"marker": OBSERVER_MARKERS.get(r.observer, "o"), "markersize": 6.5, "color": st["color"],
+                "markeredgecolor": "white", "markeredgewidth": 0.6, "linestyle": "none"}
+
     for k, env in enumerate(envs):
-        ax = fig.add_subplot(grid[k, 0])
-        bars = fig.add_subplot(grid[k, 1])
         env_rows = [r for r in rows if r.environment == env]
-        beyond = []
+        env_frames = frames[env]
+        axes = ([fig.add_subplot(grid[k, 0]), fig.add_subplot(grid[k, 1])] if len(env_frames) == 2
+                else [fig.add_subplot(grid[k, 0:2] if two else grid[k, 0])])
+        bars = fig.add_subplot(grid[k, 2 if two else 1])
         for r in env_rows:
             st = style_of(r)
-            legend.setdefault(name_of(r), Line2D([], [], **st))
-            if not r.stable or r.disk_margin <= 0.0:
-                continue
-            patch = _half_disk_patch(r.disk_margin, sigma, xlim, ylim, facecolor="none", edgecolor=st["color"],
-                                     linestyle=st["linestyle"], linewidth=st["linewidth"],
-                                     zorder=3.0 if r.observer == "none" else 2.0 + 1.0 / (1.0 + r.disk_margin))
-            patch.set_gid(f"{env}|{r.observer}|{r.w_q_hz}")
-            ax.add_patch(patch)
-            if disk_gain_margin(r.disk_margin, sigma)[1] > xlim[1]:
-                beyond.append(r)
-        theta = np.linspace(0.0, math.pi, 361)
-        ax.plot(np.cos(theta), np.sin(theta), color="0.45", linestyle=(0, (4, 3)), linewidth=0.8)
-        ax.plot([1.0], [0.0], "k+", markersize=9)
-        if beyond:
-            reach = max(disk_gain_margin(r.disk_margin, sigma)[1] for r in beyond)
-            reach_txt = "infinity" if not math.isfinite(reach) else f"Re f = {reach:.3g}"
-            ax.text(0.98, 0.97, f"{len(beyond)} disks reach beyond the frame (up to {reach_txt}):\n"
-                    "their arcs leave on the left edge; alpha in the bars",
-                    transform=ax.transAxes, ha="right", va="top", fontsize="x-small",
-                    bbox={"facecolor": "white", "edgecolor": "0.7", "alpha": 0.9})
-        ax.set_xlim(*xlim)
-        ax.set_ylim(*ylim)
-        ax.set_aspect("equal")
-        ax.set_xlabel("Re f [-]")
-        ax.set_ylabel("Im f [-]")
-        ax.set_title(f"{env} environment: upper half-disks (dashed grey: unit circle)", fontsize="medium")
-        ax.grid(True, alpha=0.3)
+            handle = {**st, **({k2: v for k2, v in marker_of(r).items() if k2 != "linestyle"}
+                               if r.observer != "none" else {})}
+            legend.setdefault(name_of(r), Line2D([], [], **handle))
+        for i, (ax, (fx, fy)) in enumerate(zip(axes, env_frames)):
+            unbounded = _draw_disks(ax, env_rows, sigma, fx, fy, style_of, marker_of, order)
+            theta = np.linspace(0.0, math.pi, 361)
+            ax.plot(np.cos(theta), np.sin(theta), color="0.45", linestyle=(0, (4, 3)), linewidth=0.8)
+            ax.plot([1.0], [0.0], "k+", markersize=9)
+            ax.set_xlim(*fx)
+            ax.set_ylim(*fy)
+            ax.set_aspect("equal")
+            ax.set_xlabel("Re f [-]")
+            ax.set_ylabel("Im f [-]")
+            ax.grid(True, alpha=0.3)
+            if i == 0:
+                ax.set_title(f"{env} environment: upper half-disks, each whole (dashed grey: unit circle)",
+                             fontsize="medium")
+            else:
+                ax.set_title(f"near f = 1 (Re f up to {fx[1]:.3g}); larger disks whole on the left",
+                             fontsize="medium")
+                from matplotlib.patches import Rectangle
+
+                axes[0].add_patch(Rectangle((fx[0], fy[0]), fx[1] - fx[0], fy[1] - fy[0], fill=False,
+                                            edgecolor="0.35", linestyle=":", linewidth=1.0, zorder=1.0))
+            if unbounded and i == 0:
+                ax.text(0.98, 0.97, f"{len(unbounded)} disks unbounded (alpha >= 2): shaded to the frame's edge",
+                        transform=ax.transAxes, ha="right", va="top", fontsize="x-small",
+                        bbox={"facecolor": "white", "edgecolor": "0.7", "alpha": 0.9})
         _alpha_bars(bars, env_rows, style_of, name_of)
     # one legend column per observer, one line per cutoff (blank entries pad short columns)
     columns: dict[str, list[tuple[str, Line2D]]] = {}
@@ -160,6 +195,33 @@ def figure_fig6(rows: Sequence[MarginRow], *, sigma: float = 0.0,
     if title:
         fig.suptitle(title)
     return fig
+
+
+def _draw_disks(ax, rows: Sequence[MarginRow], sigma: float, xlim, ylim, style_of, marker_of,
+                order: Sequence[tuple[str, float | None]]) -> list[MarginRow]:
+    """The half-disks of ``rows`` in one frame (plant underneath, markers along each observer's arc);
+    returns the unbounded ones."""
+    unbounded = []
+    for r in rows:
+        if not r.stable or r.disk_margin <= 0.0:
+            continue
+        st = style_of(r)
+        patch = _half_disk_patch(r.disk_margin, sigma, xlim, ylim, facecolor="none", edgecolor=st["color"],
+                                 linestyle=st["linestyle"], linewidth=st["linewidth"], alpha=st.get("alpha"),
+                                 zorder=1.5 if r.observer == "none" else 2.0 + 1.0 / (1.0 + r.disk_margin))
+        patch.set_gid(f"{r.environment}|{r.observer}|{r.w_q_hz}")
+        ax.add_patch(patch)
+        extent = _disk_extent(r, sigma)
+        if extent is None:
+            unbounded.append(r)
+        elif r.observer != "none" and extent[2] > 0.02 * (xlim[1] - xlim[0]):   # tiny here: see the frame near 1
+            # each observer and cutoff at its own angles: coinciding arcs keep every disk visible
+            j = order.index((r.observer, r.w_q_hz))
+            theta = math.pi * (0.06 + 0.88 * ((j + 0.5) / (3 * len(order)) + np.arange(3) / 3.0))
+            center, radius = 0.5 * (extent[0] + extent[1]), extent[2]
+            ax.plot(center + radius * np.cos(theta), radius * np.sin(theta), zorder=4.0,
+                    gid=f"marker|{r.environment}|{r.observer}|{r.w_q_hz}", **marker_of(r))
+    return unbounded
 
 
 def _alpha_bars(ax, rows: Sequence[MarginRow], style_of, name_of) -> None:
@@ -206,8 +268,9 @@ def plot_fig6(rows: Sequence[MarginRow], path: str | Path, *, sigma: float = 0.0
     sigma : float
         Skew the rows were computed with [-] (the disk's shape depends on it).
     xlim, ylim : tuple of float, optional
-        Axes limits in the complex plane of the perturbation f [-]; default: every disk
-        that ends before Re f = 10 is shown whole, the same limits in every panel.
+        Axes limits in the complex plane of the perturbation f [-], the same in every panel;
+        default per environment: a frame holding every bounded disk whole, and a second frame
+        near f = 1 (every disk ending before Re f = 10 whole) when the first makes those tiny.
     title : str or None
         Figure title.
 
@@ -227,8 +290,8 @@ def plot_fig6(rows: Sequence[MarginRow], path: str | Path, *, sigma: float = 0.0
     : |delta| <= alpha}; for sigma = 0 its boundary is the circle with centre
     (1 + (alpha/2)^2) / (1 - (alpha/2)^2) and radius alpha / (1 - (alpha/2)^2). Near
     alpha = 2 the disk is huge (alpha = 1.96 reaches Re f = 99), so disks of nearly equal
-    alpha are indistinguishable in the plane; the bar panel beside each environment gives
-    every observer and cutoff its own bar. The dashed unit circle reads off the disk-based
+    alpha coincide in the plane: each observer's disk carries markers at its own places along
+    the arc, and the bar panel beside each environment gives every observer and cutoff its own bar. The dashed unit circle reads off the disk-based
     phase margin where it meets each disk boundary.
     """
     return save_figure(figure_fig6(rows, sigma=sigma, xlim=xlim, ylim=ylim, title=title), path, dpi=120)
@@ -285,6 +348,23 @@ def plot_disk_margin_curve(curves: DiskMarginCurve | Mapping[str, DiskMarginCurv
     return path
 
 
+def _loop_title(a: Mapping) -> str:
+    """Environment, compensator with its cutoff, controller and loop, from a LoopAnalysis' assumptions."""
+    comp = a["compensator"]
+    kind = comp["table"]["kind"]
+    comp_text = "no compensator" if kind == "none" else f"compensator {observer_label(kind)}" + (
+        f" at cutoff w_q = {comp['w_q_hz']:g} Hz" if comp["w_q_hz"] is not None else "")
+    loop = a["loop"]
+    loop_text = (f"sampled at {loop['rate_hz']:g} Hz, delay {loop['delay_samples']}" if loop["kind"] == "sampled"
+                 else "continuous")
+    believed = a.get("believed_environment")
+    env = a["environment"]["name"]
+    if isinstance(believed, Mapping):
+        env += " (observer believes " + ("locked" if believed.get("locked") else
+                                         f"k_e = {believed.get('k_e', float('nan')):g} N m/rad") + ")"
+    return f"environment {env}; {comp_text}; controller {a['controller']['label']} ({loop_text} loop)"
+
+
 def plot_loop_analysis(analysis, path: str | Path) -> Path:
     """The ``margins`` picture of one loop: disk margin over frequency, |S| and |T|, the Nyquist curve.
 
@@ -307,12 +387,20 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
     fig, axes = plt.subplots(2, 2, figsize=(11.0, 7.5))
     (ax_a, ax_n), (ax_s, ax_t) = axes
     try:
-        ax_a.semilogx(f_hz, r.alpha, color="C0")
+        ax_a.semilogx(f_hz, r.alpha, color="C0" if dm.stable else "0.6", gid="alpha")
+        if not dm.stable:
+            ax_a.text(0.5, 0.5, "closed loop UNSTABLE: no disk margin\n(alpha(f) bounds nothing here)",
+                      transform=ax_a.transAxes, ha="center", va="center", color="C3", fontweight="bold",
+                      bbox={"facecolor": "white", "edgecolor": "C3", "alpha": 0.9})
         if dm.stable and math.isfinite(dm.frequency_rad_s):
+            # the curve's minimum is the disk margin: marked, labelled, and its frequency on every panel
             fc = dm.frequency_rad_s / (2.0 * math.pi)
-            ax_a.plot(fc, dm.alpha, "o", color="C3")
-            ax_a.annotate(f"disk margin {dm.alpha:.3f}\nat {fc:.3g} Hz", (fc, dm.alpha), textcoords="offset points",
-                          xytext=(10, 12), fontsize="small", color="C3")
+            ax_a.plot(fc, dm.alpha, "o", color="C3", gid="disk-margin")
+            ax_a.annotate(f"minimum: disk margin {dm.alpha:.3f}\nat {fc:.3g} Hz", (fc, dm.alpha),
+                          textcoords="offset points", xytext=(10, -28), fontsize="small", color="C3",
+                          arrowprops={"arrowstyle": "-", "color": "C3", "lw": 0.8})
+            for ax in (ax_a, ax_s, ax_t):
+                ax.axvline(fc, color="C3", lw=0.8, ls=":", gid="disk-margin-frequency")
         ax_a.set_ylabel("disk margin alpha(f) [-]")
         ax_a.set_xlabel("frequency [Hz]")
         ax_a.set_ylim(0.0, max(2.5, min(10.0, float(np.nanpercentile(r.alpha, 90)))))
@@ -338,7 +426,7 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
             # L stays outside the disk of -1/f for every f in the disk of radius alpha
             exclusion = -1.0 / (1.0 + (1.0 - dm.sigma) / 2.0 * dm.alpha * np.exp(1j * th)) * \
                 (1.0 - (1.0 + dm.sigma) / 2.0 * dm.alpha * np.exp(1j * th))
-            ax_n.fill(exclusion.real, exclusion.imag, color="C3", alpha=0.15, label=f"-1/f, f in disk({dm.alpha:.3g})")
+            ax_n.fill(exclusion.real, exclusion.imag, color="C3", alpha=0.15, label=f"kept clear by the\ndisk margin {dm.alpha:.3g}\n(-1/f, f in the disk)")
         ax_n.set_xlim(-4.0, 2.0)
         ax_n.set_ylim(-3.0, 3.0)
         ax_n.set_aspect("equal")
@@ -346,7 +434,7 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
         ax_n.axvline(0.0, color="0.6", lw=0.6)
         ax_n.set_xlabel("Re L [-]")
         ax_n.set_ylabel("Im L [-]")
-        ax_n.legend(loc="upper left", fontsize="x-small", framealpha=0.9)
+        ax_n.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="x-small", frameon=False)
         ax_n.set_title("Nyquist curve near -1")
         # Bode of L with the classical crossovers
         mag = 20 * np.log10(np.abs(r.L))
@@ -359,17 +447,17 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
         ax_p.semilogx(f_hz, np.degrees(np.unwrap(np.angle(r.L))), color="C4", lw=1.0, label="arg L [deg]")
         ax_p.set_ylabel("arg L [deg]", color="C4")
         cm_ = analysis.classical
-        for c in cm_.gain_crossovers:
+        # crossovers close in frequency get their labels stacked, not printed over each other
+        for i, c in enumerate(cm_.gain_crossovers):
             fx = c.frequency_rad_s / (2 * math.pi)
             ax_t.plot(fx, 0.0, "s", color="C2")
-            ax_t.annotate(f"PM {c.phase_margin_deg:.0f} deg", (fx, 0.0), textcoords="offset points", xytext=(5, 6),
-                          fontsize="x-small", color="C2")
-        for c in cm_.phase_crossovers:
+            ax_t.annotate(f"PM {c.phase_margin_deg:.0f} deg", (fx, 0.0), textcoords="offset points",
+                          xytext=(5, 6 + 10 * i), fontsize="x-small", color="C2")
+        for i, c in enumerate(c for c in cm_.phase_crossovers if c.frequency_rad_s > 0):
             fx = c.frequency_rad_s / (2 * math.pi)
-            if fx > 0:
-                ax_t.plot(fx, -c.gain_margin_db, "^", color="C3")
-                ax_t.annotate(f"GM {c.gain_margin_db:+.1f} dB", (fx, -c.gain_margin_db), textcoords="offset points",
-                              xytext=(5, -12), fontsize="x-small", color="C3")
+            ax_t.plot(fx, -c.gain_margin_db, "^", color="C3")
+            ax_t.annotate(f"GM {c.gain_margin_db:+.1f} dB", (fx, -c.gain_margin_db), textcoords="offset points",
+                          xytext=(5, -12 - 10 * i), fontsize="x-small", color="C3")
         ax_t.set_title("loop L: classical crossovers")
         ax_t.grid(True, which="both", alpha=0.3)
         for ax in (ax_a, ax_s):
@@ -380,8 +468,8 @@ def plot_loop_analysis(analysis, path: str | Path) -> Path:
         summary = (f"disk margin {dm.alpha:.3f}" + (f"; GM {gm.gain_margin_db:+.1f} dB at {gm.frequency_rad_s / (2 * math.pi):.3g} Hz"
                                                     if gm else "; GM inf")
                    + (f"; PM {pm.phase_margin_deg:.1f} deg at {pm.frequency_rad_s / (2 * math.pi):.3g} Hz" if pm else ""))
-        fig.suptitle(f"{analysis.title()}\n{summary}" + ("" if dm.stable else "  -- UNSTABLE closed loop"),
-                     fontsize="medium")
+        fig.suptitle(f"{_loop_title(analysis.assumptions)}\n{summary}"
+                     + ("" if dm.stable else "  -- UNSTABLE closed loop"), fontsize="medium")
         fig.tight_layout()
         path = save_figure(fig, path, dpi=110)
     finally:

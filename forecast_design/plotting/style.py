@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from typing import Sequence
 
-__all__ = ["OBSERVER_COLOURS", "OBSERVER_LABELS", "observer_colour", "observer_label", "cutoff_style"]
+__all__ = ["OBSERVER_COLOURS", "OBSERVER_LABELS", "OBSERVER_MARKERS", "PLANT_KINDS", "observer_colour", "observer_label", "cutoff_style",
+           "plant_style"]
 
 # Base colour per compensator kind (matplotlib's tab10, colour-blind friendlier than pure hues);
 # the plant alone is black.
@@ -23,6 +24,9 @@ OBSERVER_COLOURS = {
 }
 OBSERVER_LABELS = {"none": "plant", "ea-fob": "EA-FOB", "lo-dob": "LO-DOB", "ld-dob": "LD-DOB",
                    "motor-fob": "motor FOB", "sfm": "SFM", "extended-sfm": "extended SFM"}
+# A marker shape per observer: Fig. 6 puts each disk's markers at its own places along its arc, so
+# disks of (nearly) the same size, whose arcs coincide, each stay visible.
+OBSERVER_MARKERS = {"ea-fob": "o", "lo-dob": "s", "ld-dob": "^", "motor-fob": "D", "sfm": "v", "extended-sfm": "P"}
 _LINESTYLES = ("-", "--", ":", "-.")    # highest cutoff solid, then dashed, dotted
 
 
@@ -78,3 +82,38 @@ def cutoff_style(w_q_hz: float | None, cutoffs: Sequence[float]) -> tuple[float,
     i = list(cutoffs).index(w_q_hz)
     shade = 0.6 + 0.4 * (i + 1) / n
     return shade, _LINESTYLES[(n - 1 - i) % len(_LINESTYLES)]
+
+
+# The force plant and the observers' nominal plants (the ``tf`` verb): the observer's colour, and a
+# line style and width of their own so curves that coincide (EA = LO when locked) stay visible.
+PLANT_KINDS = ("P", "EA", "LO", "LD")
+_PLANT_LOOKS = {
+    "P": ("none", "-", 4.0, 0.35, r"$P$: true plant (eq. 2)"),
+    "EA": ("ea-fob", "-", 1.6, 1.0, r"$P_n^{EA}$: EA-FOB nominal (eq. 5)"),
+    "LO": ("lo-dob", (0, (5, 2)), 1.6, 1.0, r"$P_n^{LO}$: LO-DOB nominal (eq. 6)"),
+    "LD": ("ld-dob", (0, (1, 1.5)), 2.0, 1.0, r"$P_n^{LD}$: LD-DOB nominal (eq. 8)"),
+}
+
+
+def plant_style(kind: str) -> dict:
+    """Line keywords (colour, style, width, alpha, z-order, label) of one plant of the ``tf`` verb.
+
+    Parameters
+    ----------
+    kind : str
+        ``"P"`` (the true plant: thick and pale, underneath) or a nominal plant ``"EA"``,
+        ``"LO"``, ``"LD"`` (its observer's colour, a line style of its own, on top).
+
+    Returns
+    -------
+    dict
+        Keywords for ``Axes.plot``.
+
+    Raises
+    ------
+    KeyError
+        If ``kind`` is not one of :data:`PLANT_KINDS`.
+    """
+    observer, ls, lw, alpha, label = _PLANT_LOOKS[kind]
+    return {"color": observer_colour(observer), "linestyle": ls, "linewidth": lw, "alpha": alpha,
+            "zorder": 2.0 if kind == "P" else 3.0 + PLANT_KINDS.index(kind) * 0.1, "label": label}

@@ -28,12 +28,13 @@ from ..export.firmware import (FirmwareOptions, build_firmware, export_firmware,
 from ..export.toolchain import M4_CLOCK_HZ, find_tools
 from ..params import Design
 from ..simulation import plant_stepper
+from ..simulation.run import DEFAULT_PROCESS_NOISE_STD
 from . import protocol as pr
 from .board import Board, _save_with_recovery, check_writable, record_to_experiment
 from .link import BoardError, LinkError
 
 __all__ = ["PIL_LINK_TIMEOUT_MS", "PilFaults", "PilResult", "QemuBoard", "qemu_available", "run_pil", "pil_session",
-           "python_closed_loop", "COUNT_OFFSET"]
+           "python_closed_loop", "COUNT_OFFSET", "run_pil_scenario", "scenario_reference"]
 
 #: Raw counts start here (mod 2**32), so the firmware's 32-bit counters wrap within the first periods.
 COUNT_OFFSET = 2**32 - 3
@@ -191,7 +192,8 @@ class QemuBoard:
 
 def python_closed_loop(program, design: Design, reference: pr.Reference | str, n: int, *,
                        options: FirmwareOptions | None = None, effects: Sequence[Any] = (), seed: int = 1,
-                       noise_std: float = 1e-3, dtype: Any = np.float32) -> dict[str, np.ndarray]:
+                       noise_std: float = 1e-3, dtype: Any = np.float32, substeps: int = 10,
+                       initial_angle: float = 0.0, include_nominal_viscous: bool = True) -> dict[str, np.ndarray]:
     """The all-Python closed loop: the same plant stepper and discrete controller, no firmware.
 
     A controller written as code (the program is ``external``) runs as its code: a C file
@@ -211,8 +213,9 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
         Encoder resolution of the firmware.
     effects : sequence
         Unmodelled effects of the virtual testbed.
-    seed, noise_std
-        Process noise of the virtual testbed (as the PIL run).
+    seed, noise_std, substeps, initial_angle, include_nominal_viscous
+        Process noise [N m], RK4 substeps, initial absolute motor angle [rad] and whether the nominal
+        d_m is part of the true friction, of the virtual testbed (as the PIL run).
     dtype : numpy dtype
         ``np.float32``: the controller and the sensor conversion run in float32 exactly as the
         firmware does (:func:`~forecast_design.export.firmware.firmware_measurements`);
@@ -227,7 +230,8 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
     ref = pr.parse_reference(reference) if isinstance(reference, str) else reference
     rate = program.rate_hz
     bed = plant_stepper(design, effects, n=n, rate_hz=rate, seed=seed, process_noise_std=noise_std,
-                        encoder_counts=opt.encoder_counts)
+                        encoder_counts=opt.encoder_counts, substeps=substeps, initial_angle=initial_angle,
+                        include_nominal_viscous=include_nominal_viscous)
     ctrl = program.make_step(dtype)
     single = np.dtype(dtype) == np.float32
     # float32: the firmware's own reference generator (its edges fall on the same periods)
@@ -260,8 +264,12 @@ def python_closed_loop(program, design: Design, reference: pr.Reference | str, n
 
 def pil_session(board: Board, program, design: Design, reference: pr.Reference, n: int, *,
                 options: FirmwareOptions, faults: PilFaults | None = None, effects: Sequence[Any] = (),
-                seed: int = 1, noise_std: float = 1e-3, timeout: float = 30.0) -> tuple[list, dict]:
+                seed: int = 1, noise_std: float = 1e-3, timeout: float = 30.0, substeps: int = 10,
+                initial_angle: float = 0.0, include_nominal_viscous: bool = True) -> tuple[list, dict]:
     """Upload, start, and run ``n`` lock-step periods against a firmware behind ``board``.
+
+    ``effects``, ``seed``, ``noise_std``, ``substeps``, ``initial_angle`` [rad] and
+    ``include_nominal_viscous`` describe the virtual testbed (:func:`~forecast_design.simulation.plant_stepper`).
 
     Returns
     -------
@@ -273,7 +281,8 @@ def pil_session(board: Board, program, design: Design, reference: pr.Reference, 
     # everything slow happens before START: once the firmware runs, a host pause longer than its
     # link timeout is a LINK_TIMEOUT fault, not a slow machine
     bed = plant_stepper(design, effects, n=n, rate_hz=rate, seed=seed, process_noise_std=noise_std,
-                        encoder_counts=options.encoder_counts).warm_up()
+                        encoder_counts=options.encoder_counts, substeps=substeps,
+                        initial_angle=initial_angle, include_nominal_viscous=include_nominal_viscous).warm_up()
     board.ping(connect_timeout=20.0)
     board.upload(program)
     board._command(pr.MsgType.SET_REFERENCE, pr.encode_reference(reference))
@@ -337,7 +346,8 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
             out: str | Path | None = None, work_dir: str | Path | None = None,
             options: FirmwareOptions | None = None, faults: PilFaults | None = None,
             effects: Sequence[Any] = (), seed: int = 1, noise_std: float = 1e-3, icount: bool = True,
-            timeout: float = 30.0, testbed: Any = None) -> PilResult:
+            timeout: float = 30.0, testbed: Any = None, substeps: int = 10, initial_angle: float = 0.0,
+            include_nominal_viscous: bool = True, description: str = "") -> PilResult:
     """The ``forecast-design pil`` verb: build the PIL firmware, run it on qemu against the virtual testbed.
 
     Parameters
@@ -357,8 +367,12 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
         ``PIL_LINK_TIMEOUT_MS`` (the host is not real-time).
     faults : PilFaults, optional
         Link faults to inject.
-    effects, seed, noise_std
-        The virtual testbed's unmodelled effects and process noise.
+    effects, seed, noise_std, substeps, initial_angle, include_nominal_viscous
+        The virtual testbed's unmodelled effects, process noise [N m], RK4 substeps per period,
+        absolute motor angle at theta = 0 [rad] and whether the nominal d_m is part of the true
+        friction (:func:`run_pil_scenario` takes them from a scenario).
+    description : str
+        Said first in the recorded experiment's description (e.g. the scenario it ran).
     icount : bool
         Count instructions (qemu ``-icount shift=0``).
     timeout : float
@@ -395,11 +409,14 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     n = int(round(duration * fw.program.rate_hz))
     with QemuBoard(elf, icount=icount) as qemu, Board(qemu.port, timeout=timeout) as board:
         samples, info = pil_session(board, fw.program, fw.design, ref, n, options=opt, faults=faults,
-                                    effects=effects, seed=seed, noise_std=noise_std, timeout=timeout)
+                                    effects=effects, seed=seed, noise_std=noise_std, timeout=timeout,
+                                    substeps=substeps, initial_angle=initial_angle,
+                                    include_nominal_viscous=include_nominal_viscous)
     arrays = {name: np.array([getattr(s, name) for s in samples], dtype=float) for name in _SIGNALS}
     path = None
     if out is not None and samples:
-        text = (f"processor-in-the-loop on qemu netduinoplus2: reference {ref.to_string()}, {duration} s"
+        text = (f"{description + '; ' if description else ''}processor-in-the-loop on qemu netduinoplus2: "
+                f"reference {ref.to_string()}, {duration} s"
                 + (f"; firmware fault {info['fault']} at sample {info['fault_index']} (torque zero)"
                    if info["fault"] else ""))
         exp = record_to_experiment(fw.design, fw.program.rate_hz, samples, samples[-1].index + 1, description=text)
@@ -412,3 +429,97 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     return PilResult(len(samples), n, info["fault"], info["fault_index"], info["fault_latency_s"], stats, ips,
                      path, arrays)
 
+
+
+def scenario_reference(reference: Any) -> pr.Reference:
+    """The firmware's reference generator for a scenario's ``[reference]``: the inverse of
+    :meth:`~forecast_design.runtime.protocol.Reference.signal`.
+
+    Parameters
+    ----------
+    reference : simulation reference
+        ``Constant``, ``Step``, ``Square`` (duty 0.5, from t = 0) or ``Sine`` (zero phase, from t = 0) of
+        :mod:`forecast_design.simulation.references` [N m, s].
+
+    Returns
+    -------
+    Reference
+        The same signal as the firmware generates it.
+
+    Raises
+    ------
+    ParameterError
+        For a reference the firmware cannot generate (one line naming it and what it can).
+    """
+    from ..simulation import references as refs
+
+    if isinstance(reference, refs.Constant):
+        return pr.Reference("step", reference.value, 0.0)
+    if isinstance(reference, refs.Step):
+        return pr.Reference("step", reference.amplitude, reference.t0, reference.offset)
+    if isinstance(reference, refs.Square) and reference.duty == 0.5 and reference.t0 == 0.0:
+        return pr.Reference("square", (reference.high - reference.low) / 2.0, reference.period_s,
+                            (reference.high + reference.low) / 2.0)
+    if isinstance(reference, refs.Sine) and reference.phase_rad == 0.0 and reference.t0 == 0.0 \
+            and reference.frequency_hz > 0.0:
+        return pr.Reference("sine", reference.amplitude, 1.0 / reference.frequency_hz, reference.offset)
+    raise ParameterError(f"the firmware generates {pr.REFERENCE_SYNTAX}, not the scenario's reference "
+                         f"{reference.to_mapping()!r:.120}; give pil --reference", name="reference",
+                         value=getattr(reference, "kind", reference))
+
+
+def run_pil_scenario(scenario: Any, *, reference: str | pr.Reference | None = None, duration: float | None = None,
+                     out: str | Path | None = None, work_dir: str | Path | None = None,
+                     options: FirmwareOptions | None = None, faults: PilFaults | None = None, icount: bool = True,
+                     timeout: float = 30.0) -> PilResult:
+    """:func:`run_pil` on a simulation scenario: its nominal model and controller are the firmware's, its
+    hardware (friction and every ``[truth]`` effect, process noise, seed, initial angle, RK4 substeps,
+    encoder resolution) the virtual testbed's, as ``simulate`` would run it (repetition 0).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        A loaded scenario (:func:`~forecast_design.simulation.scenario.load_scenario`); closed loop.
+    reference : str or Reference, optional
+        Overrides the scenario's ``[reference]`` (which must otherwise be one the firmware generates,
+        :func:`scenario_reference`).
+    duration : float, optional
+        Overrides the scenario's ``duration_s`` [s].
+    out, work_dir, options, faults, icount, timeout
+        As for :func:`run_pil`; ``options.encoder_counts`` is the scenario's when it sets one.
+
+    Returns
+    -------
+    PilResult
+        As :func:`run_pil`.
+
+    Raises
+    ------
+    ParameterError
+        An open-loop scenario, a reference the firmware cannot generate, or exact angles
+        (``encoder_counts = 0``: the firmware reads counts).
+    """
+    import dataclasses
+
+    if not scenario.closed_loop:
+        raise ParameterError(f"{scenario.source or 'the scenario'}: pil runs a force controller; the scenario "
+                             "has no [controller] (open loop)", name="controller")
+    opts = scenario.options
+    opt = options or FirmwareOptions(link_timeout_ms=PIL_LINK_TIMEOUT_MS)
+    counts = opts.get("encoder_counts")
+    if counts is not None:
+        if not counts:
+            raise ParameterError(f"{scenario.source or 'the scenario'}: [simulation] encoder_counts = 0 (exact "
+                                 "angles) cannot run on the firmware, which reads encoder counts; give a resolution",
+                                 name="encoder_counts", value=counts)
+        opt = dataclasses.replace(opt, encoder_counts=int(counts))
+    rep = scenario.repetition(0)
+    with scenario.naming_errors():
+        ref = reference if reference is not None else scenario_reference(scenario.reference)
+        return run_pil(scenario.design, controller=None, compensator=None, env=None, w_q_hz=None,
+                       rate_hz=scenario.rate_hz, sfm_params=opts.get("sfm_params"), reference=ref,
+                       duration=float(opts["duration_s"]) if duration is None else duration, out=out,
+                       work_dir=work_dir, options=opt, faults=faults, effects=rep.effects, seed=rep.seed,
+                       noise_std=float(opts.get("process_noise_std", DEFAULT_PROCESS_NOISE_STD)), icount=icount,
+                       timeout=timeout, substeps=int(opts.get("substeps", 10)), initial_angle=rep.initial_angle,
+                       include_nominal_viscous=bool(opts.get("include_nominal_viscous", True)), description=f"scenario {scenario.source}" if scenario.source else "")

@@ -156,7 +156,8 @@ def process_noise(seed: int, std: float, n: int) -> np.ndarray:
 
 def plant_stepper(design: Design, effects: Sequence[Any] = (), *, n: int, rate_hz: float = 2000.0,
                     substeps: int = 10, seed: int = 0, process_noise_std: float = DEFAULT_PROCESS_NOISE_STD,
-                    encoder_counts: int | None = ENCODER_COUNTS, initial_angle: float = 0.0) -> PlantStepper:
+                    encoder_counts: int | None = ENCODER_COUNTS, initial_angle: float = 0.0,
+                    include_nominal_viscous: bool = True) -> PlantStepper:
     """The virtual testbed of :func:`simulate` as a period-by-period stepper (for the board emulator).
 
     Parameters
@@ -179,6 +180,8 @@ def plant_stepper(design: Design, effects: Sequence[Any] = (), *, n: int, rate_h
         Encoder resolution [counts/rev]; None or 0 for exact positions.
     initial_angle : float
         Absolute motor angle at ``theta = 0`` [rad].
+    include_nominal_viscous : bool
+        The nominal ``d_m theta'`` is part of the true friction (a scenario's ``[truth]`` key).
 
     Returns
     -------
@@ -186,7 +189,8 @@ def plant_stepper(design: Design, effects: Sequence[Any] = (), *, n: int, rate_h
         Driven by the commands of a :func:`simulate` run with the same arguments, it reproduces
         that run's measurements and truth exactly.
     """
-    plant = build_plant(design, effects, rate_hz=rate_hz, substeps=substeps, initial_angle=initial_angle)
+    plant = build_plant(design, effects, rate_hz=rate_hz, substeps=substeps, initial_angle=initial_angle,
+                        include_nominal_viscous=include_nominal_viscous)
     stability_check(plant)
     return PlantStepper(plant, substeps=substeps, k_nominal=design.testbed.k,
                         encoder_step=2.0 * math.pi / encoder_counts if encoder_counts else 0.0,

@@ -9,12 +9,12 @@ sections, plus the hidden truth, the reference and the simulation options::
     [sampling]
     rate_hz = 2000.0                 # control rate [Hz]
 
-    [testbed]                        # nominal SEA, as in the experiment format
-    J_m = 0.133
-    d_m = 0.3
-    k = 58.0
+    [testbed]                        # nominal SEA, as in the experiment format, optionally with its
+    J_m = 0.133                      # link J_l, d_l (the default of the environment); or, instead
+    d_m = 0.3                        # of the table, testbed = "mysea.toml" (a testbed file beside
+    k = 58.0                         # the scenario, inline "k=40", "table1")
 
-    [environment]                    # nominal environment, as in the experiment format
+    [environment]                    # nominal environment, as in the experiment format; or a string
     J_e = 1.0
     d_e = 20.0
     k_e = 100.0
@@ -91,11 +91,11 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from ..effects import Backlash, PositionFriction, Stiction, effect_from_mapping, effects_to_mappings
-from ..environments import resolve_environments
+from ..environments import document_design
 from ..errors import ExperimentFormatError, ParameterError
 from ..compensators import friction_feedforward
 from ..controllers import PAPER_PD, controller_from_mapping
-from ..params import Compensator, Design, Environment, Testbed
+from ..params import Compensator, Design
 from ..limits import check_limit, check_physical
 from .references import reference_from_mapping
 from .run import SimulationResult, save_simulation, simulate
@@ -394,7 +394,8 @@ class Scenario:
         if self.description:
             out["description"] = self.description
         out["sampling"] = {"rate_hz": self.rate_hz}
-        out["testbed"] = self.design.testbed.to_mapping()
+        testbed = self.design.testbed
+        out["testbed"] = {**testbed.to_mapping(), **({"J_l": testbed.J_l, "d_l": testbed.d_l} if testbed.link else {})}
         out["environment"] = self.design.environment.to_mapping()
         if self.closed_loop:
             ctrl = self.design.controller or PAPER_PD
@@ -435,32 +436,6 @@ def _table(doc: Mapping[str, Any], key: str, prefix: str, source: str | None, *,
     if not isinstance(value, Mapping):
         raise ExperimentFormatError(f"{prefix}[{key}] must be a table, got {value!r}", path=source, key=key)
     return value
-
-
-def _environment(doc: Mapping[str, Any], testbed: Testbed, prefix: str,
-                 source: str | None) -> tuple[Environment, tuple[str, ...]]:
-    """The scenario's ``[environment]``: a table, or a string naming one environment as everywhere else.
-
-    The string is a preset name (``"soft"``), inline values (``"k_e=20,J_e=0.02"``), an
-    environment(-set) file holding exactly one environment or ``FILE.toml#NAME`` for one member,
-    relative to the scenario's folder
-    (docs/environments.md); J_l, d_l default to the Table 1 link. Returns the environment and
-    the notes on defaults filled in (e.g. d_e critically damped), for the user to read.
-    """
-    value = doc.get("environment")
-    if not isinstance(value, str):
-        table = _table(doc, "environment", prefix, source, required=True)
-        return Environment.from_mapping(table, source=source), ()
-    spec = value.strip()
-    path, sep, member = spec.rpartition("#") if ".toml#" in spec.lower() else (spec, "", "")
-    if path.lower().endswith(".toml") and source is not None and not os.path.isabs(path):
-        spec = os.path.join(os.path.dirname(source), path) + sep + member
-    try:
-        envset = resolve_environments(spec, testbed=testbed)
-        return envset.single("a scenario")[1], envset.notes
-    except (ParameterError, ExperimentFormatError) as exc:
-        raise ExperimentFormatError(f"{prefix}environment = {value!r}: {str(exc).splitlines()[0]}", path=source,
-                                    key="environment") from None
 
 
 def _typed(value: Any, kind: type, prefix: str, key: str, source: str | None) -> Any:
@@ -525,8 +500,9 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
         check_physical("[sampling]", "rate_hz", float(rate))
     except ParameterError as exc:
         raise ExperimentFormatError(f"{prefix}{exc}", path=source, key="sampling.rate_hz") from None
-    testbed = Testbed.from_mapping(_table(doc, "testbed", prefix, source, required=True), source=source)
-    environment, notes = _environment(doc, testbed, prefix, source)
+    if "testbed" not in doc:
+        raise ExperimentFormatError(f"{prefix}missing required table [testbed]", path=source, key="testbed")
+    testbed, environment, notes = document_design(doc, source)
     ctrl_table = _table(doc, "controller", prefix, source, required=False)
     controller = None if ctrl_table is None else controller_from_mapping(
         ctrl_table, source=source, rate_hz=rate, base=Path(source).parent if source else None)

@@ -184,7 +184,7 @@ def cutoff_tradeoff(observer: str = "ea-fob", envs: Any = ("soft", "stiff"), *,
                     q_family: str = "butterworth", q_order: int = 2, q_damping: float | None = None,
                     controller: Controller = PAPER_PD, break_at: str = "controller",
                     sigma: float = 0.0, sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1,
-                    seed: int = 0) -> CutoffTradeoff:
+                    seed: int = 0, testbed: Any = None) -> CutoffTradeoff:
     """The tuner's trade-off for one observer: worst-case margin ratio and rejection bandwidth.
 
     Parameters
@@ -206,6 +206,9 @@ def cutoff_tradeoff(observer: str = "ea-fob", envs: Any = ("soft", "stiff"), *,
         As for :func:`~forecast_design.tuning.tune_q`.
     q_damping : float, optional
         Damping of a 2nd-order Q (e.g. the answer of :func:`~forecast_design.tuning.tune_q_shape`) [-].
+    testbed : Testbed, str or None
+        The testbed, as for :func:`~forecast_design.tuning.tune_q` (None: Table 1); its link is the
+        default of the set's environments.
 
     Returns
     -------
@@ -233,7 +236,7 @@ def cutoff_tradeoff(observer: str = "ea-fob", envs: Any = ("soft", "stiff"), *,
     setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), delay_samples)
     base = Compensator(kind=observer, w_q_hz=float(cutoffs[0]), q_family=q_family, q_order=q_order,
                        q_damping=q_damping)
-    plants = _plants(base, envs, uncertainty, setting, seed)
+    plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed)
     ratios = np.empty((cutoffs.size, len(plants)))
     bandwidth = np.empty(cutoffs.size)
     for i, f in enumerate(cutoffs):
