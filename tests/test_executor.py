@@ -170,7 +170,7 @@ def _tune(executor=None):
     from forecast_design.tuning import tune_q
 
     # the LD-DOB over soft and stiff with +-10 % on J, d, k_e (18 plants): the answer lies inside the band
-    return tune_q("ld-dob", "soft,stiff", uncertainty=0.1, executor=executor)
+    return tune_q("ld-dob", "soft,stiff", uncertainty=0.1, executor=executor, certify=False)
 
 
 @pytest.fixture(scope="module")

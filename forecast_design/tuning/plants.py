@@ -26,6 +26,7 @@ _ACTIVE_PER_PLANT = 4                     # frequencies per plant in the first N
 _MAX_CUTS = 12                            # cutting-plane rounds
 _FEAS_RTOL = 1e-6                         # relative slack of the ratio requirement inside the NLP
 _BACKOFF_STEPS = (1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2)   # relative cutoff steps down to meet it exactly
+_CERTIFY_ROUNDS = 3                       # re-tunings with a certified interior worst point added
 _BATCH_MARGINS = True                     # exact margins of many loops in one disk_margins call
 _FIRST_BATCH = 8                          # plants in the first batch of an early-stopping check
 
@@ -295,7 +296,7 @@ def _batch_size(executor: Executor, n: int) -> int:
 
 def _plants(compensator: Compensator, envs, uncertainty: float, setting: _Setting, seed: int = 0,
             progress: Callable[[int, int], None] | None = None, testbed: Any = None,
-            executor: Executor | None = None) -> list[_Plant]:
+            executor: Executor | None = None, extra: Sequence = ()) -> list[_Plant]:
     if not compensator.is_observer:
         raise ParameterError(f"tuning needs an observer kind (ea-fob, lo-dob, ld-dob, motor-fob), "
                              f"got {compensator.kind!r}", name="observer", value=compensator.kind)
@@ -308,7 +309,7 @@ def _plants(compensator: Compensator, envs, uncertainty: float, setting: _Settin
     base = Design(testbed=resolve_testbed(testbed))
     w = setting.grid()
     cache: dict = {}
-    pairs = environment_set(envs, uncertainty=uncertainty, seed=seed, testbed=base.testbed)
+    pairs = environment_set(envs, uncertainty=uncertainty, seed=seed, testbed=base.testbed) + list(extra)
     if executor is not None:
         items = [(label, dataclasses.replace(base, environment=true), dataclasses.replace(base, environment=bel),
                   compensator, setting) for label, true, bel in pairs]

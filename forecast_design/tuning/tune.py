@@ -12,10 +12,11 @@ import numpy as np
 from ..executor import Executor
 from ..errors import ParameterError, SolverError
 from ..limits import check_physical
-from ..params import Compensator
+from ..environments import resolve_environments, resolve_testbed
+from ..params import Compensator, Design
 from ..controllers import PAPER_PD, Controller, resolve_controller
 from .nlp import _casadi_abs2_G, _ipopt, _solve_max_cutoff
-from .plants import (_ACTIVE_PER_PLANT, _BACKOFF_STEPS, _FEAS_RTOL, _MAX_CUTS, _Setting, _exact_ratios, _grid_ratios,
+from .plants import (_ACTIVE_PER_PLANT, _BACKOFF_STEPS, _CERTIFY_ROUNDS, _FEAS_RTOL, _MAX_CUTS, _Setting, _exact_ratios, _grid_ratios,
     _plants, _q_polynomial, _sensitivity_offset, _with_frequency)
 
 
@@ -66,6 +67,8 @@ class TuningResult:
     q_damping: float | None = None
     solver: dict = field(default_factory=dict)
     at_bound: str | None = None    # the search-range end the answer sits on, in words (None: inside)
+    worst_case: Any = None         # WorstCaseMargin of the ratio over the continuous box (uncertainty > 0)
+    worst_case_environment: str | None = None
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready mapping (the ``tune-q`` output); ``compensator`` repeats ``observer`` (the key every
@@ -88,6 +91,11 @@ class TuningResult:
         if self.q_damping is not None:
             out["q_damping"] = self.q_damping
         out["at_bound"] = self.at_bound
+        if self.worst_case is not None:
+            out.update(self.worst_case.to_dict())
+            out["worst_case_environment"] = self.worst_case_environment
+            # the ratio guaranteed over every box is worst_case_lower; min_ratio is certified when it reaches it
+            out["certified"] = bool(self.worst_case.lower >= self.min_ratio)
         return out
 
 
@@ -97,7 +105,7 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
            break_at: str = "controller", sigma: float = 0.0, scan_points: int = 80, seed: int = 0,
            sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1, scan: str = "bounded",
            progress: Callable[[int, int], None] | None = None, testbed: Any = None,
-           executor: Executor | None = None) -> TuningResult:
+           executor: Executor | None = None, certify: bool = True) -> TuningResult:
     """Largest Q cutoff keeping the disk margin near the plant's own in every environment.
 
     Parameters
@@ -107,7 +115,11 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     envs : str or sequence of str
         Environment set (see :func:`environment_set`).
     uncertainty : float
-        Relative range of the true J, d, k_e [-]; the observer keeps the nominal values.
+        Relative range u of the true J, d, k_e [-]; the observer keeps the nominal values. The
+        tuning constrains the nominal point and the 8 vertices of [1 - u, 1 + u]^3; the answer is
+        then certified over the whole box (continuous loop: :func:`forecast_design.worstcase.worst_case_ratio`,
+        branch and bound) and, where an interior point falls below ``min_ratio``, that point joins
+        the set and the cutoff is tuned again (at most ``_CERTIFY_ROUNDS`` times).
     min_ratio : float
         Required alpha_observer / alpha_plant in every plant of the set [-].
     band_hz : (float, float)
@@ -148,6 +160,9 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
         verification, in coarse batches of plants. None (default): this process, with the early
         stop of the bounded scan. The answer is the same either way; ``evaluations`` counts the
         exact margins computed, which without the early stop is more.
+    certify : bool
+        With ``uncertainty``: certify the answer over the continuous box (default True); False
+        checks the nominal points and vertices only, as the tuning itself.
 
     Returns
     -------
@@ -177,6 +192,58 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
     z = exp(j w T), the command is delayed by z^-d and G_m sees z^-1: the
     sensitivity keeps the form above with D_q(j W / w_q).
     """
+    kwargs = dict(uncertainty=uncertainty, min_ratio=min_ratio, band_hz=band_hz, q_family=q_family, q_order=q_order,
+                  controller=controller, break_at=break_at, sigma=sigma, scan_points=scan_points, seed=seed,
+                  sampled=sampled, rate_hz=rate_hz, delay_samples=delay_samples, scan=scan, progress=progress,
+                  testbed=testbed, executor=executor)
+    result = _tune_vertices(observer, envs, **kwargs)
+    if not certify or not (uncertainty > 0.0) or sampled or math.isnan(result.w_q_hz):
+        return result    # the certificate is for the continuous loop (a ZOH plant mixes frequencies)
+    extra: list = []
+    for _ in range(_CERTIFY_ROUNDS):
+        worst, label, pair = _certified_worst(observer, envs, result, controller=controller, break_at=break_at,
+                                              sigma=sigma, seed=seed, testbed=testbed, uncertainty=uncertainty,
+                                              q_family=q_family, q_order=q_order)
+        result = dataclasses.replace(result, worst_case=worst, worst_case_environment=label)
+        if worst is None or worst.upper >= min_ratio or pair is None:
+            break
+        extra.append(pair)    # an interior environment below the requirement: tune with it in the set
+        result = _tune_vertices(observer, envs, extra=tuple(extra), **kwargs)
+    if result.worst_case is not None and result.worst_case.upper < min_ratio:
+        # an environment of the box below the requirement even after re-tuning: not feasible as printed
+        result = dataclasses.replace(result, feasible=False, agrees_with_scan=False)
+    return result
+
+
+def _certified_worst(observer, envs, result, *, controller, break_at, sigma, seed, testbed, uncertainty, q_family,
+                     q_order):
+    """The certified worst ratio over every environment's box at the answer: (WorstCaseMargin, label, pair)."""
+    from ..worstcase import scaled_environment, worst_case_ratio
+
+    base = Design(testbed=resolve_testbed(testbed))
+    comp = Compensator(kind=observer, w_q_hz=result.w_q_hz, q_family=q_family, q_order=q_order)
+    best = (None, None, None)
+    for label, env in resolve_environments(envs, testbed=base.testbed, seed=seed):
+        if env.locked:
+            continue
+        design = dataclasses.replace(base, environment=env)
+        wc = worst_case_ratio(design, comp, controller=controller, uncertainty=uncertainty, skew=sigma,
+                              break_at=break_at)
+        if best[0] is None or wc.upper < best[0].upper:
+            true = scaled_environment(design, wc.factors).environment
+            f = wc.factors
+            best = (wc, label, (f"{label}[J*{f[0]:.4g},d*{f[1]:.4g},k_e*{f[2]:.4g}]", true, env))
+    return best
+
+
+def _tune_vertices(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff"), *,
+           uncertainty: float = 0.0, min_ratio: float = 0.9, band_hz: tuple[float, float] = (0.5, 30.0),
+           q_family: str = "butterworth", q_order: int = 2, controller: Controller = PAPER_PD,
+           break_at: str = "controller", sigma: float = 0.0, scan_points: int = 80, seed: int = 0,
+           sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1, scan: str = "bounded",
+           progress: Callable[[int, int], None] | None = None, testbed: Any = None,
+           executor: Executor | None = None, extra: Sequence = ()) -> TuningResult:
+    """The tuning on the nominal points and vertices (and ``extra`` (label, true, believed) environments)."""
     try:
         lo_hz, hi_hz = (float(end) for end in band_hz)
     except (TypeError, ValueError):
@@ -196,7 +263,8 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
                              name="band", value=band_hz)
     setting = _Setting(controller, break_at, float(sigma), bool(sampled), float(rate_hz), delay_samples)
     base = Compensator(kind=observer, w_q_hz=band_hz[0], q_family=q_family, q_order=q_order)
-    plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed, executor=executor)
+    plants = _plants(base, envs, uncertainty, setting, seed, testbed=testbed, executor=executor,
+                     extra=extra)
     coeffs = _q_polynomial(base)
     evaluations = len({p.true_design for p in plants})    # plant-alone margins
     threshold = min_ratio * (1.0 - _FEAS_RTOL)
