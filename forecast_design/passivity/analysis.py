@@ -25,7 +25,7 @@ from ..params import Compensator, Design
 from .exact import is_hurwitz, magnitude_range, negative_bands, real_part_minimum, stable_parameter_intervals
 from .port import PORTS, PortImpedance, port_impedance, tustin_equivalent
 
-__all__ = ["PassivityResult", "PassivityCurve", "passivity"]
+__all__ = ["PassivityResult", "PassivityCurve", "analyse_passivity"]
 
 #: Re Z counts as negative below -PASSIVITY_RTOL |Z| at the minimum (rounding of the polynomials) [-].
 PASSIVITY_RTOL = 1e-9
@@ -80,7 +80,7 @@ class PassivityResult:
     output_index : float or None
         Output-feedback passivity index rho = min Re Y(jw) [rad/(N m s)] (None: Y unstable).
     index_interval : dict
-        The passivity index interval (see :func:`passivity`, Notes).
+        The passivity index interval (see :func:`analyse_passivity`, Notes).
     stiffness_intervals : tuple of (float, float)
         Every k_e >= 0 [N m/rad] keeping the loop stable with the environment's J_e, d_e.
     inertia_intervals : tuple of (float, float)
@@ -232,7 +232,7 @@ def _free_stable(free: np.ndarray) -> bool:
 
 
 def _index_interval(port: PortImpedance, bands, locked_stable: bool, free_stable: bool) -> dict:
-    """Our construction of the passivity index interval (see :func:`passivity`, Notes)."""
+    """Our construction of the passivity index interval (see :func:`analyse_passivity`, Notes)."""
     if bands:
         ranges = [magnitude_range(port.free, port.s_locked, a, b) for a, b in bands]
         interval = [json_float(min(r[0] for r in ranges)), json_float(max(r[1] for r in ranges))]
@@ -268,7 +268,7 @@ def _witness(link: PortImpedance) -> dict | None:
     return None
 
 
-def passivity(
+def analyse_passivity(
     design: Any = "soft",
     compensator: Compensator | str | None = None,
     *,
@@ -340,7 +340,7 @@ def passivity(
 
     Examples
     --------
-    >>> r = passivity("soft", "lo-dob")
+    >>> r = analyse_passivity("soft", "lo-dob")
     >>> r.passive, r.locked_stable
     (True, True)
     """
