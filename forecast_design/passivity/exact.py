@@ -232,7 +232,7 @@ def negative_bands(num: np.ndarray, den: np.ndarray) -> list[tuple[float, float]
                 bands[-1][1] = hi
             else:
                 bands.append([lo, hi])
-    w = lambda x: math.sqrt(x) * F.w0 if math.isfinite(x) else math.inf  # noqa: E731
+    w = lambda x: float(math.sqrt(x) * F.w0) if math.isfinite(x) else math.inf  # noqa: E731
     return [(w(lo), w(hi)) for lo, hi in bands]
 
 
