@@ -165,7 +165,8 @@ def test_index_interval_certifies_random_environments_outside_it(rng):
 
 @pytest.mark.parametrize("env,kind,wq,spec", [("soft", "ea-fob", 10.0, "pd:5:0.1"), ("soft", "ld-dob", 10.0, "pd:5:0.1"),
                                               ("soft", "ea-fob", 10.0, "pid:6:20:0.05:0.002"),
-                                              ("fig7", "ea-fob", 10.0, "tf:0.12,6,20/0.002,1,0")])
+                                              ("fig7", "ea-fob", 10.0, "tf:0.12,6,20/0.002,1,0"),
+                                              ("k_e=0,J_e=0.01,d_e=0", "ea-fob", 10.0, "pd:5:0.1")])
 def test_stiffness_and_inertia_ranges_bound_the_python_control_poles(env, kind, wq, spec):
     r = analyse_passivity(env, _comp(kind, wq), controller=spec)
     e = r.design.environment

@@ -344,6 +344,13 @@ def analyse_passivity(
     >>> r.passive, r.locked_stable
     (True, True)
     """
+    if environment_name is not None and not isinstance(environment_name, str):
+        raise ParameterError(f"environment_name must be a string or None, got {type(environment_name).__name__}",
+                             name="environment_name", value=environment_name)
+    if rate_hz is not None and (isinstance(rate_hz, bool) or not isinstance(rate_hz, (int, float))
+                                or not math.isfinite(rate_hz) or rate_hz <= 0.0):
+        raise ParameterError(f"rate_hz must be a rate > 0 [Hz] or None, got {rate_hz!r:.40}", name="rate_hz",
+                             value=rate_hz)
     name, design = _design(design, testbed)
     if isinstance(compensator, str):
         compensator = None if compensator == "none" else Compensator(kind=compensator)
@@ -365,8 +372,11 @@ def analyse_passivity(
     rho = real_part_minimum(P.s_locked, P.free)[0] if free_stable else None
     env = design.environment
     stiff = stable_parameter_intervals(link.coupled(env.J_e, env.d_e, 0.0), link.locked)
-    inertia = stable_parameter_intervals(link.coupled(0.0, env.d_e, env.k_e),
-                                         np.concatenate([link.locked, [0.0, 0.0]]))
+    a_j, b_j = link.coupled(0.0, env.d_e, env.k_e), np.concatenate([link.locked, [0.0, 0.0]])
+    m = min(poly.trailing_zeros(a_j), poly.trailing_zeros(b_j))
+    if 0 < m < 10**9:      # k_e = 0: the free output's position (no torque sees it) is divided out, as force_loop does
+        a_j, b_j = poly.drop_trailing(a_j, m), poly.drop_trailing(b_j, m)
+    inertia = stable_parameter_intervals(a_j, b_j)
     comp_value = comp or Compensator()
     from ..compensators import compensator_strategy
 
