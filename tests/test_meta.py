@@ -15,7 +15,8 @@ PACKAGE = ROOT / "forecast_design"
 LAYERS = {
     "errors": 0, "params": 0, "controllers": 0, "discrete": 0, "environments": 0, "effects": 0, "experiment": 0, "experiment_io": 0, "fileio": 0, "lti": 0, "__init__": 0, "plausibility": 0, "limits": 0, "polynomials": 0, "margins": 0,
     "symbolic": 1, "friction": 1, "compensators": 1, "program": 1,
-    "analysis": 2, "executor": 2, "loops": 2, "simulation": 2, "export": 2, "independent": 2, "worstcase": 2,
+    "analysis": 2, "passivity": 2, "executor": 2, "loops": 2, "simulation": 2, "export": 2, "independent": 2,
+    "worstcase": 2,
     "tuning": 3, "gap": 3, "reproduce": 3, "table3": 3, "benchmark": 3,
     "plotting": 4, "runtime": 4, "reporting": 4,
     "pipeline": 5, "cli": 6, "__main__": 6,

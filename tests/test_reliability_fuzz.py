@@ -292,6 +292,8 @@ def _baselines(folder):
         "resolve_controller": (forecast_design.resolve_controller, dict(spec="pd:5:0.1")),
         "analyse_loop": (forecast_design.analyse_loop, dict(design=soft, compensator="ea-fob",
                                                              controller="pid:6:20:0.05:0.002")),
+        "analyse_passivity": (forecast_design.analyse_passivity, dict(design=soft, compensator="ea-fob",
+                                                                       controller="pid:6:20:0.05:0.002")),
         "Compensator": (Compensator, dict(kind="ea-fob")),
         "Design": (Design, {}),
         "environment_preset": (environment_preset, dict(name="soft")),
@@ -322,7 +324,7 @@ def _baselines(folder):
 
 
 _NAMES = ["RationalTF", "Testbed", "Environment", "PD", "PID", "TFController", "DiscreteController",
-          "OtherController", "parse_controller", "resolve_controller", "analyse_loop", "Compensator", "Design", "environment_preset",
+          "OtherController", "parse_controller", "resolve_controller", "analyse_loop", "analyse_passivity", "Compensator", "Design", "environment_preset",
           "EnvironmentSet", "resolve_environments", "resolve_testbed", "Effect", "Experiment", "Signals",
           "load_experiment", "save_experiment", "experiment_from_arrays", "transfer_functions", "force_loop",
           "disk_margin", "loop_margins", "fig6_table", "tune_q", "identify", "fit_friction", "simulate",

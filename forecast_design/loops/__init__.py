@@ -4,8 +4,8 @@ See :mod:`forecast_design.loops.continuous` and :mod:`forecast_design.loops.samp
 """
 
 from .closing import BREAK_POINTS, ObservedPlant, close_loop
-from .continuous import ForceLoop, force_loop
+from .continuous import ForceLoop, force_loop, observed_plant
 from .sampled import SampledForceLoop, ZohPlant, law_in_w, sampled_force_loop, to_w, zoh_plant
 
-__all__ = ["ForceLoop", "force_loop", "BREAK_POINTS", "ObservedPlant", "close_loop", "SampledForceLoop",
+__all__ = ["ForceLoop", "force_loop", "observed_plant", "BREAK_POINTS", "ObservedPlant", "close_loop", "SampledForceLoop",
            "sampled_force_loop", "ZohPlant", "zoh_plant", "to_w", "law_in_w"]

@@ -28,11 +28,11 @@ from ..margins import STABILITY_TOLERANCE
 from ..compensators import compensator_strategy
 from ..controllers import PAPER_PD, Controller, controller_tf, resolve_controller
 from ..params import Compensator, Design
-from ..symbolic.numeric import catalogue_polynomials
+from ..symbolic.numeric import catalogue_polynomials, strip_common_s
 from ..symbolic.observers import ObserverFilters
 from .closing import BREAK_POINTS, ObservedPlant, close_loop
 
-__all__ = ["ForceLoop", "force_loop", "BREAK_POINTS", "STABILITY_TOLERANCE"]
+__all__ = ["ForceLoop", "force_loop", "observed_plant", "BREAK_POINTS", "STABILITY_TOLERANCE"]
 
 
 
@@ -48,6 +48,53 @@ def _add(*polys: np.ndarray) -> np.ndarray:
 
 def _mul(*polys: np.ndarray) -> np.ndarray:
     return poly.trim(poly.mul(*polys))
+
+
+def observed_plant(N_s: np.ndarray, N_theta: np.ndarray, D: np.ndarray, filters: ObserverFilters, *,
+                   strip_position_mode: bool = True) -> ObservedPlant:
+    """Close the compensator's linear part around a plant given by its polynomials (module docstring).
+
+    Parameters
+    ----------
+    N_s, N_theta, D : ndarray
+        ``tau_s/tau_m = N_s/D`` [N m/N m] and ``theta/tau_m = N_theta/D`` [rad/(N m)], descending
+        powers of s (the catalogue's ``sea``/``sea_locked`` polynomials).
+    filters : ObserverFilters
+        The compensator's linear filters.
+    strip_position_mode : bool
+        Divide out an exact common factor s^m of N_s, D (and N_theta when the compensator reads
+        theta): the rigid-body position mode of a free output (k_e = 0), which tau_s does not see.
+        ``False`` keeps every factor, so that the result is linear in (N_s, N_theta, D)
+        (:mod:`forecast_design.passivity` relies on it).
+
+    Returns
+    -------
+    ObservedPlant
+        ``F_DOB``, the compensator's paths and the plant-input denominator.
+    """
+    D_o = np.asarray(filters.den, dtype=float)
+    A_m = np.asarray(filters.from_tau_m.num, dtype=float)
+    A_s = np.asarray(filters.from_tau_s.num, dtype=float)
+    A_t = np.asarray(filters.from_theta.num, dtype=float)
+    N_s, N_theta, D = (np.asarray(p, dtype=float) for p in (N_s, N_theta, D))
+
+    # G_theta acts on s^r theta (r = 2 for the motor FOB: acceleration; 1 for a viscous
+    # feed-forward); moving s^r into the plant lets the rigid-body position mode cancel exactly
+    # when k_e = 0.
+    uses_theta = bool(np.any(A_t != 0.0))
+    if uses_theta:
+        r = poly.trailing_zeros(A_t)
+        A_t = poly.drop_trailing(A_t, r)
+        N_theta = np.concatenate([N_theta, np.zeros(r)])
+    if strip_position_mode:
+        m = min(poly.trailing_zeros(N_s), poly.trailing_zeros(D),
+                poly.trailing_zeros(N_theta) if uses_theta else 10**9)
+        if 0 < m < 10**9:
+            N_s, D, N_theta = poly.drop_trailing(N_s, m), poly.drop_trailing(D, m), poly.drop_trailing(N_theta, m)
+
+    obs = _add(_mul(A_s, N_s), _mul(A_t, N_theta))
+    delta = _add(_mul(D_o, D), -_mul(A_m, D), -obs)
+    return ObservedPlant(_mul(N_s, D_o), delta, obs, _mul(_add(D_o, -A_m), D))
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,26 +208,7 @@ def force_loop(
     filters = compensator_strategy(compensator).linear_filters(
         compensator or Compensator(), believed if believed is not None else true_design)
     N_s, N_theta, D = _plant_polynomials(true_design)
-    D_o = np.asarray(filters.den, dtype=float)
-    A_m = np.asarray(filters.from_tau_m.num, dtype=float)
-    A_s = np.asarray(filters.from_tau_s.num, dtype=float)
-    A_t = np.asarray(filters.from_theta.num, dtype=float)
-
-    # G_theta acts on s^r theta (r = 2 for the motor FOB: acceleration; 1 for a viscous
-    # feed-forward); moving s^r into the plant lets the rigid-body position mode cancel exactly
-    # when k_e = 0.
-    uses_theta = bool(np.any(A_t != 0.0))
-    if uses_theta:
-        r = poly.trailing_zeros(A_t)
-        A_t = poly.drop_trailing(A_t, r)
-        N_theta = np.concatenate([N_theta, np.zeros(r)])
-    m = min(poly.trailing_zeros(N_s), poly.trailing_zeros(D), poly.trailing_zeros(N_theta) if uses_theta else 10**9)
-    if 0 < m < 10**9:
-        N_s, D, N_theta = poly.drop_trailing(N_s, m), poly.drop_trailing(D, m), poly.drop_trailing(N_theta, m)
-
-    obs = _add(_mul(A_s, N_s), _mul(A_t, N_theta))
-    delta = _add(_mul(D_o, D), -_mul(A_m, D), -obs)
-    plant = ObservedPlant(_mul(N_s, D_o), delta, obs, _mul(_add(D_o, -A_m), D))
+    plant = observed_plant(N_s, N_theta, D, filters)
     L, chi = close_loop(plant, C, break_at)
     poles = np.roots(chi) if len(chi) > 1 else np.zeros(0, dtype=complex)
     stable = bool(np.all(poles.real < -STABILITY_TOLERANCE * np.maximum(1.0, np.abs(poles))))
@@ -193,7 +221,7 @@ def force_loop(
         characteristic_polynomial=chi,
         closed_loop_poles=poles,
         stable=stable,
-        P=RationalTF(N_s, D, name="P"),
+        P=RationalTF(*strip_common_s(N_s, D), name="P"),
         F_DOB=plant.F_DOB,
         filters=filters,
         break_at=break_at,
