@@ -525,7 +525,14 @@ def test_an_unstable_cell_is_flagged_everywhere_and_left_out_of_the_set(lab):
     for r in cells.itertuples():
         design = Design(testbed=tb, environment=dict(envs.items())[r.environment], controller=parse_controller(r.controller))
         comp = parse_compensators(r.compensator)[0]
-        assert bool(r.stable) == loop_margins(design, comp, sampled=True, rate_hz=2000.0, delay_samples=0).stable
+        lm = loop_margins(design, comp, sampled=True, rate_hz=2000.0, delay_samples=0)
+        if r.environment != "locked":   # the load-independent flag: the port's passivity, computed on its own
+            from forecast_design import analyse_passivity
+            assert r.passive == analyse_passivity(design, comp, controller=design.controller).passive
+        else:
+            assert pd.isna(r.passive)
+        assert bool(r.stable) == lm.stable
+        assert r.disk_margin == pytest.approx(lm.alpha, rel=1e-12, abs=1e-15)   # one convention: delay 0, stated
         e = tr[(tr["controller"] == r.controller) & (tr["compensator"] == r.compensator)
                & (tr["environment"] == r.environment) & (tr["repetition"] == 0)]["tau_s_expected"].to_numpy()
         n = e.size
@@ -540,6 +547,7 @@ def test_an_unstable_cell_is_flagged_everywhere_and_left_out_of_the_set(lab):
     summary = json.loads((lab["out"] / "summary.json").read_text())
     assert {(c["controller"], c["environment"]) for c in summary["flags"]["unstable_cells"]} == {("pd:8:0", "locked")}
     assert "relative to the reference step" in summary["indicators"]["overshoot_percent"]
+    assert "delay_samples = 0" in summary["indicators"]["disk_margin"] and "delay_samples = 0" in report
     # the set rows aggregate the stable environments only, and count what they left out
     for comp in ("none", "ea-fob:10"):
         sets = df[(df["kind"] == "set") & (df["controller"] == "pd:8:0") & (df["compensator"] == comp)]
@@ -694,7 +702,8 @@ def test_benchmark_overlays_show_every_controller_and_mark_unstable_cells(lab):
         unstable = [ax for ax in fig.axes if ax.get_title().startswith("UNSTABLE")]
         assert {ax.get_title().split("\n")[0] for ax in unstable} == {"UNSTABLE pd:8:0 + none | locked",
                                                                       "UNSTABLE pd:8:0 + ea-fob:10 | locked"}
-        assert all(ax.get_facecolor() != fig.axes[0].get_facecolor() or ax in unstable for ax in fig.axes)
+        stable_faces = {ax.get_facecolor() for ax in fig.axes if ax not in unstable}
+        assert not stable_faces & {ax.get_facecolor() for ax in unstable}    # an unstable cell's panel stands out
         for ax in fig.axes:
             assert ax.get_ylabel() in ("", r"$\tau_s$ [N m]")
         assert all(ax.get_xlabel() == "t [s]" for ax in fig.axes[-2:])

@@ -13,7 +13,8 @@ and worst-case performance over a whole set of environments (Section 2). "Best" 
 largest repeatability, bandwidth and disk margin and the smallest MAE, rise time,
 overshoot, settling time and |steady-state error|.
 
-Flags: ``stable`` (run and environment rows) is the cell's (:func:`~.runner.cell_stable`);
+Flags: ``stable`` (run and environment rows) is the cell's (:func:`~.runner.cell_stable`), ``passive`` its
+load-independent coupled-stability flag (:func:`~.runner.cell_passive`);
 ``settled`` is the run's (step references; an environment row's is True when every run settled);
 ``unsettled_runs`` counts the step runs without a settling time (environment rows: the cell's;
 set rows: those of the environments aggregated). A cell that is not stable keeps its run and
@@ -45,7 +46,7 @@ LABELS = ("controller", "compensator", "environment", "reference")
 #: Environment parameter columns [SI].
 ENV_COLUMNS = ("J_e", "d_e", "k_e", "J_l", "d_l", "locked")
 #: Flag and count columns (see the module docstring).
-FLAG_COLUMNS = ("stable", "settled", "unsettled_runs", "excluded_cells")
+FLAG_COLUMNS = ("stable", "passive", "settled", "unsettled_runs", "excluded_cells")
 #: Every column of the table, in order.
 COLUMNS = ("kind", "statistic", *LABELS, "repetition", "initial_angle_rad", "which", *ENV_COLUMNS, *FLAG_COLUMNS,
            *METRICS)
@@ -115,7 +116,7 @@ def result_rows(cells: Iterable[CellResult]) -> list[dict[str, Any]]:
     excluded: dict[tuple, int] = {}
     for c in cells:
         env = {k: c.environment.get(k) for k in ENV_COLUMNS}
-        base = {**{k: c.labels[k] for k in LABELS}, **env, "stable": c.stable}
+        base = {**{k: c.labels[k] for k in LABELS}, **env, "stable": c.stable, "passive": c.passive}
         for r in c.runs:
             rows.append({"kind": "run", "statistic": "value", **base, "repetition": int(r["repetition"]),
                          "initial_angle_rad": float(r["initial_angle_rad"]), "which": None,
@@ -150,7 +151,7 @@ def result_rows(cells: Iterable[CellResult]) -> list[dict[str, Any]]:
         for stat in STATISTICS:
             row = {"kind": "set", "statistic": stat, "controller": ctrl, "compensator": comp,
                    "environment": "(set)", "reference": ref, "repetition": None, "initial_angle_rad": math.nan,
-                   "which": None, **dict.fromkeys(ENV_COLUMNS), "stable": None, "settled": None,
+                   "which": None, **dict.fromkeys(ENV_COLUMNS), "stable": None, "passive": None, "settled": None,
                    "unsettled_runs": sum(counts) if counts else None, "excluded_cells": excluded[(ctrl, comp, ref)]}
             which = []
             for m in METRICS:
@@ -184,7 +185,7 @@ def result_table(cells: Iterable[CellResult]):
 
     df = pd.DataFrame(result_rows(cells), columns=list(COLUMNS))
     df["repetition"] = df["repetition"].astype("Int64")
-    for col in ("locked", "stable", "settled"):
+    for col in ("locked", "stable", "passive", "settled"):
         df[col] = df[col].astype("boolean")
     for col in ("unsettled_runs", "excluded_cells"):
         df[col] = df[col].astype("Int64")
@@ -237,7 +238,7 @@ def summary(rows: Sequence[Mapping[str, Any]], spec: Mapping[str, Any], info: Ma
                      "step_runs": sum(1 for r in rows if r["kind"] == "run" and r["settled"] is not None)},
            "set": [{k: r[k] for k in ("controller", "compensator", "reference", "statistic", "which",
                                       "unsettled_runs", "excluded_cells", *METRICS)} for r in sets],
-           "environments": [{k: r[k] for k in (*LABELS, "stable", "settled", "unsettled_runs", *METRICS)}
+           "environments": [{k: r[k] for k in (*LABELS, "stable", "passive", "settled", "unsettled_runs", *METRICS)}
                             for r in envs]}
     return _jsonable(doc)
 

@@ -74,7 +74,14 @@ INDICATOR_DEFINITIONS = {
     "steady_state_error_N_m": "A - y_f [N m]",
     "bandwidth_hz": "-3 dB frequency of tau_s / tau_r from a chirp reference [Hz]",
     "disk_margin": "balanced disk margin of the sampled force loop (controller, compensator, testbed, "
-                   "environment; broken at the controller output; 0 when unstable) [-]",
+                   "environment; broken at the controller output; 0 when unstable) at the control rate with the "
+                   "command applied in the period it is computed (delay_samples = 0, as the virtual testbed and the "
+                   "firmware run it: `margins --sampled --delay-samples 0` reproduces it; `margins --sampled` "
+                   "alone assumes one sample of computation delay) [-]",
+    "passive": "load-independent: the cell's force-controlled SEA, seen from the environment at the link's end, is "
+               "a passive one-port (Colgate and Hogan), so it stays stable with every passive environment "
+               "(forecast_design.analyse_passivity; continuous loop, the compensator believing the cell's "
+               "environment); empty where it does not apply (code without a linearisation, a locked belief)",
     "stable": "the cell's sampled force loop is nominally stable (characteristic polynomial) and no run nor the "
               "expected response diverged; empty when the controller has no linear model and nothing diverged",
     "aggregates": "per environment over its runs; over the set over the environments whose cell is not unstable "

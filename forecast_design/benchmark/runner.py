@@ -89,6 +89,7 @@ class CellResult:
     tau_r: np.ndarray
     stable: bool | None = None
     trace_step: int = 1
+    passive: bool | None = None
 
     def thinned(self, points: int = TRACE_POINTS) -> "CellResult":
         """This cell with at most about `points` samples per trace (every n-th sample; ``trace_step`` says n).
@@ -109,7 +110,8 @@ class CellResult:
         """Metrics without traces (the ``cells/<key>.json`` file)."""
         return {"key": self.key, "labels": dict(self.labels), "environment": dict(self.environment),
                 "runs": [dict(r) for r in self.runs], "repeatability": self.repeatability,
-                "disk_margin": self.disk_margin, "stable": self.stable, "trace_step": self.trace_step}
+                "disk_margin": self.disk_margin, "stable": self.stable, "trace_step": self.trace_step,
+                "passive": self.passive}
 
     def save(self, folder: Path) -> None:
         """Write ``<key>.npz`` then ``<key>.json`` (the JSON last: its presence marks a finished cell).
@@ -146,12 +148,12 @@ class CellResult:
                 arrays = {k: npz[k] for k in ("t", "tau_s", "expected", "tau_r")}
             runs = tuple({k: (math.nan if v is None and k != "settled" else v) for k, v in r.items()}
                          for r in doc["runs"])
-            stable = doc["stable"]
-            if stable is not None and not isinstance(stable, bool):
+            stable, passive = doc["stable"], doc.get("passive")
+            if any(v is not None and not isinstance(v, bool) for v in (stable, passive)):
                 return None
             return cls(key=key, labels=doc["labels"], environment=doc["environment"], runs=runs,
                        repeatability=_num(doc["repeatability"]), disk_margin=_num(doc["disk_margin"]), stable=stable,
-                       trace_step=int(doc["trace_step"]), **arrays)
+                       trace_step=int(doc["trace_step"]), passive=passive, **arrays)
         except Exception:     # noqa: BLE001 - any damage (BadZipFile, EOFError, KeyError, TypeError...) means recompute
             return None
 
@@ -271,7 +273,39 @@ def run_cell(task: tuple) -> CellResult:
     return CellResult(key=key, labels=cell.labels, environment=cell.environment.to_mapping(), runs=tuple(rows),
                       repeatability=repeatability, disk_margin=margin, t=np.array(t), tau_s=tau,
                       expected=np.array(expected.tau_s), tau_r=np.array(runs[0].tau_r),
-                      stable=cell_stable(dm, diverged))
+                      stable=cell_stable(dm, diverged), passive=cell_passive(design, spec.rate_hz))
+
+
+def cell_passive(design: Design, rate_hz: float) -> bool | None:
+    """The cell's load-independent flag: is its force-controlled SEA stable with every passive environment?
+
+    :func:`forecast_design.passivity.analyse_passivity` of the cell's controller and compensator (the
+    compensator believing the cell's environment), port at the link's end; None where it does not
+    apply (a controller written as code without a linearisation, a locked output as the belief,
+    an SFM whose friction is not carried).
+
+    Parameters
+    ----------
+    design : Design
+        The cell's testbed, environment, controller and compensator.
+    rate_hz : float
+        Control rate [Hz] (a discrete controller's continuous equivalent).
+
+    Returns
+    -------
+    bool or None
+        ``passive`` of the port.
+    """
+    from ..errors import ForecastError
+    from ..passivity import analyse_passivity
+
+    if design.controller is not None and not design.controller.has_equations:
+        return None
+    try:
+        return bool(analyse_passivity(design, design.compensator, controller=design.controller,
+                                      rate_hz=rate_hz).passive)
+    except ForecastError:
+        return None
 
 
 def cell_stable(margin: Any, diverged: bool) -> bool | None:

@@ -253,7 +253,7 @@ class BenchmarkSpec:
         doc = {"cell": cell.labels, "controller": cell.controller.to_mapping(),
                "compensator": cell.compensator.to_mapping(), "environment": cell.environment.to_mapping(),
                "reference": cell.reference.to_mapping(), "duration_s": cell.duration_s, "hardware": self.hardware(),
-               "sfm": sfm_params if cell.compensator.kind == "sfm" else None, "version": 4,
+               "sfm": sfm_params if cell.compensator.kind == "sfm" else None, "version": 5,
                "code": cell.controller.content_digest() if cell.controller.is_code else None}
         text = json.dumps(doc, sort_keys=True, default=str)
         return hashlib.sha256(text.encode()).hexdigest()[:20]
