@@ -275,3 +275,22 @@ def test_a_cli_number_error_names_no_internal_function(capsys):
         main(["margins", "--skew", "abc"])
     code, err = info.value.code, capsys.readouterr().err
     assert code == 2 and "_float_range" not in err and "expected a number, got 'abc'" in err
+
+
+def test_an_environment_file_with_its_testbed_needs_no_testbed_option(mysea, tmp_path, capsys):
+    """`--env mysea.toml#...` alone uses the file's [testbed], never Table 1's J_m, d_m, k (said in a note)."""
+    first = f"{mysea}#e[k_e=2]"
+    code, out, err = _cli(capsys, "margins", "--env", first, "--compensator", "ld-dob", "--json")
+    assert code == 0, err
+    alone = json.loads(out)
+    assert "note: testbed from" in err and "mysea.toml's [testbed]" in err
+    code, out, err = _cli(capsys, "margins", "--env", first, "--testbed", mysea, "--compensator", "ld-dob", "--json")
+    assert code == 0, err
+    given = json.loads(out)
+    assert alone["assumptions"]["testbed"] == given["assumptions"]["testbed"] == {"J_m": J_M, "d_m": D_M, "k": K}
+    assert alone["disk_margin"] == given["disk_margin"]
+    # the benchmark too
+    code, out, err = _cli(capsys, "benchmark", "--envs", mysea, "--compensator", "none", "--repetitions", "2",
+                          "--duration", "0.2", "--no-plots", "--workers", "1", "--out", tmp_path / "bench", "--json")
+    assert json.loads(out)["benchmark"]["testbed"] == {"J_m": J_M, "d_m": D_M, "k": K}
+    assert "mysea.toml's [testbed]" in err

@@ -106,7 +106,26 @@ def _testbed_from_args(args: argparse.Namespace):
     from ..environments import resolve_testbed
 
     experiment = _experiment_from_args(args, "testbed", "env")
-    return resolve_testbed(experiment or getattr(args, "testbed", None))
+    spec = experiment or getattr(args, "testbed", None)
+    if spec is None:
+        from ..environments import testbed_of_environment_files
+
+        found = testbed_of_environment_files(getattr(args, "env", None))
+        if found is not None:      # the file describes the SEA once: its [testbed], not Table 1's
+            _note_once(args, f"testbed from {found[1]}'s [testbed] (no --testbed given)")
+            return found[0]
+    return resolve_testbed(spec)
+
+
+def _note_once(args: argparse.Namespace, text: str) -> None:
+    """One ``forecast-design: note:`` line per invocation for ``text``."""
+    said = getattr(args, "_notes_said", None)
+    if said is None:
+        said = set()
+        setattr(args, "_notes_said", said)
+    if text not in said:
+        said.add(text)
+        _note([text])
 
 
 def _environments_from_args(args: argparse.Namespace, *, seed: int = 0):

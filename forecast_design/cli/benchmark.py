@@ -86,6 +86,14 @@ def _cmd_benchmark(args: argparse.Namespace) -> int:
                     "repetitions": max(len(c.runs) for c in cells)}
     else:
         testbed = resolve_testbed(args.testbed)
+        if args.testbed is None:
+            from ..environments import testbed_of_environment_files
+
+            found = testbed_of_environment_files(args.envs)
+            if found is not None:      # the set's file describes the SEA once: its [testbed], not Table 1's
+                testbed = found[0]
+                print(f"forecast-design: note: testbed from {found[1]}'s [testbed] (no --testbed given)",
+                      file=sys.stderr)
         envs = resolve_environments(args.envs or "exp-soft,locked", testbed=testbed, seed=args.seed)
         for note in envs.notes:
             print(f"forecast-design: note: {note}", file=sys.stderr)
