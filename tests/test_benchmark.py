@@ -734,3 +734,12 @@ def test_benchmark_heatmap_marks_unstable_cells_outside_its_colour_scale(lab):
         assert "hatched: unstable" in fig.get_suptitle()
     finally:
         plt.close(fig)
+
+
+def test_repeated_envs_options_add_to_the_set(tmp_path, capsys):
+    """`--envs soft --envs stiff` benchmarks both (a repeat used to replace the first silently)."""
+    code = main(["benchmark", "--envs", "soft", "--envs", "stiff", "--compensator", "none", "--repetitions", "2",
+                 "--duration", "0.2", "--no-plots", "--workers", "1", "--out", str(tmp_path / "b"), "--json"])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert list(json.loads(out)["benchmark"]["environments"]) == ["soft", "stiff"]

@@ -17,9 +17,10 @@ def _configure(p: argparse.ArgumentParser) -> None:
                    help="force controller under test, repeatable (default pd:5:0.1, the paper's): " + CONTROLLER_FORMS)
     p.add_argument("--compensator", action="append", default=None, metavar="LIST",
                    help="comma list of friction compensators, KIND[:W_Q_HZ] (default none,sfm,ea-fob)")
-    p.add_argument("--envs", default=None, metavar="SET",
+    p.add_argument("--envs", "--env", dest="envs", action="append", default=None, metavar="SET",
                    help="environment set: presets (soft,stiff), random:N, inline k_e=..,J_e=.. or a TOML file "
-                        "of [[environment]] tables with grids/uncertainty (default exp-soft,locked)")
+                        "of [[environment]] tables with grids/uncertainty (default exp-soft,locked); repeats add "
+                        "their environments to the set")
     p.add_argument("--testbed", default=None, metavar="SPEC",
                    help="the SEA under test: inline (k=40[,J_m=..][,d_m=..]) or a TOML file with [testbed] "
                         "(default: the paper's Table 1)")
