@@ -208,9 +208,12 @@ def test_simulate_a_scenario_naming_the_testbed_file(mysea, tmp_path, capsys):
 
 
 def test_export_builds_the_ld_dob_on_the_users_link(mysea, tmp_path, capsys):
-    code, _, err = _cli(capsys, "export", "--testbed", mysea, "--env", f"{mysea}#held", "--compensator", "ld-dob",
-                        "--out", tmp_path / "c")
+    code, out, err = _cli(capsys, "export", "--testbed", mysea, "--env", f"{mysea}#held", "--compensator", "ld-dob",
+                          "--out", tmp_path / "c", "--json")
     assert code == 0, err
+    said = json.loads(out)     # the JSON says what the C was built for, as the header does
+    assert said["testbed"] == {"J_m": J_M, "d_m": D_M, "k": K}
+    assert (said["environment"]["J_l"], said["environment"]["d_l"], said["environment"]["locked"]) == (J_L, D_L, True)
     header = (tmp_path / "c" / "fd_controller.h").read_text()
     assert f"J_m = {J_M}, d_m = {D_M}, k = {K}" in header and f"J_l = {J_L}, d_l = {D_L}" in header
     result = fd.export_controller(out_dir=tmp_path / "c2", compensator="ld-dob", env=f"{mysea}#held",

@@ -84,6 +84,8 @@ class ExportResult:
             "n_sections": self.program.n_sections,
             "controller": None if self.design.controller is None else self.design.controller.to_mapping(),
             "compensator": None if self.design.compensator is None else self.design.compensator.to_mapping(),
+            # what the observer's nominal plant was built from (the believed environment, its link)
+            "testbed": self.design.testbed.to_mapping(), "environment": self.design.environment.to_mapping(),
             "sha256": self.digest,
         }
 

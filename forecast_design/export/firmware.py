@@ -156,6 +156,7 @@ class FirmwareResult:
                 "n_sections": self.program.n_sections, "tau_max_N_m": self.program.tau_max,
                 "controller": None if self.design.controller is None else self.design.controller.to_mapping(),
                 "compensator": (self.design.compensator or Compensator()).to_mapping(),
+                "testbed": self.design.testbed.to_mapping(), "environment": self.design.environment.to_mapping(),
                 "build": "make (board: build/fd_firmware.elf, .bin); make pil (qemu netduinoplus2: build/fd_pil.elf)"}
 
 
