@@ -171,3 +171,19 @@ def test_a_scenario_reference_becomes_the_same_firmware_reference(mapping):
     signal = reference_from_mapping(mapping)
     t = np.arange(400) / 2000.0
     np.testing.assert_allclose(scenario_reference(signal).signal()(t), signal(t), rtol=0, atol=1e-15)
+
+
+@pytest.mark.slow
+def test_pil_takes_the_scenarios_torque_limit_as_the_firmwares(tmp_path, capsys):
+    """A scenario's [simulation] torque_limit is the firmware's clamp on tau_m (it was the 1 N m default)."""
+    from forecast_design.cli import main
+    from test_user_testbed import SCENARIO
+
+    text = SCENARIO.replace("duration_s = 0.2", "duration_s = 0.05\ntorque_limit = 0.05")
+    path = _user_scenario(tmp_path, text)
+    code = main(["pil", "--scenario", str(path), "--out", str(tmp_path / "run.toml"), "--work-dir",
+                 str(tmp_path / "fw"), "--json", str(tmp_path / "s.json")])
+    assert code == 0, capsys.readouterr().err
+    tau_m = np.asarray(load_experiment(tmp_path / "run.toml").signals.columns()["tau_m"])
+    assert np.max(np.abs(tau_m)) <= 0.05 * (1 + 1e-6)        # the square of +-0.3 N m asks for more
+    assert np.max(np.abs(tau_m)) >= 0.05 * (1 - 1e-3)        # and reaches the clamp

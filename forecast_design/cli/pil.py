@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 
 from . import _command, _compensator_from_args, _configure_export, _controller_from_args, _one_environment_from_args
@@ -53,6 +54,14 @@ def _cmd_pil(args: argparse.Namespace) -> int:
             raise ParameterError(f"give --scenario or --{given[0].replace('_', '-')}, not both (the scenario holds "
                                  "the design the firmware runs and the virtual testbed)", name=given[0])
         scenario = load_scenario(args.scenario)     # the one resolution of the scenario, as simulate's
+        limit = float(scenario.options.get("torque_limit", math.inf))
+        if not math.isfinite(args.tau_max) and math.isfinite(limit):
+            # the scenario's torque limit is the firmware's, within what the output stage can command
+            if limit > args.tau_full_scale:
+                _note([f"the scenario's torque_limit {limit:g} N m exceeds the output stage's full scale "
+                       f"{args.tau_full_scale:g} N m (--tau-full-scale): the firmware clamps at the full scale"])
+            args.tau_max = min(limit, args.tau_full_scale)
+            options = _firmware_options_from_args(args, link_timeout_ms=PIL_LINK_TIMEOUT_MS)
         result = run_pil_scenario(scenario, reference=args.reference, duration=args.duration, out=args.out,
                                   work_dir=args.work_dir, options=options, icount=not args.no_icount)
         _note(scenario.notes)                       # after the run: a refusal stays one line
