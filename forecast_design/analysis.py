@@ -30,6 +30,7 @@ from .margins import (
 )
 from .environments import resolve_environments, resolve_testbed
 from .controllers import PAPER_PD, resolve_controller
+from .errors import ParameterError
 from .params import Compensator, Design
 
 __all__ = [
@@ -292,6 +293,9 @@ def analyse_loop(
     from .environments import resolve_environments as _resolve
 
     sigma = check_skew(skew)
+    if environment_name is not None and not isinstance(environment_name, str):
+        raise ParameterError(f"environment_name must be a string or None, got {type(environment_name).__name__}",
+                             name="environment_name", value=environment_name)
     loop, design, believed, comp, ctrl, rate_hz, notes = _build_loop(
         design, compensator, testbed, believed, controller, break_at, sampled, rate_hz, delay_samples, "analyse_loop")
     sampled = isinstance(loop, SampledForceLoop)
