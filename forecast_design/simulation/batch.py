@@ -159,8 +159,13 @@ def _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc
     _loop(n, nsub, dsub[i], p, harm, np.zeros(5), closed, REF[i].copy(), OL[i].copy(), torque_limit, enc_step,
           NOISE[i].copy(), KNOM[i], sos, np.zeros((sos.shape[0], 2)), meta, gains, FLAGS[i].copy(), PAR[i].copy(),
           FFC[i].copy(), ffh, np.zeros(5), meas, truth, np.zeros(HL[i]))
-    MEAS[i] = meas
-    TRUTH[i] = truth
+    # element loops, not MEAS[i] = meas: a slice assignment makes numba compile its shape-mismatch
+    # message (string formatting, ~5 s of every first compile) for a shape that cannot differ here
+    for r in range(n):
+        for c in range(meas.shape[1]):
+            MEAS[i, r, c] = meas[r, c]
+        for c in range(truth.shape[1]):
+            TRUTH[i, r, c] = truth[r, c]
 
 
 @njit(parallel=True)
