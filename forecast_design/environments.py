@@ -687,42 +687,30 @@ def _finite(value: Any, fail) -> float:
 
 
 def testbed_of_environment_files(specs: Any) -> tuple[Testbed, str] | None:
-    """The testbed an environment file describes, for a verb given ``--env FILE`` and no ``--testbed``.
-
-    A file that describes the user's SEA once (``[testbed]`` beside its ``[[environment]]`` tables)
-    must not be paired with Table 1's J_m, d_m, k: the file's ``[testbed]`` is the testbed.
+    """The ``[testbed]`` of the environment files among ``specs`` (``--env FILE`` without ``--testbed``).
 
     Parameters
     ----------
-    specs : str, path, sequence of them, or anything else
-        Environment specs as the CLI received them (``FILE.toml``, ``FILE.toml#NAME``, presets,
-        inline values, comma-separated lists); only existing environment files are read.
+    specs : str, path or sequence of them
+        Environment specs as given (``FILE.toml``, ``FILE.toml#NAME``, presets, comma lists).
 
     Returns
     -------
     (Testbed, str) or None
-        The testbed and the file that carries it; None when no file carries a ``[testbed]``.
+        The testbed and its file; None when no environment file carries a ``[testbed]``.
 
     Raises
     ------
     ParameterError
         Two files carrying different testbeds.
     """
-    if isinstance(specs, (str, os.PathLike)):
-        specs = [specs]
-    if not isinstance(specs, (list, tuple)):
-        return None
     found: tuple[Testbed, str] | None = None
-    for spec in specs:
-        if not isinstance(spec, (str, os.PathLike)):
-            continue
-        for part in str(spec).split(","):
+    for spec in [specs] if isinstance(specs, (str, os.PathLike)) else (specs if isinstance(specs, (list, tuple)) else []):
+        for part in str(spec).split(",") if isinstance(spec, (str, os.PathLike)) else ():
             path = Path(part.split("#", 1)[0].strip())
-            if path.suffix.lower() != ".toml" or not path.is_file():
-                continue
-            doc = _read_toml(path)
+            doc = _read_toml(path) if path.suffix.lower() == ".toml" and path.is_file() else {}
             if "format" in doc or not isinstance(doc.get("testbed"), Mapping):
-                continue     # a scenario or run carries its own testbed through its environment
+                continue     # not an environment file with a testbed (a scenario's goes with its environment)
             testbed = _testbed_table(doc["testbed"], str(path))
             if found is not None and found[0] != testbed:
                 raise ParameterError(f"{found[1]} and {path} describe different testbeds: give --testbed",
