@@ -73,6 +73,9 @@ PICTURES = (
      "bench/heatmap.png"),
     ("diagnose.png", "the sim-to-real gap diagnosis",
      ["diagnose", "{w}/run/run.toml", "--report", "{w}/diagnosis"], "diagnosis/before_after.png"),
+    ("passivity.png", "the port's passivity (stable with every passive environment?)",
+     ["passivity", "--compensator", "ea-fob", "--w-q-hz", "10", "--env", "soft", "--plot", "{w}/passivity.png"],
+     "passivity.png"),
 )
 
 
