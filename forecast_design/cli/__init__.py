@@ -672,11 +672,7 @@ def _cmd_margins(args: argparse.Namespace) -> int:
               f" ({len(cm.phase_crossovers)} phase and {len(cm.gain_crossovers)} gain crossovers)")
         print(f"compensator: {analysis.assumptions['compensator']['linear_analysis']}")
         if worst is not None:
-            J, d, k_e = worst.point
-            print(f"worst case over J, d, k_e x [{1 - worst.uncertainty:g}, {1 + worst.uncertainty:g}] (certified, "
-                  f"continuous loop): disk margin in [{worst.lower:.6f}, {worst.upper:.6f}] (gap {worst.gap:.2g}) at "
-                  f"J = {J:.4g} kg m^2, d = {d:.4g} N m s/rad, k_e = {k_e:.4g} N m/rad; the vertices alone gave "
-                  f"{worst.vertex_min:.6f}")
+            print(worst.summary("disk margin"))
         if args.plot:
             print(f"plot: {args.plot}")
     return 0

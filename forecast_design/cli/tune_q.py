@@ -87,13 +87,8 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
         print(f"{result.observer}: w_q = {hz(result.w_q_hz)}{extra}, worst ratio {result.worst_ratio:.4f} "
               f"({result.worst_environment or '-'}), feasible {result.feasible}; scan best {hz(result.scan_w_q_hz)}, "
               f"agrees {result.agrees_with_scan}; {result.plants} plants, {result.evaluations} evaluations")
-        wc = result.worst_case
-        if wc is not None:
-            J, d, k_e = wc.point
-            print(f"certified over J, d, k_e x [{1 - wc.uncertainty:g}, {1 + wc.uncertainty:g}] (continuous loop): "
-                  f"worst ratio in [{wc.lower:.6f}, {wc.upper:.6f}] (gap {wc.gap:.2g}), at J = {J:.4g} kg m^2, "
-                  f"d = {d:.4g} N m s/rad, k_e = {k_e:.4g} N m/rad in {result.worst_case_environment}; the vertices "
-                  f"alone gave {wc.vertex_min:.6f}")
+        if result.worst_case is not None:
+            print(result.worst_case.summary("worst ratio", f" in {result.worst_case_environment}"))
     if result.worst_case is None and args.uncertainty > 0.0 and args.sampled:
         print("forecast-design: note: --sampled: the worst case over the box is checked at its vertices only (the "
               "certified bound is for the continuous loop)", file=sys.stderr)
