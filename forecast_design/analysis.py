@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from .loops.sampled import SampledForceLoop, sampled_force_loop
+from .loops.sampled import COMMAND_DELAY_SAMPLES, SampledForceLoop, sampled_force_loop
 from .margins import (
     ClassicalMargins,
     DiskMargin,
@@ -79,7 +79,7 @@ def loop_margins(
     break_at: str = "controller",
     sampled: bool = False,
     rate_hz: float = 2000.0,
-    delay_samples: int = 1,
+    delay_samples: int = COMMAND_DELAY_SAMPLES,
     skew: float = 0.0,
     sigma: float | None = None,
 ) -> DiskMargin:
@@ -264,7 +264,7 @@ def analyse_loop(
     break_at: str = "controller",
     sampled: bool = False,
     rate_hz: float = 2000.0,
-    delay_samples: int = 1,
+    delay_samples: int = COMMAND_DELAY_SAMPLES,
     skew: float = 0.0,
     environment_name: str | None = None,
 ) -> LoopAnalysis:
@@ -360,7 +360,7 @@ class SfmLoopCheck:
 
 
 def sfm_loop_check(design: Design, friction: Any, *, controller: Any = None, rate_hz: float = 2000.0,
-                   delay_samples: int = 1) -> SfmLoopCheck:
+                   delay_samples: int = COMMAND_DELAY_SAMPLES) -> SfmLoopCheck:
     """Linear stability of the sampled force loop with an SFM compensator (before code goes to a board).
 
     The SFM feed-forward ``tau_m = u + viscous v_hat + coulomb sign(v_hat) + ...`` is, linearised,

@@ -13,7 +13,15 @@ __all__ = [
     "ExportError",
     "OutputError",
     "EXIT_NOT_IDENTIFIABLE",
+    "IllConditionedWarning",
 ]
+
+
+class IllConditionedWarning(UserWarning):
+    """A number its inputs do not determine in double precision: an ill-conditioned least-squares
+    regressor (a friction fit), or polynomial roots whose side of the stability boundary the
+    coefficients cannot tell (a sampled loop given as z-polynomials). The number is printed; it
+    may be wrong, and the warning says so and names a better-conditioned route."""
 
 
 class ForecastError(Exception):

@@ -276,6 +276,56 @@ def test_disk_margin_discrete_integrator_closed_form():
     assert not disk_margin(RationalTF([1.0], [1.0, 0.0], dt=dt)).stable   # 1/z: pole at z = -1
 
 
+def test_undetermined_root_follows_the_first_order_perturbation_bound():
+    """A root cluster next to the boundary is undetermined; well-separated roots are not."""
+    from forecast_design.margins.exact import undetermined_root
+
+    separated = np.poly([0.5, -0.3, 0.2 + 0.4j, 0.2 - 0.4j]).real
+    assert undetermined_root(separated, discrete=True) is None
+    # a five-fold root at 0.999: rounding its coefficients scatters the computed roots by ~eps^(1/5),
+    # past z = 1; the bound covers the scatter
+    cluster = np.poly([0.999] * 5).real
+    root, radius, distance = undetermined_root(cluster, discrete=True)
+    assert radius > distance and np.all(np.abs(np.roots(cluster) - 0.999) < radius)
+    assert undetermined_root(np.poly([-1.0, -2.0]).real, discrete=False) is None
+    assert undetermined_root(np.poly([1j, -1j]).real, discrete=False) is None   # inside the tolerance band
+
+
+@pytest.mark.parametrize("env", ["soft", "stiff"])
+def test_a_z_polynomial_loop_whose_roots_it_cannot_place_says_so(env):
+    """A sampled loop written as z-polynomials at 2 kHz with low cutoffs has poles crowded at z = 1
+    that its coefficients do not determine: the z-form's verdict is noise (stable loops read as
+    unstable, margins off by 70 %). Every such answer carries an IllConditionedWarning; the w-plane
+    form (SampledForceLoop.disk_margin, whose verdicts the simulation reproduces:
+    test_the_sampled_margin_and_the_simulation_agree_on_stability) is the reference."""
+    import warnings
+
+    from forecast_design.errors import IllConditionedWarning
+    from forecast_design.loops import sampled_force_loop
+    from forecast_design.params import Compensator, Design
+
+    design = Design.nominal(env)
+    wrong = warned = 0
+    for kind in ("lo-dob", "ea-fob", "ld-dob"):
+        for w_q in (2.0, 10.0, 50.0, 200.0):
+            for delay in (0, 1):
+                loop = sampled_force_loop(design, Compensator(kind=kind, w_q_hz=w_q), delay_samples=delay)
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    z_form = disk_margin(loop.L)
+                said = any(issubclass(w.category, IllConditionedWarning) for w in caught)
+                ref = loop.disk_margin()
+                bad = z_form.stable != ref.stable or abs(z_form.alpha - ref.alpha) > 0.01 * ref.alpha
+                assert said or not bad, (kind, w_q, delay, z_form.alpha, ref.alpha)
+                wrong += bad
+                warned += said
+    assert wrong > 0 and warned >= wrong      # the sweep holds the case the warning exists for
+    coarse = sampled_force_loop(design, Compensator(kind="lo-dob", w_q_hz=20.0), rate_hz=500.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", IllConditionedWarning)        # well conditioned: silent and right
+        assert disk_margin(coarse.L).alpha == pytest.approx(coarse.disk_margin().alpha, rel=1e-6)
+
+
 def test_disk_margin_discrete_peak_at_nyquist():
     # L(z) = 0.5/(z + 0.2): |S| is largest at z = -1 where L = 0.5/(-0.8) = -0.625
     dt = 0.001

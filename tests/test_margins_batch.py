@@ -74,7 +74,10 @@ def test_python_control_agrees_at_the_reported_peak():
 
 def test_sampled_loops_and_mixed_orders_in_one_call():
     d = Design.nominal("stiff")
-    loops = [sampled_force_loop(d, Compensator(kind="lo-dob", w_q_hz=5.0)).L,
+    # a sampled loop whose z-polynomials determine their roots (500 Hz; at 2 kHz a 5 Hz cutoff's
+    # poles crowd z = 1 and the z-form's answer is noise: test_margins.py)
+    sampled = sampled_force_loop(d, Compensator(kind="lo-dob", w_q_hz=20.0), rate_hz=500.0)
+    loops = [sampled.L,
              force_loop(Design.nominal("soft")).L,
              RationalTF([25.0], [1.0, 10.0, 10.0, 10.0]),       # Seiler et al. 2020
              RationalTF([0.5], [1.0, -1.0])]                    # closed loop s - 0.5: unstable
@@ -83,6 +86,7 @@ def test_sampled_loops_and_mixed_orders_in_one_call():
         m = disk_margin(L)
         assert st == m.stable
         assert a == pytest.approx(m.alpha, rel=1e-9, abs=0.0)
+    assert batch.alpha[0] == pytest.approx(sampled.disk_margin().alpha, rel=1e-6)   # its w-plane form
     assert batch.alpha[2] == pytest.approx(0.45809255, abs=1e-8)   # the value Seiler et al. publish
     assert not batch.stable[3] and batch.alpha[3] == 0.0
 

@@ -275,29 +275,45 @@ def test_a_q_cutoff_at_or_above_nyquist_is_refused_everywhere(tmp_path, capsys, 
     assert not (tmp_path / "c").exists()
 
 
+@pytest.mark.parametrize("delay_samples", [0, 1, 2])
 @pytest.mark.parametrize("method", ["tustin", "zoh", "backward-euler"])
-def test_the_sampled_margin_and_the_simulation_agree_on_stability(method):
-    """With the simulator's own loop (command applied within the period, delay 0) and the controller's
-    discretization, the sampled analysis says unstable exactly when the simulated run diverges."""
+def test_the_sampled_margin_and_the_simulation_agree_on_stability(method, delay_samples):
+    """The sampled analysis says unstable exactly when the simulated run diverges: with the toolbox's
+    convention (the command applied within its period, delay 0, as the simulator runs it) and with a
+    board that applies it d periods late (``delay_samples = d`` against a simulated ``delay`` effect
+    of d periods), for the controller's own discretization."""
     from forecast_design.analysis import loop_margins
     from forecast_design.controllers import PD
+    from forecast_design.effects import Delay
+    from forecast_design.loops import COMMAND_DELAY_SAMPLES, sampled_force_loop
     from forecast_design.params import Compensator, Design
     from forecast_design.simulation import simulate
     from forecast_design.simulation.references import Step
 
+    assert COMMAND_DELAY_SAMPLES == 0
+    rate = 2000.0
     design = Design.nominal("stiff")
+    effects = [Delay(delay_s=delay_samples / rate)] if delay_samples else []
     verdicts = []
-    for P in (5.0, 300.0, 3000.0):
+    for P in (5.0, 100.0, 300.0, 3000.0):
         ctrl = PD(P=P, D=0.02 * P, T_f=0.0008, discretization=method)
-        for kind in ("ea-fob", "lo-dob"):
+        for kind in ("none", "ea-fob", "lo-dob"):
             for w_q in (200.0, 950.0):
                 comp = Compensator(kind=kind, w_q_hz=w_q)
-                dm = loop_margins(design, comp, controller=ctrl, sampled=True, rate_hz=2000.0, delay_samples=0)
+                kwargs = {} if delay_samples == COMMAND_DELAY_SAMPLES else {"delay_samples": delay_samples}
+                dm = loop_margins(design, comp, controller=ctrl, sampled=True, rate_hz=rate, **kwargs)
+                duration = 0.5
+                if not dm.stable:   # long enough for 25 e-folds of the fastest-growing pole (a slow one: seconds)
+                    growth = np.log(np.abs(sampled_force_loop(design, comp, controller=ctrl, rate_hz=rate,
+                                                              delay_samples=delay_samples).closed_loop_poles).max())
+                    duration = min(max(duration, 25.0 / growth / rate), 10.0)
                 run = simulate(Design(testbed=design.testbed, environment=design.environment, controller=ctrl,
-                                      compensator=comp),
-                               reference=Step(amplitude=0.2), duration_s=0.5, rate_hz=2000.0,
+                                      compensator=comp), effects=effects,
+                               reference=Step(amplitude=0.2), duration_s=duration, rate_hz=rate,
                                process_noise_std=0.0, encoder_counts=None)
                 verdicts.append((P, kind, w_q, dm.stable, run.diverged_at_s is None))
+                if kind == "none":
+                    break
     assert all(stable == ran for *_, stable, ran in verdicts), verdicts
     assert {stable for *_, stable, _ in verdicts} == {True, False}     # the sweep sees both answers
 

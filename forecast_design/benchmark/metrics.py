@@ -37,6 +37,7 @@ import math
 import numpy as np
 
 from ..analysis import loop_margins
+from ..loops import COMMAND_DELAY_SAMPLES
 from ..margins import DiskMargin
 from ..errors import ParameterError
 from ..params import Compensator, Design
@@ -75,9 +76,8 @@ INDICATOR_DEFINITIONS = {
     "bandwidth_hz": "-3 dB frequency of tau_s / tau_r from a chirp reference [Hz]",
     "disk_margin": "balanced disk margin of the sampled force loop (controller, compensator, testbed, "
                    "environment; broken at the controller output; 0 when unstable) at the control rate with the "
-                   "command applied in the period it is computed (delay_samples = 0, as the virtual testbed and the "
-                   "firmware run it: `margins --sampled --delay-samples 0` reproduces it; `margins --sampled` "
-                   "alone assumes one sample of computation delay) [-]",
+                   "command applied in the period it is computed (delay_samples = 0, the toolbox's one convention: "
+                   "the virtual testbed, the firmware and `margins --sampled` use it) [-]",
     "passive": "load-independent: the cell's force-controlled SEA, seen from the environment at the link's end, is "
                "a passive one-port (Colgate and Hogan), so it stays stable with every passive environment "
                "(forecast_design.analyse_passivity; continuous loop, the compensator believing the cell's "
@@ -254,7 +254,7 @@ def sampled_loop_margin(design: Design, compensator: Compensator, rate_hz: float
     """Disk margin and stability of the sampled force loop the runs were made with.
 
     The loop as the virtual testbed runs it: sampled at `rate_hz`, the command applied in the period
-    it is computed (``delay_samples = 0``; on a small SEA where the continuous loop keeps a margin of
+    it is computed (``delay_samples =`` :data:`~forecast_design.loops.COMMAND_DELAY_SAMPLES` ``= 0``; on a small SEA where the continuous loop keeps a margin of
     0.5 this sampled loop, like the simulation, is unstable).
 
     Parameters
@@ -277,4 +277,4 @@ def sampled_loop_margin(design: Design, compensator: Compensator, rate_hz: float
     if design.controller is not None and not design.controller.has_equations:
         return None     # code without a linearisation: no loop to analyse (the spec says so)
     comp = compensator if compensator.is_observer or compensator.friction else Compensator(kind="none")
-    return loop_margins(design, comp, sampled=True, rate_hz=rate_hz, delay_samples=0)
+    return loop_margins(design, comp, sampled=True, rate_hz=rate_hz, delay_samples=COMMAND_DELAY_SAMPLES)

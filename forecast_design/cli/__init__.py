@@ -594,8 +594,9 @@ def _configure_margins(p: argparse.ArgumentParser) -> None:
     p.add_argument("--break-at", default="controller", choices=BREAK_POINTS)
     p.add_argument("--sampled", action="store_true", help="sampled-data loop at --rate-hz")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0)
-    p.add_argument("--delay-samples", type=int, default=1,
-                   help="--sampled: computation delay [samples] (default 1; the simulator and the firmware: 0)")
+    p.add_argument("--delay-samples", type=int, default=None,
+                   help="--sampled: samples between computing the command and applying it (default 0: within the "
+                        "period, as the simulator, the benchmark and the firmware run it)")
     p.add_argument("--method", default=None, choices=DISCRETIZATIONS,
                    help="--sampled: set the controller's discretization (default: the controller's own, as "
                         "simulate runs it); the observers are discretised with tustin")
@@ -612,6 +613,7 @@ def _configure_margins(p: argparse.ArgumentParser) -> None:
           "knowledge error); exit 1 if unstable", _configure_margins)
 def _cmd_margins(args: argparse.Namespace) -> int:
     from ..analysis import analyse_loop
+    from ..loops import COMMAND_DELAY_SAMPLES
     from ..environments import resolve_environments
     from ..params import Compensator, Design
 
@@ -623,7 +625,7 @@ def _cmd_margins(args: argparse.Namespace) -> int:
     if args.believed:
         believed_env = resolve_environments(args.believed, testbed=design.testbed).single("--believed")[1]
         believed = Design(testbed=design.testbed, environment=believed_env)
-    if not args.sampled and (args.method is not None or args.delay_samples != 1):
+    if not args.sampled and (args.method is not None or args.delay_samples is not None):
         from ..errors import ParameterError
 
         raise ParameterError("--method and --delay-samples describe the sampled loop; add --sampled", name="sampled")
@@ -635,7 +637,8 @@ def _cmd_margins(args: argparse.Namespace) -> int:
     controller = _controller_from_args(args)
     analysis = analyse_loop(design, comp, believed=believed, controller=controller,
                             break_at=args.break_at, sampled=args.sampled, rate_hz=args.rate_hz,
-                            delay_samples=args.delay_samples, skew=args.sigma, environment_name=env_name)
+                            delay_samples=COMMAND_DELAY_SAMPLES if args.delay_samples is None else args.delay_samples,
+                            skew=args.sigma, environment_name=env_name)
     _note(analysis.notes)
     worst = None
     if args.uncertainty:

@@ -8,6 +8,7 @@ import math
 import sys
 
 from ..params import BREAK_POINTS, OBSERVER_KINDS, Q_FAMILIES
+from ..loops import COMMAND_DELAY_SAMPLES
 from ..limits import require_no_nan
 from . import (_add_controller_option, _add_environment_options, _command, _controller_from_args,
                _environments_from_args, _float_range, _progress_bar, _testbed_from_args, _write_json)
@@ -34,7 +35,9 @@ def _configure_tune_q(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sampled", action="store_true",
                    help="analyse the sampled-data loop (discretised controller/observer, ZOH plant)")
     p.add_argument("--rate-hz", type=_float_range, default=2000.0, help="--sampled: control rate [Hz]")
-    p.add_argument("--delay-samples", type=int, default=1, help="--sampled: computation delay [samples]")
+    p.add_argument("--delay-samples", type=int, default=COMMAND_DELAY_SAMPLES,
+                   help="--sampled: samples between computing the command and applying it (default 0: within the "
+                        "period, as the simulator and the firmware run it)")
     p.add_argument("--exact-scan", action="store_true", help="verify with a full exact scan (slow)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="compute the plants' margins on N local processes (large sets; default: this process)")

@@ -13,6 +13,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from ..errors import IllConditionedWarning
 from ..plausibility import LogScales, ParameterStatus
 from .derivatives import FilterSettings
 from .selection import SelectionResult
@@ -20,10 +21,6 @@ from .terms import FrictionModel
 
 __all__ = ["FrictionFit", "FrictionValidation", "IdentificationData", "IllConditionedWarning", "fit_percent",
            "not_identifiable_mapping"]
-
-
-class IllConditionedWarning(UserWarning):
-    """The scaled regressor of a friction fit is ill-conditioned (> 1e6)."""
 
 
 def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:

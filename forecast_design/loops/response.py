@@ -24,6 +24,7 @@ import numpy as np
 
 from ..controllers import Controller, controller_law, controller_tf
 from ..params import Compensator, Design
+from .sampled import COMMAND_DELAY_SAMPLES
 
 __all__ = ["LoopResponse", "loop_response", "observer_responses", "sensitivity", "sensitivity_terms", "q_argument"]
 
@@ -87,7 +88,8 @@ def observer_responses(compensator: Compensator, believed: Design, s: np.ndarray
 
 
 def loop_response(true_design: Design, believed: Design, compensator: Compensator, controller: Controller,
-                  w: np.ndarray, *, sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1,
+                  w: np.ndarray, *, sampled: bool = False, rate_hz: float = 2000.0,
+                  delay_samples: int = COMMAND_DELAY_SAMPLES,
                   observer: tuple[np.ndarray, np.ndarray] | None = None) -> LoopResponse:
     """The cutoff-free parts of the force loop's response on a frequency grid.
 

@@ -25,7 +25,7 @@ from ..params import Compensator, Design
 from ..limits import check_limit, check_physical
 from .closing import BREAK_POINTS, ObservedPlant, close_loop
 
-__all__ = ["SampledForceLoop", "sampled_force_loop", "ZohPlant", "zoh_plant", "to_w", "law_in_w"]
+__all__ = ["COMMAND_DELAY_SAMPLES", "SampledForceLoop", "sampled_force_loop", "ZohPlant", "zoh_plant", "to_w", "law_in_w"]
 
 # ---------------------------------------------------------------------------------------------
 # Sampled-data force loop (2 kHz): discretised controller and observer, ZOH plant, delays
@@ -34,6 +34,14 @@ __all__ = ["SampledForceLoop", "sampled_force_loop", "ZohPlant", "zoh_plant", "t
 #: Relative size below which a trailing coefficient is the exact rigid-body root w = 0 of a
 #: free output (exact in exact arithmetic, see :func:`sampled_force_loop`).
 _DEFLATE_RTOL = 1e-9
+
+#: The command-delay convention of every sampled analysis [samples]: the command computed from the
+#: samples at t_n is applied within the same period, as the virtual testbed's kernel and the
+#: firmware (``fd_app.c`` writes the DAC at once) run it, so a sampled margin, the simulation and the
+#: benchmark's disk-margin column describe one loop. A board that applies its command one period
+#: late is analysed with ``delay_samples = 1`` and simulated with a ``delay`` effect of one period
+#: (the two agree: ``tests/test_loops_sampled.py``).
+COMMAND_DELAY_SAMPLES = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -320,7 +328,7 @@ def sampled_force_loop(
     believed: Design | None = None,
     rate_hz: float = 2000.0,
     break_at: str = "controller",
-    delay_samples: int = 1,
+    delay_samples: int = COMMAND_DELAY_SAMPLES,
 ) -> SampledForceLoop:
     """The force loop as it runs on the board: the controller's difference equation, discrete compensator, ZOH plant.
 
@@ -344,7 +352,8 @@ def sampled_force_loop(
         ``tau_m_prev`` loop stays closed: it is memory inside the controller).
     delay_samples : int
         Computation delay d >= 0 [samples]: the command computed from the samples at t_n is
-        applied from t_(n+d) (the issue's model: 1; the simulator applies it at once: 0).
+        applied from t_(n+d); default :data:`COMMAND_DELAY_SAMPLES` (0, as the simulator and the
+        firmware apply it).
 
     Returns
     -------

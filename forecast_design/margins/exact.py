@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
 
 from .. import polynomials as poly
-from ..errors import ParameterError
+from ..errors import IllConditionedWarning, ParameterError
 from ..lti import RationalTF
 from .disk import DiskMargin, DiskMarginCurve, check_skew, disk_gain_margin, disk_phase_margin_deg, resolve_skew
 
@@ -73,8 +74,67 @@ def _is_stable(L: RationalTF, char: np.ndarray) -> bool:
     if roots.size == 0:
         return True
     if L.dt is None:
-        return bool(np.all(roots.real < -_STABILITY_RTOL * np.maximum(1.0, np.abs(roots))))
-    return bool(np.all(np.abs(roots) < 1.0 - _STABILITY_RTOL))
+        stable = bool(np.all(roots.real < -_STABILITY_RTOL * np.maximum(1.0, np.abs(roots))))
+    else:
+        stable = bool(np.all(np.abs(roots) < 1.0 - _STABILITY_RTOL))
+    worst = undetermined_root(char, roots, discrete=L.dt is not None)
+    if worst is not None:
+        root, radius, distance = worst
+        where = f"|z| = {abs(root):.6g}" if L.dt is not None else f"Re s = {root.real:.6g}"
+        warnings.warn(f"loop {L.name!r}: its closed-loop characteristic polynomial (degree {len(char) - 1}) does "
+                      f"not determine on which side of the stability boundary its root at {where} lies "
+                      f"(perturbation radius {radius:.2g} in double precision, distance {distance:.2g}): the "
+                      f"verdict ({'stable' if stable else 'unstable'}) and the margin may be wrong; analyse a "
+                      "better-conditioned form (a sampled loop's w-plane `SampledForceLoop.disk_margin`, or a "
+                      "state-space model)", IllConditionedWarning, stacklevel=3)
+    return stable
+
+
+def undetermined_root(char: np.ndarray, roots: np.ndarray | None = None, *,
+                      discrete: bool) -> tuple[complex, float, float] | None:
+    """The root whose side of the stability boundary the polynomial's coefficients cannot tell.
+
+    A simple root r of p(x) = sum a_k x^k moves by at most
+    ``eps sum_k |a_k| |r|^k / |p'(r)|`` under relative coefficient errors ``eps`` (to first order,
+    Wilkinson); with ``eps`` the unit round-off times the degree (the backward error of the
+    companion eigenvalues), a root closer to the stability threshold (|z| = 1, or Re s = 0, less
+    :data:`STABILITY_TOLERANCE`) than that radius may lie on either side. Sampled loops written as z-polynomials at a high rate
+    (poles clustered near z = 1) are the usual case.
+
+    Parameters
+    ----------
+    char : ndarray
+        Characteristic polynomial, descending coefficients.
+    roots : ndarray or None
+        Its roots, if already computed.
+    discrete : bool
+        Boundary |z| = 1 (True) or Re s = 0 (False).
+
+    Returns
+    -------
+    (root, radius, distance) or None
+        The undetermined root with the largest radius-to-distance ratio, its perturbation radius
+        and its distance to the boundary (both in the root's units); ``None`` when every root's
+        side is determined.
+    """
+    char = np.asarray(char, dtype=float)
+    roots = np.roots(char) if roots is None else np.asarray(roots)
+    n = len(char) - 1
+    if n < 1 or roots.size == 0:
+        return None
+    powers = np.abs(roots)[:, None] ** np.arange(n, -1, -1)[None, :]
+    slope = np.abs(np.polyval(np.polyder(char), roots))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        radius = n * np.finfo(float).eps * (powers @ np.abs(char)) / slope
+    radius = np.where(np.isfinite(radius), radius, np.inf)
+    # distance to the verdict's own threshold (a root inside the tolerance band is unstable either way)
+    distance = (np.abs(1.0 - _STABILITY_RTOL - np.abs(roots)) if discrete
+                else np.abs(roots.real + _STABILITY_RTOL * np.maximum(1.0, np.abs(roots))))
+    ratio = radius / np.maximum(distance, np.finfo(float).tiny)
+    i = int(np.argmax(ratio))
+    if ratio[i] <= 1.0:
+        return None
+    return complex(roots[i]), float(radius[i]), float(distance[i])
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,6 +11,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from ..loops.response import LoopResponse, loop_response, observer_responses, q_argument, sensitivity
+from ..loops import COMMAND_DELAY_SAMPLES
 from ..executor import Executor
 from ..margins import disk_margin, disk_margins
 from ..errors import ParameterError
@@ -40,7 +41,7 @@ class _Setting:
     sigma: float
     sampled: bool = False
     rate_hz: float = 2000.0
-    delay_samples: int = 1
+    delay_samples: int = COMMAND_DELAY_SAMPLES
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "controller", resolve_controller(self.controller))
@@ -232,7 +233,7 @@ def _exact_ratios(plants: Sequence[_Plant], compensator: Compensator, setting: _
 def worst_case_ratio(compensator: Compensator, envs: Sequence[str] | str = ("soft", "stiff"), *,
                      uncertainty: float = 0.0, controller: Controller = PAPER_PD,
                      break_at: str = "controller", sigma: float = 0.0, sampled: bool = False,
-                     rate_hz: float = 2000.0, delay_samples: int = 1, seed: int = 0,
+                     rate_hz: float = 2000.0, delay_samples: int = COMMAND_DELAY_SAMPLES, seed: int = 0,
                      testbed: Any = None) -> tuple[float, str]:
     """Exact worst ratio alpha_observer / alpha_plant over an environment set.
 

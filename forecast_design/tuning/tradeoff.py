@@ -41,6 +41,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..loops.response import loop_response, sensitivity
+from ..loops import COMMAND_DELAY_SAMPLES
 from ..params import OBSERVER_KINDS, Compensator, Design
 from ..controllers import PAPER_PD, Controller, resolve_controller
 from .plants import _exact_ratios, _plants, _q_polynomial, _Setting
@@ -183,7 +184,8 @@ def cutoff_tradeoff(observer: str = "ea-fob", envs: Any = ("soft", "stiff"), *,
                     chosen: TuningResult | float | None = None, uncertainty: float = 0.0,
                     q_family: str = "butterworth", q_order: int = 2, q_damping: float | None = None,
                     controller: Controller = PAPER_PD, break_at: str = "controller",
-                    sigma: float = 0.0, sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1,
+                    sigma: float = 0.0, sampled: bool = False, rate_hz: float = 2000.0,
+                    delay_samples: int = COMMAND_DELAY_SAMPLES,
                     seed: int = 0, testbed: Any = None) -> CutoffTradeoff:
     """The tuner's trade-off for one observer: worst-case margin ratio and rejection bandwidth.
 

@@ -15,6 +15,7 @@ from ..limits import check_physical
 from ..environments import resolve_environments, resolve_testbed
 from ..params import Compensator, Design
 from ..controllers import PAPER_PD, Controller, resolve_controller
+from ..loops import COMMAND_DELAY_SAMPLES
 from .nlp import _casadi_abs2_G, _ipopt, _solve_max_cutoff
 from .plants import (_ACTIVE_PER_PLANT, _BACKOFF_STEPS, _CERTIFY_ROUNDS, _FEAS_RTOL, _MAX_CUTS, _Setting, _exact_ratios, _grid_ratios,
     _plants, _q_polynomial, _sensitivity_offset, _with_frequency)
@@ -103,7 +104,8 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
            uncertainty: float = 0.0, min_ratio: float = 0.9, band_hz: tuple[float, float] = (0.5, 30.0),
            q_family: str = "butterworth", q_order: int = 2, controller: Controller = PAPER_PD,
            break_at: str = "controller", sigma: float = 0.0, scan_points: int = 80, seed: int = 0,
-           sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1, scan: str = "bounded",
+           sampled: bool = False, rate_hz: float = 2000.0,
+           delay_samples: int = COMMAND_DELAY_SAMPLES, scan: str = "bounded",
            progress: Callable[[int, int], None] | None = None, testbed: Any = None,
            executor: Executor | None = None, certify: bool = True) -> TuningResult:
     """Largest Q cutoff keeping the disk margin near the plant's own in every environment.
@@ -240,7 +242,8 @@ def _tune_vertices(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft"
            uncertainty: float = 0.0, min_ratio: float = 0.9, band_hz: tuple[float, float] = (0.5, 30.0),
            q_family: str = "butterworth", q_order: int = 2, controller: Controller = PAPER_PD,
            break_at: str = "controller", sigma: float = 0.0, scan_points: int = 80, seed: int = 0,
-           sampled: bool = False, rate_hz: float = 2000.0, delay_samples: int = 1, scan: str = "bounded",
+           sampled: bool = False, rate_hz: float = 2000.0,
+           delay_samples: int = COMMAND_DELAY_SAMPLES, scan: str = "bounded",
            progress: Callable[[int, int], None] | None = None, testbed: Any = None,
            executor: Executor | None = None, extra: Sequence = ()) -> TuningResult:
     """The tuning on the nominal points and vertices (and ``extra`` (label, true, believed) environments)."""
@@ -391,7 +394,8 @@ def tune_q_shape(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", 
                  w_q_hz: float = 10.0, uncertainty: float = 0.0, damping_range: tuple[float, float] = (0.3, 2.0),
                  controller: Controller = PAPER_PD, break_at: str = "controller",
                  sigma: float = 0.0, seed: int = 0, sampled: bool = False, rate_hz: float = 2000.0,
-                 delay_samples: int = 1, testbed: Any = None, executor: Executor | None = None) -> TuningResult:
+                 delay_samples: int = COMMAND_DELAY_SAMPLES, testbed: Any = None,
+                 executor: Executor | None = None) -> TuningResult:
     """Maximise the worst-case margin ratio at a fixed Q bandwidth over the Q damping.
 
     Parameters
