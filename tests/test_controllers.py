@@ -673,3 +673,18 @@ def test_every_verb_runs_the_controller_a_lab_brings(name, tmp_path, capsys):
             "--out", tmp_path / "pil" / "run.toml")
         assert load_experiment(tmp_path / "pil" / "run.toml").design.controller == \
             (c.at_rate(2000.0) if not c.is_continuous else c)
+
+
+@settings(max_examples=60, deadline=None)
+@given(P=st.floats(1e-3, 1e4), D=st.floats(1e-6, 10.0), T_f=st.floats(1e-6, 1e-2))
+def test_the_label_rounds_for_reading_and_the_spelling_keeps_every_digit(P, D, T_f):
+    """A plot title reads ``T_f=0.0007958``; the spelling (and the JSON's table) read back exactly."""
+    import re
+
+    c = PD(P=P, D=D, T_f=T_f)
+    shown = dict(re.findall(r"(\w+)=([-+0-9.e]+)", c.label))
+    assert set(shown) == {"P", "D", "T_f"}
+    for key, number in shown.items():
+        assert len(re.sub(r"e.*$|^[-+]?0*\.?0*|\.", "", number)) <= 4
+        assert math.isclose(float(number), {"P": P, "D": D, "T_f": T_f}[key], rel_tol=5e-4)
+    assert parse_controller(c.spelling()) == c

@@ -52,6 +52,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         _write_json(args.json, {**{key: str(value) for key, value in paths.items()},
                                 **_compensator_keys(result.design.compensator),
                                 "controller": _controller_label(result.design.controller),
+                                "controller_table": _controller_table(result.design.controller),
                                 "controller_fault": result.fault,
                                 "statistics": result.to_mapping()["statistics"]})
     if args.json != "-":
@@ -62,6 +63,11 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 def _controller_label(controller) -> str | None:
     return None if controller is None else controller.label
+
+
+def _controller_table(controller) -> dict | None:
+    """The exact ``[controller]`` table (the label rounds its numbers for reading)."""
+    return None if controller is None else controller.to_mapping()
 
 
 def _report_faults(faults) -> int:
@@ -173,6 +179,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, {**_compensator_keys(scenario.design.compensator),
                                 "controller": _controller_label(scenario.design.controller),
+                                "controller_table": _controller_table(scenario.design.controller),
                                 "repetitions": [{"repetition": i, **{k: str(v) for k, v in paths.items()},
                                                  "controller_fault": fault, "statistics": stat}
                                                 for i, (paths, stat, fault) in enumerate(zip(written, stats, faults))]})

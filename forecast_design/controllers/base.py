@@ -273,15 +273,19 @@ class Controller(ABC):
 
     @property
     def label(self) -> str:
-        """A short human label naming the kind and every key that is set (``PD P=5 D=0.1``)."""
+        """A short human label naming the kind and every key that is set (``PD P=5 D=0.1``).
+
+        Numbers are shown to 4 significant digits (``T_f=0.0007958``) for titles and text; the
+        exact values are in :meth:`spelling` and :meth:`to_mapping`, which the JSON outputs carry.
+        """
         parts = []
         for key, value in self.to_mapping().items():
             if key == "kind":
                 continue
             if isinstance(value, (list, tuple)):
-                text = "[" + " ".join(format_number(v) for v in value) + "]"
+                text = "[" + " ".join(f"{float(v):.4g}" for v in value) + "]"
             elif isinstance(value, float):
-                text = format_number(value)
+                text = f"{value:.4g}"
             else:
                 text = str(value)
             parts.append(f"{key}={text}")
