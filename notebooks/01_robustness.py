@@ -141,9 +141,10 @@ display(Image(str(out / "tune_q.png")))
 # %% [markdown]
 # ## The loop as it runs: 2 kHz sampled-data analysis
 #
-# The board runs the Tustin-discretised PD (with a 200 Hz derivative filter) and observer,
-# a zero-order hold drives the motor and the command waits one sample. The sampled margins
-# are a little smaller; they approach the continuous ones (same filtered PD) as the rate grows.
+# The board runs the discretised PD and observer and a zero-order hold drives the motor; the
+# command is applied in the period it is computed (`COMMAND_DELAY_SAMPLES = 0`, as the simulator
+# and the firmware run it; `delay_samples=1` models a board that applies it one period late).
+# The sampled margins approach the continuous ones as the rate grows.
 
 # %%
 for env in ("soft", "stiff"):
@@ -151,4 +152,6 @@ for env in ("soft", "stiff"):
     for comp in (None, Compensator(kind="lo-dob", w_q_hz=5.0), Compensator(kind="ea-fob", w_q_hz=10.0)):
         c = loop_margins(d, comp).alpha
         s = sampled_force_loop(d, comp).disk_margin().alpha
-        print(f"{env:<6}{'none' if comp is None else comp.kind:>8}: continuous (pure PD) {c:.3f}, 2 kHz sampled {s:.3f}")
+        s1 = sampled_force_loop(d, comp, delay_samples=1).disk_margin().alpha
+        print(f"{env:<6}{'none' if comp is None else comp.kind:>8}: continuous (pure PD) {c:.3f}, 2 kHz sampled {s:.3f}"
+              f" (one period late: {s1:.3f})")
