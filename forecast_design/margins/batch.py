@@ -36,6 +36,7 @@ __all__ = ["DiskMarginBatch", "disk_margins"]
 _GRID = np.logspace(-4.0, 4.0, 321)   # scaled frequencies v = w / w0 (the single routine's 40 per decade)
 _NEWTON_STEPS = 12
 _HALVINGS = 4
+_RISE_TOL = 1e-16   # predicted relative rise of |G| below which a point has converged [-]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -70,33 +71,37 @@ def _scaled_powers(n: int, w0: np.ndarray) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _grid_powers(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Real and imaginary parts of (j v)^(n-1-k), k = 0..n-1, on the grid: two (n, grid) arrays.
+def _grid_powers(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid's powers of j v split by parity: for P(jv) = sum_k p_k (jv)^(n-1-k), the real
+    part sums the even powers and the imaginary part the odd ones, with signs j^k = 1, j, -1, -j.
 
-    Built exactly (j^k cycles through 1, j, -1, -j), so a row matrix times them is each row's
-    polynomial at j v: one matrix product for all loops and grid points instead of a Horner
-    loop over the degree (on scaled frequencies the two are equally accurate).
+    Returns (even, W_even, W_odd): a mask of the even-power columns and the two signed power
+    matrices, shapes (n,), (n_even, grid), (n_odd, grid); built exactly, read-only.
     """
     k = np.arange(n - 1, -1, -1)
-    mag = _GRID[None, :] ** k[:, None]
-    re = np.array([1.0, 0.0, -1.0, 0.0])[k % 4][:, None] * mag
-    im = np.array([0.0, 1.0, 0.0, -1.0])[k % 4][:, None] * mag
-    re.flags.writeable = im.flags.writeable = False
-    return re, im
+    W = np.array([1.0, 1.0, -1.0, -1.0])[k % 4][:, None] * _GRID[None, :] ** k[:, None]
+    even = k % 2 == 0
+    out = (even, W[even], W[~even])
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 def _grid_abs2(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     """|P(jv) / Q(jv)|^2 of every row on the grid, shape (K, grid).
 
-    ``einsum`` (numpy's own loops): a BLAS matrix product this small is slower than the
-    arithmetic when the BLAS threads share a busy machine.
+    One ``einsum`` per parity (numpy's own loops: a BLAS matrix product this small is slower
+    than the arithmetic when the BLAS threads share a busy machine), squared in place: large
+    temporaries cost more than the arithmetic here.
     """
-    re, im = _grid_powers(P.shape[1])
+    even, W_even, W_odd = _grid_powers(P.shape[1])
     PQ = np.concatenate([P, Q])
-    a, b = np.einsum("kn,ng->kg", PQ, re), np.einsum("kn,ng->kg", PQ, im)
-    m = a * a + b * b
+    re = np.einsum("kn,ng->kg", PQ[:, even], W_even)
+    im = np.einsum("kn,ng->kg", PQ[:, ~even], W_odd)
+    np.multiply(re, re, out=re)
+    re += np.multiply(im, im, out=im)
     K = P.shape[0]
-    return m[:K] / m[K:]
+    return np.divide(re[:K], re[K:], out=re[:K])
 
 
 def _horner_stack(C: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -264,7 +269,8 @@ def _newton(P: np.ndarray, Q: np.ndarray, rows: np.ndarray, v0: np.ndarray) -> t
         hp = -np.real(l2)             # d2/dv2 log|G| = Re(j^2 (log G)'')
         step = -h / hp
         vl = v[live]
-        go = (hp < 0.0) & np.isfinite(step) & (np.abs(step) > 1e-12 * vl)
+        # converged when the step's predicted rise of log|G|, h^2 / (2 |h'|), is below rounding
+        go = (hp < 0.0) & np.isfinite(step) & (np.abs(step) > 1e-12 * vl) & (0.5 * h * step > _RISE_TOL)
         live, step, vl = live[go], step[go], vl[go]
         moved = np.zeros(live.size, dtype=bool)
         for _ in range(_HALVINGS):
