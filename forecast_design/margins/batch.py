@@ -163,8 +163,10 @@ def _group(num: np.ndarray, den: np.ndarray, c: float) -> tuple[np.ndarray, np.n
         scaled_poles = poles / w0[:, None]
         # the single-loop routine's starting points: the stationary points of |G|^2 (roots of
         # the stationarity polynomial) and the poles' |Im p| and |p|; the grid's maxima on top
-        starts = np.concatenate([grid_starts, _stationary_points(P, Q), np.abs(scaled_poles.imag),
-                                 np.abs(scaled_poles)], axis=1)
+        # (a conjugate pair gives the same two starts twice: each start once per loop)
+        pole_starts = np.sort(np.concatenate([np.abs(scaled_poles.imag), np.abs(scaled_poles)], axis=1), axis=1)
+        pole_starts[:, 1:][pole_starts[:, 1:] == pole_starts[:, :-1]] = np.nan
+        starts = np.concatenate([grid_starts, _stationary_points(P, Q), pole_starts], axis=1)
         # only the real starts go to Newton (most grid columns are not local maxima)
         K, S = starts.shape
         flat = np.flatnonzero(starts > 0.0)          # NaN compares false
