@@ -6,15 +6,18 @@ batch with numpy operations over all loops instead of a Python loop over them:
 
 1. closed-loop poles of every loop from one batched eigenvalue call on companion matrices
    (stability, and the frequency scale w0 = geometric mean of the pole magnitudes);
-2. |G(jv)|, G = S + c, on a log grid of scaled frequencies v = w / w0 for all loops at once;
-3. Newton's method on d/dv log|G(jv)|^2 from the grid's local maxima and from every pole's
-   |Im p| and |p| (sharp peaks sit next to lightly damped poles), all starting points of all
-   loops in one array, a step taken only where it raises |G|;
-4. the largest value over v = 0, the polished points, the grid and v -> infinity.
+2. |G(jv)|, G = S + c, on the single routine's guard grid of scaled frequencies v = w / w0
+   (40 per decade) for all loops at once, one einsum over exact powers of jv;
+3. Newton's method on d/dv log|G(jv)| from the single routine's starting points (the
+   stationary points of |G|^2, i.e. the positive roots of the stationarity polynomial, one
+   batched eigenvalue call per degree, and every pole's |Im p| and |p|) and the grid's local
+   maxima; only the real starts of all loops in one array, a step taken only where it does
+   not lower |G|, stopped when the predicted rise is below rounding;
+4. the largest value over v = 0, the polished points and v -> infinity; a loop whose guard
+   grid beats that value had a peak no start reached and goes to the single routine.
 
-The peak found is a stationary point polished to machine precision, so the margin is exact
-whenever its basin is reached from a grid maximum or a pole; tests compare every loop with
-the single-loop routine (which also solves the stationarity polynomial) and python-control.
+The peak found is a stationary point polished to machine precision; tests compare every loop
+with the single-loop routine and python-control, and force the guard grid's fallback.
 """
 
 from __future__ import annotations
