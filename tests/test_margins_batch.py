@@ -192,3 +192,14 @@ def test_a_peak_no_start_reaches_goes_through_the_guard_grid_to_the_single_routi
     single = np.array([disk_margin(L).alpha for L in loops])
     assert len(handed_over) >= 0.8 * result.stable.sum()
     np.testing.assert_allclose(result.alpha, single, rtol=1e-9, atol=0.0)
+
+
+def test_an_integrator_loop_has_a_flat_peak_and_alpha_two():
+    """L = k/s: S - 1/2 = (s - k) / (2 (s + k)) is all-pass, so |S - 1/2| = 1/2 at every
+    frequency and alpha = 2 (closed form). The stationarity polynomial vanishes identically;
+    the batch used to raise LinAlgError on it (a companion matrix of a zero polynomial)."""
+    loops = [RationalTF([k], [1.0, 0.0]) for k in (0.1, 1.0, 250.0)]
+    batch = disk_margins(loops + [RationalTF([25.0], [1.0, 10.0, 10.0, 10.0])])   # mixed with a real peak
+    np.testing.assert_allclose(batch.alpha[:3], 2.0, rtol=1e-12)
+    assert batch.alpha[3] == pytest.approx(0.45809255, abs=1e-8)   # Seiler et al. 2020
+    assert [disk_margin(L).alpha for L in loops] == pytest.approx([2.0] * 3, rel=1e-12)

@@ -230,7 +230,7 @@ def _stationary_points(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     F = np.where(scale > 0.0, F / np.where(scale > 0.0, scale, 1.0), 0.0)
     F = np.where(np.abs(F) > 1e-13, F, 0.0)           # cancelled leading terms are rounding
     lead = np.argmax(F != 0.0, axis=1)
-    degree = F.shape[1] - 1 - lead
+    degree = np.where(F.any(axis=1), F.shape[1] - 1 - lead, 0)   # |G| constant: no stationary point
     out = np.full((K, max(F.shape[1] - 1, 1)), np.nan)
     for d in np.unique(degree):
         if d < 1:
