@@ -167,3 +167,43 @@ def test_batch_equals_the_single_routine_for_every_lti_controller_kind_with_smal
     single = [disk_margin(L) for L in loops]
     assert np.array_equal(batch.stable, [m.stable for m in single])
     np.testing.assert_allclose(batch.alpha, [m.alpha for m in single], rtol=1e-9, atol=0.0)
+
+
+def test_a_peak_no_start_reaches_goes_through_the_guard_grid_to_the_single_routine(monkeypatch):
+    """Fault injection: the batch's Newton polish is made to land 20 % above every peak it
+    finds (more than one step of the 40-per-decade guard grid), so only the guard grid can
+    see that the peaks were missed; each such loop must then get the single routine's exact
+    answer, the fallback this batch shares with ``disk_margin``."""
+    from forecast_design.margins import batch
+
+    real_newton, real_peak = batch._newton, batch._peak  # noqa: SLF001
+    handed_over = []
+
+    def off_peak(P, Q, rows, v0):
+        v, _ = real_newton(P, Q, rows, v0)
+        v = 1.2 * v
+        value = np.array([abs(np.polyval(P[r], 1j * x) / np.polyval(Q[r], 1j * x)) for r, x in zip(rows, v)])
+        return v, value
+
+    def counted_peak(G):
+        handed_over.append(G)
+        return real_peak(G)
+
+    monkeypatch.setattr(batch, "_newton", off_peak)
+    monkeypatch.setattr(batch, "_peak", counted_peak)
+    loops = _sea_loops(40, seed=2) + _lightly_damped_loops(40, seed=4)
+    result = disk_margins(loops)
+    single = np.array([disk_margin(L).alpha for L in loops])
+    assert len(handed_over) >= 0.8 * result.stable.sum()
+    np.testing.assert_allclose(result.alpha, single, rtol=1e-9, atol=0.0)
+
+
+def test_an_integrator_loop_has_a_flat_peak_and_alpha_two():
+    """L = k/s: S - 1/2 = (s - k) / (2 (s + k)) is all-pass, so |S - 1/2| = 1/2 at every
+    frequency and alpha = 2 (closed form). The stationarity polynomial vanishes identically;
+    the batch used to raise LinAlgError on it (a companion matrix of a zero polynomial)."""
+    loops = [RationalTF([k], [1.0, 0.0]) for k in (0.1, 1.0, 250.0)]
+    batch = disk_margins(loops + [RationalTF([25.0], [1.0, 10.0, 10.0, 10.0])])   # mixed with a real peak
+    np.testing.assert_allclose(batch.alpha[:3], 2.0, rtol=1e-12)
+    assert batch.alpha[3] == pytest.approx(0.45809255, abs=1e-8)   # Seiler et al. 2020
+    assert [disk_margin(L).alpha for L in loops] == pytest.approx([2.0] * 3, rel=1e-12)
