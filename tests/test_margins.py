@@ -302,6 +302,7 @@ def test_a_z_polynomial_loop_whose_roots_it_cannot_place_says_so(env):
 
     from forecast_design.errors import IllConditionedWarning
     from forecast_design.loops import sampled_force_loop
+    from forecast_design.margins import disk_margins
     from forecast_design.params import Compensator, Design
 
     design = Design.nominal(env)
@@ -314,6 +315,11 @@ def test_a_z_polynomial_loop_whose_roots_it_cannot_place_says_so(env):
                     warnings.simplefilter("always")
                     z_form = disk_margin(loop.L)
                 said = any(issubclass(w.category, IllConditionedWarning) for w in caught)
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    batch = disk_margins([loop.L])         # the batch decides as the single routine
+                assert bool(batch.stable[0]) == z_form.stable
+                assert said == any(issubclass(w.category, IllConditionedWarning) for w in caught)
                 ref = loop.disk_margin()
                 bad = z_form.stable != ref.stable or abs(z_form.alpha - ref.alpha) > 0.01 * ref.alpha
                 assert said or not bad, (kind, w_q, delay, z_form.alpha, ref.alpha)

@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import ParameterError
 from .disk import check_skew
 from .exact import STABILITY_TOLERANCE, as_loop, continuous_equivalent, frequency_rad_s
-from .exact import _ROOT_IMAG_RTOL, _peak, _scaled_G   # one algorithm: the single routine's pieces
+from .exact import _ROOT_IMAG_RTOL, _char_poly, _is_stable, _peak, _scaled_G   # one algorithm: the single routine's pieces
 
 __all__ = ["DiskMarginBatch", "disk_margins"]
 
@@ -353,6 +353,12 @@ def disk_margins(loops: Sequence[Any], skew: float = 0.0, *,
         peak, w_at, stab = _group(num, den, c)
         if known is not None:   # as disk_margin: the given flag, unless 1 + L(inf) = 0
             stab = known[members] & (num[:, 0] + den[:, 0] != 0.0)
+        else:
+            for k, i in enumerate(members):
+                if loops[i].dt is not None:
+                    # a z-polynomial's own roots, as disk_margin decides (and warns where its
+                    # coefficients cannot place them); the mapped polynomial would hide that
+                    stab[k] = _is_stable(loops[i], _char_poly(loops[i])[2]) and num[k, 0] + den[k, 0] != 0.0
         for k, i in enumerate(members):
             stable[i] = bool(stab[k])
             if stab[k] and math.isfinite(peak[k]) and peak[k] > 0.0:
