@@ -42,15 +42,19 @@ def test_decimate_many_is_bit_equal_to_one_column_at_a_time():
     rng = np.random.default_rng(0)
     data = _Data(default_filter_settings(2000.0))
     cols = [rng.standard_normal(4000) * 10.0 ** k for k in range(-3, 3)]
-    many = data.decimate_many(cols)
+    many = data.decimate_many(iter(cols))      # a generator's columns, one at a time
     assert many.shape[0] == len(cols)
     for row, col in zip(many, cols):
         assert np.array_equal(row, data.decimate(col))
-    # the batched low-pass is the same filter row by row
+    # the batched low-pass and decimation (scipy's filters over the stacked block) give the same numbers
+    batched = decimate_columns(lowpass(np.array(cols), data.settings), data.settings, axis=1)
+    assert np.array_equal(many, batched)
     assert np.array_equal(lowpass(np.array(cols), data.settings)[2], lowpass(cols[2], data.settings))
 
 
-def test_dahl_state_equals_the_scalar_recursion():
+@pytest.mark.parametrize("chunk", [1 << 16, 7, 1000])
+def test_dahl_state_equals_the_scalar_recursion(monkeypatch, chunk):
+    monkeypatch.setattr(candidates, "_DAHL_CHUNK", chunk)      # chunk boundaries carry the state
     rng = np.random.default_rng(1)
     v = rng.standard_normal(3000) * 0.1
     v[rng.random(v.size) < 0.2] = 0.0

@@ -36,6 +36,7 @@ rest the friction is set-valued, whatever torque holds the motor).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
@@ -61,9 +62,22 @@ _FRICTION = (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION)
 @dataclass(frozen=True, slots=True)
 class _Coef:
     name: str
-    column: np.ndarray        # stacked over equations
+    parts: tuple[np.ndarray | None, ...]   # the column in each equation (GapData.equations), None where zero
     lo: float = -np.inf
     hi: float = np.inf
+
+    @property
+    def column(self) -> np.ndarray:
+        """The column stacked over the equations, zeros where it does not act (``GapData.stack``)."""
+        m = next(part.size for part in self.parts if part is not None)
+        return np.concatenate([np.zeros(m) if part is None else part for part in self.parts])
+
+
+def _coef(data: GapData, name: str, per_equation: Mapping[str, np.ndarray], lo: float = -np.inf,
+          hi: float = np.inf) -> _Coef:
+    """A coefficient's column, kept per equation and stacked when used: the grids of the candidates,
+    cached for the whole diagnosis, hold one decimated column per coefficient instead of one per equation."""
+    return _Coef(name, tuple(per_equation.get(eq) for eq in data.equations), lo, hi)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -120,17 +134,17 @@ def _calibration(data: GapData) -> list[_Coef]:
         # environment mismatch. Unbounded: an 8 % sensor scale (inside no datasheet tolerance of the
         # spring) was named environment_mismatch or torque_gain on effect-free logs; the spring's own
         # k stays within the tolerance (dk)
-        s_coef = _Coef("s", data.stack({"motor": c["tau_s"], "environment": -c["tau_s"], "coupling": -c["spring"]}))
+        s_coef = _coef(data, "s", {"motor": c["tau_s"], "environment": -c["tau_s"], "coupling": -c["spring"]})
     else:
         # true spring torque = (1 + s) tau_s: enters motor (+) and environment (-) equations
-        s_coef = _Coef("s", data.stack({"motor": c["tau_s"], "environment": -c["tau_s"]}), -tol, tol)
+        s_coef = _coef(data, "s", {"motor": c["tau_s"], "environment": -c["tau_s"]}, -tol, tol)
     coefs = [
-        _Coef("dJ_m", data.stack({"motor": c["a"]}), -tol * tb.J_m, tol * tb.J_m),
-        _Coef("dd_m", data.stack({"motor": c["v"]}), -tb.d_m, np.inf),
+        _coef(data, "dJ_m", {"motor": c["a"]}, -tol * tb.J_m, tol * tb.J_m),
+        _coef(data, "dd_m", {"motor": c["v"]}, -tb.d_m, np.inf),
         s_coef,
     ]
     if data.tau_s_measured:
-        coefs.append(_Coef("dk", data.stack({"coupling": c["spring"] / tb.k}), -tol * tb.k, tol * tb.k))
+        coefs.append(_coef(data, "dk", {"coupling": c["spring"] / tb.k}, -tol * tb.k, tol * tb.k))
     if data.tau_s_measured:
         # a torque sensor's zero: true spring torque = (1 + s) tau_s + o, so -o shows in the coupling
         # equation too, which tells it from a constant motor torque (cogging over a fraction of a
@@ -139,7 +153,7 @@ def _calibration(data: GapData) -> list[_Coef]:
         # tau_s gets none: there a zero offset (encoders homed with the spring loaded) and a constant
         # motor torque are the same column, and the verdict carries a caveat instead.
         ones = np.ones(data.t.size)
-        coefs.append(_Coef("o", data.stack({"motor": ones, "environment": -ones, "coupling": -ones})))
+        coefs.append(_coef(data, "o", {"motor": ones, "environment": -ones, "coupling": -ones}))
     return coefs
 
 
@@ -157,15 +171,22 @@ def _calibration_values(data: GapData, coefs: Sequence[_Coef], p: np.ndarray) ->
 def _dahl(v: np.ndarray, dt: float, x_p: float) -> np.ndarray:
     """Direction state of a Dahl/LuGre bristle: s' = (v - |v| s) / x_p, implicit Euler, s(0) = sign(v0)."""
     a = dt / x_p
-    # the same float operations as (s + a v_k) / (1 + a |v_k|) step by step, the products vectorised
-    step = (a * v).tolist()
-    den = (1.0 + a * np.abs(v)).tolist()
-    out = []
-    sk = float(np.sign(v[0]))
-    for ak, dk in zip(step, den):
-        sk = (sk + ak) / dk
-        out.append(sk)
-    return np.array(out, dtype=float)
+    # the same float operations as (s + a v_k) / (1 + a |v_k|) step by step, the products vectorised;
+    # in chunks, as a Python list of a whole log takes 32 B per sample and list
+    out = np.empty(v.size)
+    sk = float(np.sign(v[0])) if v.size else 0.0
+    for start in range(0, v.size, _DAHL_CHUNK):
+        chunk = v[start:start + _DAHL_CHUNK]
+        states = []
+        for ak, dk in zip((a * chunk).tolist(), (1.0 + a * np.abs(chunk)).tolist()):
+            sk = (sk + ak) / dk
+            states.append(sk)
+        out[start:start + chunk.size] = states
+    return out
+
+
+#: Samples of the Dahl recursion converted to Python floats at a time [-].
+_DAHL_CHUNK = 1 << 16
 
 
 def _sign(data: GapData) -> np.ndarray:
@@ -213,15 +234,6 @@ def _structures(effect: Effect, data: GapData) -> list[_Structure]:
     return data.cache[key]
 
 
-def _decimate_grid(data: GapData, column: Callable[[float], np.ndarray], grid: np.ndarray) -> np.ndarray:
-    """``data.decimate_many`` of one raw-rate column per grid point, a few points per filter pass.
-
-    All 30 grid points at once held 30 raw-rate columns and their filter copies, the peak
-    memory of a long log (about 1.7 kB per sample); rows are bit-equal either way.
-    """
-    return np.concatenate([data.decimate_many([column(g) for g in grid[i:i + 3]]) for i in range(0, grid.size, 3)])
-
-
 def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
     c = data.columns
     opts = data.options
@@ -230,15 +242,15 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
     nh = opts.n_harmonics
     out: list[_Structure] = []
     if effect is Effect.TORQUE_GAIN:
-        out.append(_Structure([_Coef("c", data.stack({"motor": c["u"]}), -np.inf, 1.0)],
+        out.append(_Structure([_coef(data, "c", {"motor": c["u"]}, -np.inf, 1.0)],
                               lambda p: {"gain": float(1.0 - p[0])}, n_params=1))
     elif effect is Effect.COULOMB:
         sign = _sign(data)
-        pos, neg = data.decimate_many([np.maximum(sign, 0.0), np.minimum(sign, 0.0)])
+        pos, neg = data.decimate_many(f(sign, 0.0) for f in (np.maximum, np.minimum))
         # a level per direction of motion (friction often differs by direction), both >= 0: a constant
         # torque, which would need a negative level one way, is not friction
-        out.append(_Structure([_Coef("F_c", data.stack({"motor": pos}), 0.0),
-                               _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+        out.append(_Structure([_coef(data, "F_c", {"motor": pos}, 0.0),
+                               _coef(data, "F_c_neg", {"motor": neg}, 0.0)],
                               lambda p: {"F_c": float(p[0]), "F_c_neg": float(p[1])},
                               level=lambda p: max(p[0], p[1]), n_params=2, tests=((0, 1),)))
     elif effect is Effect.STICTION:
@@ -254,16 +266,17 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         x_grid, v_grid = np.geomspace(x_lo, max(1e-2, 10 * x_lo), 5), np.geomspace(v_lo, max(0.3, 10 * v_lo), 6)
         for x_p in x_grid:
             s = _dahl(v, dt, x_p)
-            # the raw-rate columns made three at a time (see _decimate_grid): the bumps are recomputed per x_p
-            # rather than held, 8 B per sample each
+            # the raw-rate columns made one at a time (GapData.decimate_many of a generator), each
+            # dropped once decimated: the bumps are recomputed per x_p rather than held, 8 B per sample each
             columns = [lambda: np.maximum(s, 0.0), lambda: np.gradient(s, dt) * x_p, lambda: np.minimum(s, 0.0)] + \
                 [lambda v_s=v_s: s * np.exp(-(v / v_s) ** 2) for v_s in v_grid]
-            pos, damp, neg, *dec_bumps = _decimate_grid(data, lambda k: columns[int(k)](), np.arange(len(columns)))
+            # the levels and the damping are the same columns at every v_s: stacked once, shared
+            pos, damp, neg, *dec_bumps = data.decimate_many(make() for make in columns)
+            c_pos, c_damp, c_neg = (_coef(data, name, {"motor": col}, 0.0)
+                                    for name, col in (("F_c", pos), ("sigma1", damp), ("F_c_neg", neg)))
             for v_s, bump in zip(v_grid, dec_bumps):
                 out.append(_Structure(
-                    [_Coef("F_c", data.stack({"motor": pos}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
-                     _Coef("sigma1", data.stack({"motor": damp}), 0.0),
-                     _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+                    [c_pos, _coef(data, "dF", {"motor": bump}, 0.0), c_damp, c_neg],
                     lambda p, v_s=v_s, x_p=x_p: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
                                                  "sigma0": float((p[0] + p[1]) / x_p), "sigma1": float(p[2]),
                                                  "F_c_neg": float(p[3])},
@@ -277,11 +290,11 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         sign = _sign(data)
         columns = [lambda: np.maximum(sign, 0.0), lambda: np.minimum(sign, 0.0)] + \
             [lambda v_s=v_s: sign * np.exp(-(v / v_s) ** 2) for v_s in v_grid]
-        pos, neg, *dec_bumps = _decimate_grid(data, lambda k: columns[int(k)](), np.arange(len(columns)))
+        pos, neg, *dec_bumps = data.decimate_many(make() for make in columns)
+        c_pos, c_neg = (_coef(data, name, {"motor": col}, 0.0) for name, col in (("F_c", pos), ("F_c_neg", neg)))
         for v_s, bump in zip(v_grid, dec_bumps):
             out.append(_Structure(
-                [_Coef("F_c", data.stack({"motor": pos}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
-                 _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+                [c_pos, _coef(data, "dF", {"motor": bump}, 0.0), c_neg],
                 lambda p, v_s=v_s: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
                                     "F_c_neg": float(p[2])},
                 level=lambda p: max(p[0], p[2]) + p[1], n_params=4, tests=((0, 1, 2),),
@@ -290,15 +303,13 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         th = data.raw["theta"]
         base = _sign(data) if effect is Effect.POSITION_FRICTION else np.ones_like(th)
         coefs = []
-        raw = [base * f(i * th) for i in range(1, nh + 1) for f in (np.sin, np.cos)]
+        raw = (base * f(i * th) for i in range(1, nh + 1) for f in (np.sin, np.cos))
+        dec = list(data.decimate_many(itertools.chain([base] if effect is Effect.POSITION_FRICTION else [], raw)))
         if effect is Effect.POSITION_FRICTION:
-            raw.insert(0, base)
-        dec = list(data.decimate_many(raw))
-        if effect is Effect.POSITION_FRICTION:
-            coefs.append(_Coef("F_c", data.stack({"motor": dec.pop(0)}), 0.0))
+            coefs.append(_coef(data, "F_c", {"motor": dec.pop(0)}, 0.0))
         for i in range(1, nh + 1):
-            coefs.append(_Coef(f"a{i}", data.stack({"motor": dec[2 * i - 2]})))
-            coefs.append(_Coef(f"b{i}", data.stack({"motor": dec[2 * i - 1]})))
+            coefs.append(_coef(data, f"a{i}", {"motor": dec[2 * i - 2]}))
+            coefs.append(_coef(data, f"b{i}", {"motor": dec[2 * i - 1]}))
         th_sub = c["theta_sub"]
 
         def harm(p: np.ndarray, off: int) -> tuple[list[float], list[float]]:
@@ -321,10 +332,10 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         tau_m = data.raw["tau_m"]
         rate = data.experiment.rate_hz
         d_grid = np.geomspace(0.1e-3, opts.max_delay_s, 30)
-        delayed = _decimate_grid(data, lambda delay: delayed_input(tau_m, delay, rate), d_grid)
+        delayed = data.decimate_many(delayed_input(tau_m, delay, rate) for delay in d_grid)
         for delay, dec in zip(d_grid, delayed):
             col = u - dec
-            out.append(_Structure([_Coef("c", data.stack({"motor": col}), 0.0, 1.5)],
+            out.append(_Structure([_coef(data, "c", {"motor": col}, 0.0, 1.5)],
                                   lambda p, d=delay: {"delay_s": float(d)}, n_params=2,
                                   grid=(("delay_s", float(delay), float(d_grid[0]), float(d_grid[-1])),)))
     elif effect is Effect.BACKLASH:
@@ -335,22 +346,22 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
             return out
         # a dead band below an encoder count is not resolved: the search starts there
         h_grid = np.geomspace(max(span * 1e-4, 1e-6, step), 0.8 * span, 30)
-        clipped = _decimate_grid(data, lambda half: np.clip(x, -half, half), h_grid)
+        clipped = data.decimate_many(np.clip(x, -half, half) for half in h_grid)
         for half, dec in zip(h_grid, clipped):
             clip = tb.k * dec
             if data.tau_s_measured:
                 cols = {"coupling": -clip}
             else:
                 cols = {"motor": -clip, "environment": clip}
-            out.append(_Structure([_Coef("c", data.stack(cols), 0.0, 2.0)],
+            out.append(_Structure([_coef(data, "c", cols, 0.0, 2.0)],
                                   lambda p, h=half: {"width_rad": float(2.0 * h)}, n_params=2,
                                   grid=(("width_rad", float(2 * half), float(2 * h_grid[0]), float(2 * h_grid[-1])),)))
     elif effect is Effect.ENVIRONMENT_MISMATCH:
         if data.locked:
             return out
-        coefs = [_Coef("dJ", data.stack({"environment": c["qa"]}), -env.J),
-                 _Coef("dd", data.stack({"environment": c["qv"]}), -env.d),
-                 _Coef("dk_e", data.stack({"environment": c["q"]}), -env.k_e)]
+        coefs = [_coef(data, "dJ", {"environment": c["qa"]}, -env.J),
+                 _coef(data, "dd", {"environment": c["qv"]}, -env.d),
+                 _coef(data, "dk_e", {"environment": c["q"]}, -env.k_e)]
 
         def to_params(p: np.ndarray) -> dict[str, Any]:
             out_p: dict[str, Any] = {"J": float(env.J + p[0]), "d": float(env.d + p[1]),
@@ -514,7 +525,7 @@ def fit_constant_torque(data: GapData) -> CandidateFit:
     CandidateFit
         ``effect = Effect.NONE``; ``params = {"torque_N_m": c}``.
     """
-    structure = _Structure([_Coef("c", data.stack({"motor": np.ones(data.t.size)}))],
+    structure = _Structure([_coef(data, "c", {"motor": np.ones(data.t.size)})],
                            lambda p: {"torque_N_m": float(p[0])}, n_params=1)
     return _fit(data, Effect.NONE, structure)
 
