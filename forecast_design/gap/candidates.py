@@ -73,6 +73,17 @@ class _Coef:
         return np.concatenate([np.zeros(m) if part is None else part for part in self.parts])
 
 
+def _design_matrix(coefs: Sequence[_Coef], rows: np.ndarray | None = None) -> np.ndarray:
+    """The coefficients' stacked columns side by side (on ``rows`` only when given), one column at a time:
+    ``np.column_stack`` of the stacked columns would hold each of them twice."""
+    n_eq = len(coefs[0].parts)
+    m = next(part.size for c in coefs for part in c.parts if part is not None)
+    A = np.empty((n_eq * m if rows is None else int(np.count_nonzero(rows)), len(coefs)))
+    for j, c in enumerate(coefs):
+        A[:, j] = c.column if rows is None else c.column[rows]
+    return A
+
+
 def _coef(data: GapData, name: str, per_equation: Mapping[str, np.ndarray], lo: float = -np.inf,
           hi: float = np.inf) -> _Coef:
     """A coefficient's column, kept per equation and stacked when used: the grids of the candidates,
@@ -377,14 +388,13 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
 
 
 def _solve(data: GapData, coefs: Sequence[_Coef], fit_rows: np.ndarray, n_cal: int | None = None) -> np.ndarray:
-    A = np.column_stack([c.column for c in coefs])
-    y = data.stacked_target()
-    Af, yf = A[fit_rows], y[fit_rows]
+    Af, yf = _design_matrix(coefs, fit_rows), data.stacked_target()[fit_rows]
     scale = np.sqrt(np.mean(Af ** 2, axis=0))
     scale[scale == 0.0] = 1.0
     lo = np.array([c.lo for c in coefs]) * scale
     hi = np.array([c.hi for c in coefs]) * scale
-    As = Af / scale
+    As = Af
+    As /= scale          # in place: the same quotients as Af / scale
     n_cal = len(_calibration(data)) if n_cal is None else n_cal
     if As.shape[1] > n_cal + 1:
         # A tiny ridge on the (standardised) effect coefficients of a multi-coefficient effect
@@ -395,14 +405,14 @@ def _solve(data: GapData, coefs: Sequence[_Coef], fit_rows: np.ndarray, n_cal: i
         ridge[:, n_cal:] = np.sqrt(1e-6 * As.shape[0]) * np.eye(As.shape[1] - n_cal)
         As = np.vstack([As, ridge])
         yf = np.concatenate([yf, np.zeros(ridge.shape[0])])
-    res = lsq_linear(As, yf, bounds=(lo, hi), method="bvls" if A.shape[1] <= 20 else "trf",
+    res = lsq_linear(As, yf, bounds=(lo, hi), method="bvls" if Af.shape[1] <= 20 else "trf",
                      lsmr_tol="auto")
     return res.x / scale
 
 
 def _evaluate(data: GapData, effect: Effect, coefs: Sequence[_Coef], p: np.ndarray, n_cal: int,
               level: Callable | None) -> tuple[np.ndarray, np.ndarray]:
-    A = np.column_stack([c.column for c in coefs])
+    A = _design_matrix(coefs)
     y = data.stacked_target()
     prediction = A[:, n_cal:] @ p[n_cal:] if A.shape[1] > n_cal else np.zeros_like(y)
     r = y - A @ p
@@ -696,12 +706,12 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
         if s is not None:
             groups.append((fit.effect, s.coefs))
     coefs = cal + [c for _, g in groups for c in g]
-    A = np.column_stack([c.column for c in coefs])
+    As = _design_matrix(coefs)
     y = data.stacked_target()
     fit_rows = ~data.stacked(data.held_out)
-    scale = np.sqrt(np.mean(A[fit_rows] ** 2, axis=0))
+    scale = np.sqrt(np.mean(As[fit_rows] ** 2, axis=0))
     scale[scale == 0.0] = 1.0
-    As = A / scale
+    As /= scale          # in place: the same quotients as As / scale, one matrix fewer
     # a few thousand rows are plenty for the selection; the refit uses all rows
     idx = np.flatnonzero(fit_rows)
     idx = idx[:: max(1, idx.size // 3000)]
@@ -719,6 +729,7 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
     # minimiser from a square problem (the solver's work no longer grows with the rows).
     Q, R = np.linalg.qr(Af)
     held = data.stacked(data.held_out)
+    A_held, y_held = As[held], y[held]
     results = []
     lams = np.geomspace(1e-1, 1e-5, n_lambda)
     path = _group_lasso_path(R, Q.T @ yf, 1.0 / (idx.size * y_rms ** 2), spans, lo, hi, lams)
@@ -727,7 +738,7 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
             continue
         sel = tuple(i for i, sp in enumerate(spans)
                     if np.linalg.norm(wv[sp]) > 1e-3 * max(1.0, np.linalg.norm(wv[n_cal:])))
-        gap = float(np.sqrt(np.mean((y[held] - As[held] @ wv) ** 2)))
+        gap = float(np.sqrt(np.mean((y_held - A_held @ wv) ** 2)))
         results.append((value, sel, gap))
     if not results:
         return JointAttribution(effects=(), contributions={}, lam=float("nan"), gap_held_out=float("nan"))
@@ -736,7 +747,8 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
     # unpenalised refit on the selected groups
     chosen = cal + [c for i in sel for c in groups[i][1]]
     p = _solve(data, chosen, fit_rows)
-    Ac = np.column_stack([c.column for c in chosen])
+    del As, A_held
+    Ac = _design_matrix(chosen)
     r = y - Ac @ p
     contributions = {}
     k = n_cal

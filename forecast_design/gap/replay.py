@@ -178,6 +178,7 @@ def _replay(data: GapData, fit: Any | None, starts: np.ndarray, L: int) -> dict[
     idx = starts[:, None] + np.arange(L)[None, :]
     out = {"t": np.asarray(sig.t, dtype=float)[idx], "tau_s": np.asarray(sig.tau_s, dtype=float)[idx],
            "theta": theta[idx]}
+    del idx
 
     def run(tbx: Testbed, inputs: np.ndarray, scale: float, gain: float = 1.0, zero: float = 0.0
             ) -> tuple[np.ndarray, np.ndarray]:
@@ -194,10 +195,11 @@ def _replay(data: GapData, fit: Any | None, starts: np.ndarray, L: int) -> dict[
         cal = fit.calibration
         # a torque sensor's zero o is in the reading, not in the plant (true spring torque = scale tau_s + o)
         offset = float(cal.get("tau_s_offset_N_m", 0.0))
-        wm = _upsample(data, parts.get("motor", np.zeros(m)), n)
-        we = _upsample(data, parts.get("environment", np.zeros(m)), n)
-        # the prediction is what the effect adds to the equation error: remove it from the drive
-        inputs = np.column_stack([tau_m - wm, -we])
+        # the prediction is what the effect adds to the equation error: remove it from the drive,
+        # (tau_m - w_motor, -w_environment), made one column at a time
+        inputs = np.empty((n, 2))
+        np.subtract(tau_m, _upsample(data, parts.get("motor", np.zeros(m)), n), out=inputs[:, 0])
+        np.negative(_upsample(data, parts.get("environment", np.zeros(m)), n), out=inputs[:, 1])
         tb1 = dataclasses.replace(tb, J_m=float(cal.get("J_m", tb.J_m)), d_m=float(max(cal.get("d_m", tb.d_m), 0.0)))
         if "k" in cal:
             # a measured tau_s: the plant's spring is the coupling's k; the sensor reads
