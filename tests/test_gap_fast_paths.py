@@ -53,8 +53,7 @@ def test_decimate_many_is_bit_equal_to_one_column_at_a_time():
 
 
 @pytest.mark.parametrize("chunk", [1 << 16, 7, 1000])
-def test_dahl_state_equals_the_scalar_recursion(monkeypatch, chunk):
-    monkeypatch.setattr(candidates, "_DAHL_CHUNK", chunk)      # chunk boundaries carry the state
+def test_dahl_state_equals_the_scalar_recursion(chunk):
     rng = np.random.default_rng(1)
     v = rng.standard_normal(3000) * 0.1
     v[rng.random(v.size) < 0.2] = 0.0
@@ -63,7 +62,7 @@ def test_dahl_state_equals_the_scalar_recursion(monkeypatch, chunk):
     for vk in v:
         s = (s + dt / x_p * vk) / (1.0 + dt / x_p * abs(vk))
         want.append(s)
-    assert np.array_equal(candidates._dahl(v, dt, x_p), np.array(want))
+    assert np.array_equal(candidates._dahl(v, dt, x_p, chunk), np.array(want))   # across chunk boundaries
 
 
 def test_group_lasso_path_matches_cvxpy_on_the_same_problem():

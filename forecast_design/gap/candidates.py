@@ -36,7 +36,6 @@ rest the friction is set-valued, whatever torque holds the motor).
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
@@ -76,9 +75,7 @@ class _Coef:
 def _design_matrix(coefs: Sequence[_Coef], rows: np.ndarray | None = None) -> np.ndarray:
     """The coefficients' stacked columns side by side (on ``rows`` only when given), one column at a time:
     ``np.column_stack`` of the stacked columns would hold each of them twice."""
-    n_eq = len(coefs[0].parts)
-    m = next(part.size for c in coefs for part in c.parts if part is not None)
-    A = np.empty((n_eq * m if rows is None else int(np.count_nonzero(rows)), len(coefs)))
+    A = np.empty((coefs[0].column.size if rows is None else int(np.count_nonzero(rows)), len(coefs)))
     for j, c in enumerate(coefs):
         A[:, j] = c.column if rows is None else c.column[rows]
     return A
@@ -86,8 +83,7 @@ def _design_matrix(coefs: Sequence[_Coef], rows: np.ndarray | None = None) -> np
 
 def _coef(data: GapData, name: str, per_equation: Mapping[str, np.ndarray], lo: float = -np.inf,
           hi: float = np.inf) -> _Coef:
-    """A coefficient's column, kept per equation and stacked when used: the grids of the candidates,
-    cached for the whole diagnosis, hold one decimated column per coefficient instead of one per equation."""
+    """A column kept per equation, stacked when used: the cached grids hold one decimated column per coefficient."""
     return _Coef(name, tuple(per_equation.get(eq) for eq in data.equations), lo, hi)
 
 
@@ -179,25 +175,19 @@ def _calibration_values(data: GapData, coefs: Sequence[_Coef], p: np.ndarray) ->
     return {k: float(v) for k, v in out.items()}
 
 
-def _dahl(v: np.ndarray, dt: float, x_p: float) -> np.ndarray:
+def _dahl(v: np.ndarray, dt: float, x_p: float, chunk: int = 1 << 16) -> np.ndarray:
     """Direction state of a Dahl/LuGre bristle: s' = (v - |v| s) / x_p, implicit Euler, s(0) = sign(v0)."""
     a = dt / x_p
     # the same float operations as (s + a v_k) / (1 + a |v_k|) step by step, the products vectorised;
-    # in chunks, as a Python list of a whole log takes 32 B per sample and list
-    out = np.empty(v.size)
-    sk = float(np.sign(v[0])) if v.size else 0.0
-    for start in range(0, v.size, _DAHL_CHUNK):
-        chunk = v[start:start + _DAHL_CHUNK]
-        states = []
-        for ak, dk in zip((a * chunk).tolist(), (1.0 + a * np.abs(chunk)).tolist()):
+    # `chunk` samples at a time, as a Python list of a whole log takes 32 B per sample and list
+    out, sk = np.empty(v.size), float(np.sign(v[0])) if v.size else 0.0
+    for start in range(0, v.size, chunk):
+        part, states = v[start:start + chunk], []
+        for ak, dk in zip((a * part).tolist(), (1.0 + a * np.abs(part)).tolist()):
             sk = (sk + ak) / dk
             states.append(sk)
-        out[start:start + chunk.size] = states
+        out[start:start + part.size] = states
     return out
-
-
-#: Samples of the Dahl recursion converted to Python floats at a time [-].
-_DAHL_CHUNK = 1 << 16
 
 
 def _sign(data: GapData) -> np.ndarray:
@@ -277,11 +267,9 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         x_grid, v_grid = np.geomspace(x_lo, max(1e-2, 10 * x_lo), 5), np.geomspace(v_lo, max(0.3, 10 * v_lo), 6)
         for x_p in x_grid:
             s = _dahl(v, dt, x_p)
-            # the raw-rate columns made one at a time (GapData.decimate_many of a generator), each
-            # dropped once decimated: the bumps are recomputed per x_p rather than held, 8 B per sample each
+            # raw-rate columns made and decimated one at a time (8 B per sample each); levels and damping shared
             columns = [lambda: np.maximum(s, 0.0), lambda: np.gradient(s, dt) * x_p, lambda: np.minimum(s, 0.0)] + \
                 [lambda v_s=v_s: s * np.exp(-(v / v_s) ** 2) for v_s in v_grid]
-            # the levels and the damping are the same columns at every v_s: stacked once, shared
             pos, damp, neg, *dec_bumps = data.decimate_many(make() for make in columns)
             c_pos, c_damp, c_neg = (_coef(data, name, {"motor": col}, 0.0)
                                     for name, col in (("F_c", pos), ("sigma1", damp), ("F_c_neg", neg)))
@@ -315,7 +303,8 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         base = _sign(data) if effect is Effect.POSITION_FRICTION else np.ones_like(th)
         coefs = []
         raw = (base * f(i * th) for i in range(1, nh + 1) for f in (np.sin, np.cos))
-        dec = list(data.decimate_many(itertools.chain([base] if effect is Effect.POSITION_FRICTION else [], raw)))
+        first = [base] if effect is Effect.POSITION_FRICTION else []
+        dec = list(data.decimate_many(col for part in (first, raw) for col in part))   # one column at a time
         if effect is Effect.POSITION_FRICTION:
             coefs.append(_coef(data, "F_c", {"motor": dec.pop(0)}, 0.0))
         for i in range(1, nh + 1):
@@ -393,8 +382,7 @@ def _solve(data: GapData, coefs: Sequence[_Coef], fit_rows: np.ndarray, n_cal: i
     scale[scale == 0.0] = 1.0
     lo = np.array([c.lo for c in coefs]) * scale
     hi = np.array([c.hi for c in coefs]) * scale
-    As = Af
-    As /= scale          # in place: the same quotients as Af / scale
+    As = np.divide(Af, scale, out=Af)          # in place: the same quotients as Af / scale
     n_cal = len(_calibration(data)) if n_cal is None else n_cal
     if As.shape[1] > n_cal + 1:
         # A tiny ridge on the (standardised) effect coefficients of a multi-coefficient effect
