@@ -11,7 +11,7 @@ import pytest
 from scipy import signal
 
 from forecast_design.friction.derivatives import decimate_columns, default_filter_settings
-from forecast_design.gap import candidates
+from forecast_design.gap import candidates, residuals
 from forecast_design.gap.residuals import GapData, lowpass
 
 
@@ -38,7 +38,9 @@ class _Data:
     decimate_many = GapData.decimate_many
 
 
-def test_decimate_many_is_bit_equal_to_one_column_at_a_time():
+@pytest.mark.parametrize("batch_samples", [1 << 18, 4000, 9000])      # all six columns, one, two per pass
+def test_decimate_many_is_bit_equal_to_one_column_at_a_time(monkeypatch, batch_samples):
+    monkeypatch.setattr(residuals, "BATCH_SAMPLES", batch_samples)
     rng = np.random.default_rng(0)
     data = _Data(default_filter_settings(2000.0))
     cols = [rng.standard_normal(4000) * 10.0 ** k for k in range(-3, 3)]

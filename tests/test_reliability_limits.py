@@ -111,7 +111,7 @@ def test_every_log_limit_is_checked_before_the_csv_is_parsed(tmp_path, capsys, m
 def test_the_stated_log_limits():
     """The limits docs/reliability.md states (memory per sample: the next test)."""
     assert limit_of("log_samples_check") == 2**23 and limit_of("log_samples_identify") == 2**22
-    assert limit_of("log_samples_diagnose") == 2**21 and limit_of("log_samples_benchmark") == 2**20
+    assert limit_of("log_samples_diagnose") == 2**22 and limit_of("log_samples_benchmark") == 2**20
 
 
 _LOG = """

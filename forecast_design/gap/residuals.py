@@ -33,6 +33,7 @@ in ``r_m``; environment mismatch in ``r_e``; backlash in ``r_m`` and ``r_e`` whe
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping
@@ -51,6 +52,10 @@ from ..friction.derivatives import (FilterSettings, butterworth, decimate_column
 
 __all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
            "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "near_rest"]
+
+#: Raw-rate samples (columns x log length) filtered in one pass by ``GapData.decimate_many`` [-]:
+#: 2 MB per filter copy, a fixed size rather than one per sample.
+BATCH_SAMPLES = 1 << 18
 
 #: Equation names, in stacking order.
 EQUATIONS = ("motor", "environment", "coupling")
@@ -355,23 +360,31 @@ class GapData:
         return decimate_columns(col[:, None], self.settings)[:, 0]
 
     def decimate_many(self, raw_columns: Iterable[np.ndarray]) -> np.ndarray:
-        """:meth:`decimate` of several raw-rate columns, one at a time.
+        """:meth:`decimate` of several raw-rate columns, a bounded batch per filter pass.
 
-        The filters run along each column alone, so the rows are bit-equal to a batched filter
-        pass over the stacked columns; one at a time, a generator of columns holds one raw-rate
-        column and its filter copies instead of all of them (the peak memory of a long log).
+        The filters run along each column alone, so the rows are bit-equal to one filter pass over
+        all the stacked columns. A generator of columns is consumed ``BATCH_SAMPLES // n`` columns
+        at a time (one for a log of 262,144 samples or more): a short log's columns share a few filter
+        calls (their set-up dominates there), a long log's filter copies stay a bounded size.
 
         Parameters
         ----------
         raw_columns : iterable of ndarray, each shape (n,)
-            Signals at the log's rate (any unit); a generator is consumed column by column.
+            Signals at the log's rate (any unit).
 
         Returns
         -------
         ndarray, shape (len(raw_columns), m)
             Row ``i`` equals ``decimate(raw_columns[i])``.
         """
-        return np.array([self.decimate(c) for c in raw_columns], dtype=float, ndmin=2)
+        it, rows = iter(raw_columns), []
+        for first in it:
+            first = np.asarray(first, dtype=float)
+            batch = [first, *itertools.islice(it, max(1, BATCH_SAMPLES // max(first.size, 1)) - 1)]
+            X = np.array(batch, dtype=float) if len(batch) > 1 else first[None, :]
+            del batch, first
+            rows.extend(decimate_columns(lowpass(X, self.settings), self.settings, axis=1))
+        return np.array(rows, dtype=float, ndmin=2)
 
     def stack(self, per_equation: Mapping[str, np.ndarray]) -> np.ndarray:
         """Stack per-equation columns in equation order, zeros where an equation is absent.
