@@ -125,8 +125,8 @@ COMPUTATION_LIMITS: Mapping[str, tuple[int, int, str]] = {
                                      "about 280 B each"),
     "environments": (1, 10_000, "environments of one set (the points of every grid of a file, lists, presets)"),
     "log_samples_check": (1, 2**23, "samples of a log check reads (70 min at 2 kHz), about 300 B each"),
-    "log_samples_identify": (1, 2**22, "samples of a log identify reads (35 min at 2 kHz), about 390 B each"),
-    "log_samples_diagnose": (1, 2**21, "samples of a log diagnose reads (17 min at 2 kHz), about 920 B each"),
+    "log_samples_identify": (1, 2**22, "samples of a log identify reads (35 min at 2 kHz), about 270 B each"),
+    "log_samples_diagnose": (1, 2**22, "samples of a log diagnose reads (35 min at 2 kHz), about 360 B each"),
     "log_samples_benchmark": (1, 2**20, "samples of one recorded run benchmark --runs reads (8.7 min at 2 kHz)"),
 }
 

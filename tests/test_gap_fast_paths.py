@@ -11,7 +11,7 @@ import pytest
 from scipy import signal
 
 from forecast_design.friction.derivatives import decimate_columns, default_filter_settings
-from forecast_design.gap import candidates
+from forecast_design.gap import candidates, residuals
 from forecast_design.gap.residuals import GapData, lowpass
 
 
@@ -38,19 +38,24 @@ class _Data:
     decimate_many = GapData.decimate_many
 
 
-def test_decimate_many_is_bit_equal_to_one_column_at_a_time():
+@pytest.mark.parametrize("batch_samples", [1 << 18, 4000, 9000])      # all six columns, one, two per pass
+def test_decimate_many_is_bit_equal_to_one_column_at_a_time(monkeypatch, batch_samples):
+    monkeypatch.setattr(residuals, "BATCH_SAMPLES", batch_samples)
     rng = np.random.default_rng(0)
     data = _Data(default_filter_settings(2000.0))
     cols = [rng.standard_normal(4000) * 10.0 ** k for k in range(-3, 3)]
-    many = data.decimate_many(cols)
+    many = data.decimate_many(iter(cols))      # a generator's columns, one at a time
     assert many.shape[0] == len(cols)
     for row, col in zip(many, cols):
         assert np.array_equal(row, data.decimate(col))
-    # the batched low-pass is the same filter row by row
+    # the batched low-pass and decimation (scipy's filters over the stacked block) give the same numbers
+    batched = decimate_columns(lowpass(np.array(cols), data.settings), data.settings, axis=1)
+    assert np.array_equal(many, batched)
     assert np.array_equal(lowpass(np.array(cols), data.settings)[2], lowpass(cols[2], data.settings))
 
 
-def test_dahl_state_equals_the_scalar_recursion():
+@pytest.mark.parametrize("chunk", [1 << 16, 7, 1000])
+def test_dahl_state_equals_the_scalar_recursion(chunk):
     rng = np.random.default_rng(1)
     v = rng.standard_normal(3000) * 0.1
     v[rng.random(v.size) < 0.2] = 0.0
@@ -59,7 +64,7 @@ def test_dahl_state_equals_the_scalar_recursion():
     for vk in v:
         s = (s + dt / x_p * vk) / (1.0 + dt / x_p * abs(vk))
         want.append(s)
-    assert np.array_equal(candidates._dahl(v, dt, x_p), np.array(want))
+    assert np.array_equal(candidates._dahl(v, dt, x_p, chunk), np.array(want))   # across chunk boundaries
 
 
 def test_group_lasso_path_matches_cvxpy_on_the_same_problem():

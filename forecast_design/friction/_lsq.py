@@ -239,12 +239,16 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
     m = int(keep_mask.sum())
     if k == 0 or m <= k:
         return HacResult(cov, 0, cov_iid, 1.0)
+    # the n x k intermediates are made in place where the numbers are the same (a long log's diagnosis
+    # holds several of these designs at its peak memory)
     X = np.where(keep_mask[:, None], W[:, free_mask], 0.0)
     s = _column_scale(X)
-    X = X / s
+    X /= s
     e = np.where(keep_mask, residual, 0.0)
     Ainv, unresolved = _normal_inverse(X)
-    u = X * e[:, None]
+    u = X                  # the scores u_t = x_t e_t, in X's place
+    u *= e[:, None]
+    del X
     # VAR(1) prewhitening: u_t = B u_{t-1} + eps_t
     U0, U1 = u[:-1], u[1:]
     B = (np.linalg.pinv(U0.T @ U0) @ (U0.T @ U1)).T
@@ -256,7 +260,9 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
         B, lam = np.zeros_like(B), np.zeros(0)
     if lam.size and lam.max() > 0.97:  # keep the recolouring finite (Andrews-Monahan's adjustment)
         B = B * (0.97 / lam.max())
-    eps = U1 - U0 @ B.T
+    eps = U0 @ B.T
+    np.subtract(U1, eps, out=eps)      # U1 - U0 B^T
+    del u, U0, U1
     L = int(np.ceil(_andrews_bandwidth(eps))) if lags is None else int(lags)
     L = max(0, min(L, eps.shape[0] // 4))
     G = _bartlett_lag_sum(eps, L)
@@ -321,8 +327,11 @@ def group_wald_p(A: np.ndarray, residual: np.ndarray, coef: np.ndarray, group: S
     if not np.any(ok):
         return 1.0
     g, norm = g[ok], norm[ok]
-    Z = A[:, g] / norm                                # standardised columns
-    C = Z[rows].T @ Z[rows]
+    Z = A[:, g]
+    Z /= norm                                         # standardised columns
+    Zr = Z[rows]
+    C = Zr.T @ Zr
+    del Zr
     try:
         w, V = np.linalg.eigh(0.5 * (C + C.T))
     except np.linalg.LinAlgError:
@@ -332,6 +341,7 @@ def group_wald_p(A: np.ndarray, residual: np.ndarray, coef: np.ndarray, group: S
         return 1.0
     Vk = V[:, kept]
     A_red = np.column_stack([A[:, others], Z @ Vk])
+    del Z
     free = np.concatenate([~held[others], np.ones(Vk.shape[1], dtype=bool)])
     cov = hac_covariance(A_red, residual, free=free, keep=rows).covariance
     n_o = others.size

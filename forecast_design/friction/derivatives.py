@@ -301,7 +301,8 @@ def decimate_columns(columns: np.ndarray, settings: FilterSettings, *, axis: int
     # design made once per factor (scipy redesigns it on every call): bit-equal results.
     sos, = _decimation_sos(int(R))
     Y = signal.sosfiltfilt(sos.copy(), X, axis=axis)
-    return Y[::R] if axis == 0 else Y[:, ::R]
+    # a copy: a strided view would keep the whole raw-rate filter output alive (8 B per sample and column)
+    return (Y[::R] if axis == 0 else Y[:, ::R]).copy()
 
 
 @lru_cache(maxsize=8)

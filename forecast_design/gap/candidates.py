@@ -61,9 +61,30 @@ _FRICTION = (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION)
 @dataclass(frozen=True, slots=True)
 class _Coef:
     name: str
-    column: np.ndarray        # stacked over equations
+    parts: tuple[np.ndarray | None, ...]   # the column in each equation (GapData.equations), None where zero
     lo: float = -np.inf
     hi: float = np.inf
+
+    @property
+    def column(self) -> np.ndarray:
+        """The column stacked over the equations, zeros where it does not act (``GapData.stack``)."""
+        m = next(part.size for part in self.parts if part is not None)
+        return np.concatenate([np.zeros(m) if part is None else part for part in self.parts])
+
+
+def _design_matrix(coefs: Sequence[_Coef], rows: np.ndarray | None = None) -> np.ndarray:
+    """The coefficients' stacked columns side by side (on ``rows`` only when given), one column at a time:
+    ``np.column_stack`` of the stacked columns would hold each of them twice."""
+    A = np.empty((coefs[0].column.size if rows is None else int(np.count_nonzero(rows)), len(coefs)))
+    for j, c in enumerate(coefs):
+        A[:, j] = c.column if rows is None else c.column[rows]
+    return A
+
+
+def _coef(data: GapData, name: str, per_equation: Mapping[str, np.ndarray], lo: float = -np.inf,
+          hi: float = np.inf) -> _Coef:
+    """A column kept per equation, stacked when used: the cached grids hold one decimated column per coefficient."""
+    return _Coef(name, tuple(per_equation.get(eq) for eq in data.equations), lo, hi)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True, eq=False)
@@ -120,17 +141,17 @@ def _calibration(data: GapData) -> list[_Coef]:
         # environment mismatch. Unbounded: an 8 % sensor scale (inside no datasheet tolerance of the
         # spring) was named environment_mismatch or torque_gain on effect-free logs; the spring's own
         # k stays within the tolerance (dk)
-        s_coef = _Coef("s", data.stack({"motor": c["tau_s"], "environment": -c["tau_s"], "coupling": -c["spring"]}))
+        s_coef = _coef(data, "s", {"motor": c["tau_s"], "environment": -c["tau_s"], "coupling": -c["spring"]})
     else:
         # true spring torque = (1 + s) tau_s: enters motor (+) and environment (-) equations
-        s_coef = _Coef("s", data.stack({"motor": c["tau_s"], "environment": -c["tau_s"]}), -tol, tol)
+        s_coef = _coef(data, "s", {"motor": c["tau_s"], "environment": -c["tau_s"]}, -tol, tol)
     coefs = [
-        _Coef("dJ_m", data.stack({"motor": c["a"]}), -tol * tb.J_m, tol * tb.J_m),
-        _Coef("dd_m", data.stack({"motor": c["v"]}), -tb.d_m, np.inf),
+        _coef(data, "dJ_m", {"motor": c["a"]}, -tol * tb.J_m, tol * tb.J_m),
+        _coef(data, "dd_m", {"motor": c["v"]}, -tb.d_m, np.inf),
         s_coef,
     ]
     if data.tau_s_measured:
-        coefs.append(_Coef("dk", data.stack({"coupling": c["spring"] / tb.k}), -tol * tb.k, tol * tb.k))
+        coefs.append(_coef(data, "dk", {"coupling": c["spring"] / tb.k}, -tol * tb.k, tol * tb.k))
     if data.tau_s_measured:
         # a torque sensor's zero: true spring torque = (1 + s) tau_s + o, so -o shows in the coupling
         # equation too, which tells it from a constant motor torque (cogging over a fraction of a
@@ -139,7 +160,7 @@ def _calibration(data: GapData) -> list[_Coef]:
         # tau_s gets none: there a zero offset (encoders homed with the spring loaded) and a constant
         # motor torque are the same column, and the verdict carries a caveat instead.
         ones = np.ones(data.t.size)
-        coefs.append(_Coef("o", data.stack({"motor": ones, "environment": -ones, "coupling": -ones})))
+        coefs.append(_coef(data, "o", {"motor": ones, "environment": -ones, "coupling": -ones}))
     return coefs
 
 
@@ -154,18 +175,19 @@ def _calibration_values(data: GapData, coefs: Sequence[_Coef], p: np.ndarray) ->
     return {k: float(v) for k, v in out.items()}
 
 
-def _dahl(v: np.ndarray, dt: float, x_p: float) -> np.ndarray:
+def _dahl(v: np.ndarray, dt: float, x_p: float, chunk: int = 1 << 16) -> np.ndarray:
     """Direction state of a Dahl/LuGre bristle: s' = (v - |v| s) / x_p, implicit Euler, s(0) = sign(v0)."""
     a = dt / x_p
-    # the same float operations as (s + a v_k) / (1 + a |v_k|) step by step, the products vectorised
-    step = (a * v).tolist()
-    den = (1.0 + a * np.abs(v)).tolist()
-    out = []
-    sk = float(np.sign(v[0]))
-    for ak, dk in zip(step, den):
-        sk = (sk + ak) / dk
-        out.append(sk)
-    return np.array(out, dtype=float)
+    # the same float operations as (s + a v_k) / (1 + a |v_k|) step by step, the products vectorised;
+    # `chunk` samples at a time, as a Python list of a whole log takes 32 B per sample and list
+    out, sk = np.empty(v.size), float(np.sign(v[0])) if v.size else 0.0
+    for start in range(0, v.size, chunk):
+        part, states = v[start:start + chunk], []
+        for ak, dk in zip((a * part).tolist(), (1.0 + a * np.abs(part)).tolist()):
+            sk = (sk + ak) / dk
+            states.append(sk)
+        out[start:start + part.size] = states
+    return out
 
 
 def _sign(data: GapData) -> np.ndarray:
@@ -213,15 +235,6 @@ def _structures(effect: Effect, data: GapData) -> list[_Structure]:
     return data.cache[key]
 
 
-def _decimate_grid(data: GapData, column: Callable[[float], np.ndarray], grid: np.ndarray) -> np.ndarray:
-    """``data.decimate_many`` of one raw-rate column per grid point, a few points per filter pass.
-
-    All 30 grid points at once held 30 raw-rate columns and their filter copies, the peak
-    memory of a long log (about 1.7 kB per sample); rows are bit-equal either way.
-    """
-    return np.concatenate([data.decimate_many([column(g) for g in grid[i:i + 3]]) for i in range(0, grid.size, 3)])
-
-
 def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
     c = data.columns
     opts = data.options
@@ -230,15 +243,15 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
     nh = opts.n_harmonics
     out: list[_Structure] = []
     if effect is Effect.TORQUE_GAIN:
-        out.append(_Structure([_Coef("c", data.stack({"motor": c["u"]}), -np.inf, 1.0)],
+        out.append(_Structure([_coef(data, "c", {"motor": c["u"]}, -np.inf, 1.0)],
                               lambda p: {"gain": float(1.0 - p[0])}, n_params=1))
     elif effect is Effect.COULOMB:
         sign = _sign(data)
-        pos, neg = data.decimate_many([np.maximum(sign, 0.0), np.minimum(sign, 0.0)])
+        pos, neg = data.decimate_many(f(sign, 0.0) for f in (np.maximum, np.minimum))
         # a level per direction of motion (friction often differs by direction), both >= 0: a constant
         # torque, which would need a negative level one way, is not friction
-        out.append(_Structure([_Coef("F_c", data.stack({"motor": pos}), 0.0),
-                               _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+        out.append(_Structure([_coef(data, "F_c", {"motor": pos}, 0.0),
+                               _coef(data, "F_c_neg", {"motor": neg}, 0.0)],
                               lambda p: {"F_c": float(p[0]), "F_c_neg": float(p[1])},
                               level=lambda p: max(p[0], p[1]), n_params=2, tests=((0, 1),)))
     elif effect is Effect.STICTION:
@@ -254,16 +267,15 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         x_grid, v_grid = np.geomspace(x_lo, max(1e-2, 10 * x_lo), 5), np.geomspace(v_lo, max(0.3, 10 * v_lo), 6)
         for x_p in x_grid:
             s = _dahl(v, dt, x_p)
-            # the raw-rate columns made three at a time (see _decimate_grid): the bumps are recomputed per x_p
-            # rather than held, 8 B per sample each
+            # raw-rate columns made and decimated one at a time (8 B per sample each); levels and damping shared
             columns = [lambda: np.maximum(s, 0.0), lambda: np.gradient(s, dt) * x_p, lambda: np.minimum(s, 0.0)] + \
                 [lambda v_s=v_s: s * np.exp(-(v / v_s) ** 2) for v_s in v_grid]
-            pos, damp, neg, *dec_bumps = _decimate_grid(data, lambda k: columns[int(k)](), np.arange(len(columns)))
+            pos, damp, neg, *dec_bumps = data.decimate_many(make() for make in columns)
+            c_pos, c_damp, c_neg = (_coef(data, name, {"motor": col}, 0.0)
+                                    for name, col in (("F_c", pos), ("sigma1", damp), ("F_c_neg", neg)))
             for v_s, bump in zip(v_grid, dec_bumps):
                 out.append(_Structure(
-                    [_Coef("F_c", data.stack({"motor": pos}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
-                     _Coef("sigma1", data.stack({"motor": damp}), 0.0),
-                     _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+                    [c_pos, _coef(data, "dF", {"motor": bump}, 0.0), c_damp, c_neg],
                     lambda p, v_s=v_s, x_p=x_p: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
                                                  "sigma0": float((p[0] + p[1]) / x_p), "sigma1": float(p[2]),
                                                  "F_c_neg": float(p[3])},
@@ -277,11 +289,11 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         sign = _sign(data)
         columns = [lambda: np.maximum(sign, 0.0), lambda: np.minimum(sign, 0.0)] + \
             [lambda v_s=v_s: sign * np.exp(-(v / v_s) ** 2) for v_s in v_grid]
-        pos, neg, *dec_bumps = _decimate_grid(data, lambda k: columns[int(k)](), np.arange(len(columns)))
+        pos, neg, *dec_bumps = data.decimate_many(make() for make in columns)
+        c_pos, c_neg = (_coef(data, name, {"motor": col}, 0.0) for name, col in (("F_c", pos), ("F_c_neg", neg)))
         for v_s, bump in zip(v_grid, dec_bumps):
             out.append(_Structure(
-                [_Coef("F_c", data.stack({"motor": pos}), 0.0), _Coef("dF", data.stack({"motor": bump}), 0.0),
-                 _Coef("F_c_neg", data.stack({"motor": neg}), 0.0)],
+                [c_pos, _coef(data, "dF", {"motor": bump}, 0.0), c_neg],
                 lambda p, v_s=v_s: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
                                     "F_c_neg": float(p[2])},
                 level=lambda p: max(p[0], p[2]) + p[1], n_params=4, tests=((0, 1, 2),),
@@ -290,15 +302,14 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         th = data.raw["theta"]
         base = _sign(data) if effect is Effect.POSITION_FRICTION else np.ones_like(th)
         coefs = []
-        raw = [base * f(i * th) for i in range(1, nh + 1) for f in (np.sin, np.cos)]
+        raw = (base * f(i * th) for i in range(1, nh + 1) for f in (np.sin, np.cos))
+        first = [base] if effect is Effect.POSITION_FRICTION else []
+        dec = list(data.decimate_many(col for part in (first, raw) for col in part))   # one column at a time
         if effect is Effect.POSITION_FRICTION:
-            raw.insert(0, base)
-        dec = list(data.decimate_many(raw))
-        if effect is Effect.POSITION_FRICTION:
-            coefs.append(_Coef("F_c", data.stack({"motor": dec.pop(0)}), 0.0))
+            coefs.append(_coef(data, "F_c", {"motor": dec.pop(0)}, 0.0))
         for i in range(1, nh + 1):
-            coefs.append(_Coef(f"a{i}", data.stack({"motor": dec[2 * i - 2]})))
-            coefs.append(_Coef(f"b{i}", data.stack({"motor": dec[2 * i - 1]})))
+            coefs.append(_coef(data, f"a{i}", {"motor": dec[2 * i - 2]}))
+            coefs.append(_coef(data, f"b{i}", {"motor": dec[2 * i - 1]}))
         th_sub = c["theta_sub"]
 
         def harm(p: np.ndarray, off: int) -> tuple[list[float], list[float]]:
@@ -321,10 +332,10 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         tau_m = data.raw["tau_m"]
         rate = data.experiment.rate_hz
         d_grid = np.geomspace(0.1e-3, opts.max_delay_s, 30)
-        delayed = _decimate_grid(data, lambda delay: delayed_input(tau_m, delay, rate), d_grid)
+        delayed = data.decimate_many(delayed_input(tau_m, delay, rate) for delay in d_grid)
         for delay, dec in zip(d_grid, delayed):
             col = u - dec
-            out.append(_Structure([_Coef("c", data.stack({"motor": col}), 0.0, 1.5)],
+            out.append(_Structure([_coef(data, "c", {"motor": col}, 0.0, 1.5)],
                                   lambda p, d=delay: {"delay_s": float(d)}, n_params=2,
                                   grid=(("delay_s", float(delay), float(d_grid[0]), float(d_grid[-1])),)))
     elif effect is Effect.BACKLASH:
@@ -335,22 +346,22 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
             return out
         # a dead band below an encoder count is not resolved: the search starts there
         h_grid = np.geomspace(max(span * 1e-4, 1e-6, step), 0.8 * span, 30)
-        clipped = _decimate_grid(data, lambda half: np.clip(x, -half, half), h_grid)
+        clipped = data.decimate_many(np.clip(x, -half, half) for half in h_grid)
         for half, dec in zip(h_grid, clipped):
             clip = tb.k * dec
             if data.tau_s_measured:
                 cols = {"coupling": -clip}
             else:
                 cols = {"motor": -clip, "environment": clip}
-            out.append(_Structure([_Coef("c", data.stack(cols), 0.0, 2.0)],
+            out.append(_Structure([_coef(data, "c", cols, 0.0, 2.0)],
                                   lambda p, h=half: {"width_rad": float(2.0 * h)}, n_params=2,
                                   grid=(("width_rad", float(2 * half), float(2 * h_grid[0]), float(2 * h_grid[-1])),)))
     elif effect is Effect.ENVIRONMENT_MISMATCH:
         if data.locked:
             return out
-        coefs = [_Coef("dJ", data.stack({"environment": c["qa"]}), -env.J),
-                 _Coef("dd", data.stack({"environment": c["qv"]}), -env.d),
-                 _Coef("dk_e", data.stack({"environment": c["q"]}), -env.k_e)]
+        coefs = [_coef(data, "dJ", {"environment": c["qa"]}, -env.J),
+                 _coef(data, "dd", {"environment": c["qv"]}, -env.d),
+                 _coef(data, "dk_e", {"environment": c["q"]}, -env.k_e)]
 
         def to_params(p: np.ndarray) -> dict[str, Any]:
             out_p: dict[str, Any] = {"J": float(env.J + p[0]), "d": float(env.d + p[1]),
@@ -366,14 +377,12 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
 
 
 def _solve(data: GapData, coefs: Sequence[_Coef], fit_rows: np.ndarray, n_cal: int | None = None) -> np.ndarray:
-    A = np.column_stack([c.column for c in coefs])
-    y = data.stacked_target()
-    Af, yf = A[fit_rows], y[fit_rows]
+    Af, yf = _design_matrix(coefs, fit_rows), data.stacked_target()[fit_rows]
     scale = np.sqrt(np.mean(Af ** 2, axis=0))
     scale[scale == 0.0] = 1.0
     lo = np.array([c.lo for c in coefs]) * scale
     hi = np.array([c.hi for c in coefs]) * scale
-    As = Af / scale
+    As = np.divide(Af, scale, out=Af)          # in place: the same quotients as Af / scale
     n_cal = len(_calibration(data)) if n_cal is None else n_cal
     if As.shape[1] > n_cal + 1:
         # A tiny ridge on the (standardised) effect coefficients of a multi-coefficient effect
@@ -384,14 +393,14 @@ def _solve(data: GapData, coefs: Sequence[_Coef], fit_rows: np.ndarray, n_cal: i
         ridge[:, n_cal:] = np.sqrt(1e-6 * As.shape[0]) * np.eye(As.shape[1] - n_cal)
         As = np.vstack([As, ridge])
         yf = np.concatenate([yf, np.zeros(ridge.shape[0])])
-    res = lsq_linear(As, yf, bounds=(lo, hi), method="bvls" if A.shape[1] <= 20 else "trf",
+    res = lsq_linear(As, yf, bounds=(lo, hi), method="bvls" if Af.shape[1] <= 20 else "trf",
                      lsmr_tol="auto")
     return res.x / scale
 
 
 def _evaluate(data: GapData, effect: Effect, coefs: Sequence[_Coef], p: np.ndarray, n_cal: int,
               level: Callable | None) -> tuple[np.ndarray, np.ndarray]:
-    A = np.column_stack([c.column for c in coefs])
+    A = _design_matrix(coefs)
     y = data.stacked_target()
     prediction = A[:, n_cal:] @ p[n_cal:] if A.shape[1] > n_cal else np.zeros_like(y)
     r = y - A @ p
@@ -514,7 +523,7 @@ def fit_constant_torque(data: GapData) -> CandidateFit:
     CandidateFit
         ``effect = Effect.NONE``; ``params = {"torque_N_m": c}``.
     """
-    structure = _Structure([_Coef("c", data.stack({"motor": np.ones(data.t.size)}))],
+    structure = _Structure([_coef(data, "c", {"motor": np.ones(data.t.size)})],
                            lambda p: {"torque_N_m": float(p[0])}, n_params=1)
     return _fit(data, Effect.NONE, structure)
 
@@ -685,12 +694,12 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
         if s is not None:
             groups.append((fit.effect, s.coefs))
     coefs = cal + [c for _, g in groups for c in g]
-    A = np.column_stack([c.column for c in coefs])
+    As = _design_matrix(coefs)
     y = data.stacked_target()
     fit_rows = ~data.stacked(data.held_out)
-    scale = np.sqrt(np.mean(A[fit_rows] ** 2, axis=0))
+    scale = np.sqrt(np.mean(As[fit_rows] ** 2, axis=0))
     scale[scale == 0.0] = 1.0
-    As = A / scale
+    As /= scale          # in place: the same quotients as As / scale, one matrix fewer
     # a few thousand rows are plenty for the selection; the refit uses all rows
     idx = np.flatnonzero(fit_rows)
     idx = idx[:: max(1, idx.size // 3000)]
@@ -708,6 +717,7 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
     # minimiser from a square problem (the solver's work no longer grows with the rows).
     Q, R = np.linalg.qr(Af)
     held = data.stacked(data.held_out)
+    A_held, y_held = As[held], y[held]
     results = []
     lams = np.geomspace(1e-1, 1e-5, n_lambda)
     path = _group_lasso_path(R, Q.T @ yf, 1.0 / (idx.size * y_rms ** 2), spans, lo, hi, lams)
@@ -716,7 +726,7 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
             continue
         sel = tuple(i for i, sp in enumerate(spans)
                     if np.linalg.norm(wv[sp]) > 1e-3 * max(1.0, np.linalg.norm(wv[n_cal:])))
-        gap = float(np.sqrt(np.mean((y[held] - As[held] @ wv) ** 2)))
+        gap = float(np.sqrt(np.mean((y_held - A_held @ wv) ** 2)))
         results.append((value, sel, gap))
     if not results:
         return JointAttribution(effects=(), contributions={}, lam=float("nan"), gap_held_out=float("nan"))
@@ -725,7 +735,8 @@ def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8)
     # unpenalised refit on the selected groups
     chosen = cal + [c for i in sel for c in groups[i][1]]
     p = _solve(data, chosen, fit_rows)
-    Ac = np.column_stack([c.column for c in chosen])
+    del As, A_held
+    Ac = _design_matrix(chosen)
     r = y - Ac @ p
     contributions = {}
     k = n_cal

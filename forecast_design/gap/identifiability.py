@@ -49,7 +49,7 @@ from scipy import stats
 from ..effects import Effect
 from ..plausibility import ParameterStatus, assess, effect_bound
 from ..friction._lsq import group_wald_p, hac_covariance
-from .candidates import CandidateFit, _calibration, _fit_rows as _candidate_fit_rows
+from .candidates import CandidateFit, _calibration, _design_matrix, _fit_rows as _candidate_fit_rows
 from .residuals import GapData, gap_log_scales
 
 __all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status",
@@ -85,7 +85,7 @@ def _coefficient_covariance(data: GapData, fit: CandidateFit) -> tuple[np.ndarra
     """Covariance of all coefficients (calibration first), the mask of coefficients on a bound and
     the fit's design (feature columns, fit rows, residual) for the group tests."""
     coefs = _calibration(data) + list(fit.structure.coefs if fit.structure is not None else [])
-    A = np.column_stack([c.column for c in coefs])
+    A = _design_matrix(coefs)
     rows = _fit_rows(data, fit)
     p = np.asarray(fit.coef, dtype=float)
     lo = np.array([c.lo for c in coefs])
@@ -421,7 +421,7 @@ def isolability(data: GapData, fits: Sequence[CandidateFit], *, threshold: float
         Words, separations and the threshold.
     """
     rows = data.stacked(data.held_out)
-    C = np.column_stack([c.column[rows] for c in _calibration(data)])
+    C = _design_matrix(_calibration(data), rows)
     QC = _basis(C)
     words: list[str] = []
     bases: list[np.ndarray] = []
@@ -436,7 +436,7 @@ def isolability(data: GapData, fits: Sequence[CandidateFit], *, threshold: float
             explained = data.columns["u"] - data.targets["motor"]
             F = data.stack({"motor": explained})[rows][:, None]
         else:
-            F = np.column_stack([c.column[rows] for c in fit.structure.coefs])
+            F = _design_matrix(fit.structure.coefs, rows)
         words.append(str(fit.effect))
         bases.append(_basis(F))
         joint.append(_basis(np.column_stack([F, C])))

@@ -144,10 +144,9 @@ def replay_windows(tb: Testbed, env: Environment, inputs: np.ndarray, x0: np.nda
     nw = starts.size
     X = np.empty((nw, length, Ad.shape[0]))
     X[:, 0] = x0
-    idx = starts[:, None] + np.arange(length)[None, :]
-    U = inputs[idx]                                     # (nw, length, 2)
     for j in range(1, length):
-        X[:, j] = X[:, j - 1] @ Ad.T + U[:, j - 1] @ Bd.T
+        # the windows' inputs of one step, (nw, 2): the inputs of all steps at once held 16 B per sample
+        X[:, j] = X[:, j - 1] @ Ad.T + inputs[starts + (j - 1)] @ Bd.T
     return X
 
 
@@ -167,22 +166,26 @@ def _replay(data: GapData, fit: Any | None, starts: np.ndarray, L: int) -> dict[
     tb, env = exp.design.testbed, exp.design.environment
     n = exp.n_samples
     theta = np.asarray(sig.theta, dtype=float)
-    q = np.zeros_like(theta) if env.locked else np.asarray(sig.q, dtype=float)
-    thf, qf = lowpass(theta, data.settings), lowpass(q, data.settings)
-    dt = 1.0 / rate
-    thv, qv = np.gradient(thf, dt), np.gradient(qf, dt)
-    x0 = (np.column_stack([thf, thv]) if env.locked else np.column_stack([thf, thv, qf, qv]))[starts]
+    # the filtered motor angle and its speed are the prepared raw columns (the same low-pass and gradient);
+    # the output's are made here and kept at the windows' starts only
+    x0 = [data.raw["theta"][starts], data.raw["v"][starts]]
+    if not env.locked:
+        qf = lowpass(np.asarray(sig.q, dtype=float), data.settings)
+        x0 += [qf[starts], np.gradient(qf, 1.0 / rate)[starts]]
+        del qf
+    x0 = np.column_stack(x0)
     tau_m = np.asarray(sig.tau_m, dtype=float)
     idx = starts[:, None] + np.arange(L)[None, :]
     out = {"t": np.asarray(sig.t, dtype=float)[idx], "tau_s": np.asarray(sig.tau_s, dtype=float)[idx],
            "theta": theta[idx]}
+    del idx
 
     def run(tbx: Testbed, inputs: np.ndarray, scale: float, gain: float = 1.0, zero: float = 0.0
             ) -> tuple[np.ndarray, np.ndarray]:
         X = replay_windows(tbx, env, inputs, x0, starts, L, rate, spring_scale=scale)
         qs = np.zeros_like(X[..., 0]) if env.locked else X[..., 2]
         # the log's tau_s: k (theta - q) with the nominal k, or a sensor reading gain x k (theta - q) + zero
-        return gain * tb.spring_torque(X[..., 0], qs) + zero, X[..., 0]
+        return gain * tb.spring_torque(X[..., 0], qs) + zero, X[..., 0].copy()   # a copy: X is 4 columns
 
     out["tau_s_before"], out["theta_before"] = run(tb, np.column_stack([tau_m, np.zeros(n)]), 1.0)
     out["tau_s_after"], out["theta_after"] = out["tau_s_before"], out["theta_before"]
@@ -192,10 +195,11 @@ def _replay(data: GapData, fit: Any | None, starts: np.ndarray, L: int) -> dict[
         cal = fit.calibration
         # a torque sensor's zero o is in the reading, not in the plant (true spring torque = scale tau_s + o)
         offset = float(cal.get("tau_s_offset_N_m", 0.0))
-        wm = _upsample(data, parts.get("motor", np.zeros(m)), n)
-        we = _upsample(data, parts.get("environment", np.zeros(m)), n)
-        # the prediction is what the effect adds to the equation error: remove it from the drive
-        inputs = np.column_stack([tau_m - wm, -we])
+        # the prediction is what the effect adds to the equation error: remove it from the drive,
+        # (tau_m - w_motor, -w_environment), made one column at a time
+        inputs = np.empty((n, 2))
+        np.subtract(tau_m, _upsample(data, parts.get("motor", np.zeros(m)), n), out=inputs[:, 0])
+        np.negative(_upsample(data, parts.get("environment", np.zeros(m)), n), out=inputs[:, 1])
         tb1 = dataclasses.replace(tb, J_m=float(cal.get("J_m", tb.J_m)), d_m=float(max(cal.get("d_m", tb.d_m), 0.0)))
         if "k" in cal:
             # a measured tau_s: the plant's spring is the coupling's k; the sensor reads

@@ -33,9 +33,10 @@ in ``r_m``; environment mismatch in ``r_e``; backlash in ``r_m`` and ``r_e`` whe
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
+from typing import Iterable, Mapping
 
 import numpy as np
 
@@ -51,6 +52,10 @@ from ..friction.derivatives import (FilterSettings, butterworth, decimate_column
 
 __all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
            "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "near_rest"]
+
+#: Raw-rate samples (columns x log length) filtered in one pass by ``GapData.decimate_many`` [-]:
+#: 2 MB per filter copy, a fixed size rather than one per sample.
+BATCH_SAMPLES = 1 << 18
 
 #: Equation names, in stacking order.
 EQUATIONS = ("motor", "environment", "coupling")
@@ -354,12 +359,17 @@ class GapData:
         col = lowpass(np.asarray(raw_column, dtype=float), self.settings)
         return decimate_columns(col[:, None], self.settings)[:, 0]
 
-    def decimate_many(self, raw_columns: Sequence[np.ndarray]) -> np.ndarray:
-        """:meth:`decimate` of several raw-rate columns in one filter pass (bit-equal, fewer calls).
+    def decimate_many(self, raw_columns: Iterable[np.ndarray]) -> np.ndarray:
+        """:meth:`decimate` of several raw-rate columns, a bounded batch per filter pass.
+
+        The filters run along each column alone, so the rows are bit-equal to one filter pass over
+        all the stacked columns. A generator of columns is consumed ``BATCH_SAMPLES // n`` columns
+        at a time (one for a log of 262,144 samples or more): a short log's columns share a few filter
+        calls (their set-up dominates there), a long log's filter copies stay a bounded size.
 
         Parameters
         ----------
-        raw_columns : sequence of ndarray, each shape (n,)
+        raw_columns : iterable of ndarray, each shape (n,)
             Signals at the log's rate (any unit).
 
         Returns
@@ -367,8 +377,14 @@ class GapData:
         ndarray, shape (len(raw_columns), m)
             Row ``i`` equals ``decimate(raw_columns[i])``.
         """
-        X = np.array([np.asarray(c, dtype=float) for c in raw_columns], dtype=float, ndmin=2)
-        return decimate_columns(lowpass(X, self.settings), self.settings, axis=1)
+        it, rows = iter(raw_columns), []
+        for first in it:
+            first = np.asarray(first, dtype=float)
+            batch = [first, *itertools.islice(it, max(1, BATCH_SAMPLES // max(first.size, 1)) - 1)]
+            X = np.array(batch, dtype=float) if len(batch) > 1 else first[None, :]
+            del batch, first
+            rows.extend(decimate_columns(lowpass(X, self.settings), self.settings, axis=1))
+        return np.array(rows, dtype=float, ndmin=2)
 
     def stack(self, per_equation: Mapping[str, np.ndarray]) -> np.ndarray:
         """Stack per-equation columns in equation order, zeros where an equation is absent.
@@ -551,16 +567,24 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
     # Every column, targets and regressors alike, goes through the same zero-phase
     # low-pass (and later the same decimation): a linear filter then leaves a model
     # that is linear in its parameters exact, so a nominal log has no residual.
-    thf, qf = lowpass(theta, settings), lowpass(q, settings)
+    # One raw-rate column at a time, each dropped once decimated (the filters run along each
+    # column alone, so the numbers are those of a stacked block): only the motor angle, its
+    # speed and the spring deflection stay at the raw rate, for the candidates' nonlinear features.
+    thf = lowpass(theta, settings)
     th_v, th_a = _derivatives(thf, rate)
-    q_v, q_a = _derivatives(qf, rate)
-    u = lowpass(zoh_input(tau_m), settings)
+    cols = {"a": decimate_columns(th_a, settings), "v": decimate_columns(th_v, settings),
+            "theta": decimate_columns(thf, settings)}
+    del th_a
+    qf = lowpass(q, settings)
     x = thf - qf
-    raw_cols = {"u": u, "tau_s": lowpass(tau_s, settings), "a": th_a, "v": th_v, "theta": thf,
-                "x": x, "qa": q_a, "qv": q_v, "q": qf, "spring": tb.k * x}
-    names = list(raw_cols)
-    dec = decimate_columns(np.column_stack([raw_cols[n] for n in names]), settings)
-    cols = {n: dec[:, i] for i, n in enumerate(names)}
+    for name, col in zip(("qv", "qa"), _derivatives(qf, rate)):
+        cols[name] = decimate_columns(col, settings)
+    cols["q"] = decimate_columns(qf, settings)
+    del qf, col
+    cols["x"] = decimate_columns(x, settings)
+    cols["spring"] = decimate_columns(tb.k * x, settings)
+    cols["u"] = decimate_columns(lowpass(zoh_input(tau_m), settings), settings)
+    cols["tau_s"] = decimate_columns(lowpass(tau_s, settings), settings)
     km_velocity, km_position = th_v, thf
     e = settings.edge_samples
     n_raw = theta.size
@@ -586,7 +610,6 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
         # use the encoders (the TOML's k) so that backlash and spring errors act where they
         # physically do, in the motor and environment equations
         cols["tau_s"] = cols["spring"]
-        raw_cols["tau_s"] = raw_cols["spring"]
     targets = {"motor": cols["u"] - cols["tau_s"] - tb.J_m * cols["a"] - tb.d_m * cols["v"]}
     equations = ["motor"]
     if not locked:
