@@ -382,7 +382,8 @@ def sfm_loop_check(design: Design, friction: Any, *, controller: Any = None, rat
     rate_hz : float
         Control rate [Hz].
     delay_samples : int
-        Computation delay [samples] (the board's: 1).
+        Samples between computing the command and applying it (default 0: within the period, as
+        the simulator and the firmware run it).
 
     Returns
     -------

@@ -308,14 +308,15 @@ def test_run_refuses_an_sfm_feed_forward_that_destabilises_the_loop_before_the_b
         proc.communicate(timeout=60)
 
 
-def _independent_sfm_loop_radius(env, controller: PD, viscous: float, rate_hz: float = 2000.0) -> float:
+def _independent_sfm_loop_radius(env, controller: PD, viscous: float, rate_hz: float = 2000.0,
+                                 delay_samples: int = 0) -> float:
     """Spectral radius of the sampled force loop with an SFM feed-forward, built with python-control only.
 
     ZOH ``c2d`` of the SEA's state-space model (motor, spring, environment) from ``tau_m`` to
     ``[tau_s, theta]``; the PD law backward Euler, the format's default (``s -> (1 - 1/z) / T``, also
     in the derivative filter ``D s / (T_f s + 1)``), on ``e = -tau_s``; the SFM's viscous term
-    ``viscous v_hat``, ``v_hat`` the 50 Hz filtered derivative of theta made with Tustin; both one
-    sample late (the board's computation delay).
+    ``viscous v_hat``, ``v_hat`` the 50 Hz filtered derivative of theta made with Tustin; both applied
+    ``delay_samples`` periods late (0: within the period, as the simulator and the firmware do).
     """
     import warnings
 
@@ -340,8 +341,9 @@ def _independent_sfm_loop_radius(env, controller: PD, viscous: float, rate_hz: f
         pd = controller.P + controller.D * s_be / (controller.T_f * s_be + 1)
         wv = 2.0 * np.pi * DEFAULT_VELOCITY_CUTOFF_HZ
         velocity = control.c2d(control.tf([1.0, 0.0], [1.0 / wv, 1.0]), T, "tustin")
-        a = control.ss(control.minreal(-pd / z, verbose=False))       # u from tau_s, one sample late
-        b = control.ss(control.minreal(viscous * velocity / z, verbose=False))   # u from theta
+        late = z ** delay_samples if delay_samples else control.tf([1.0], [1.0], T)
+        a = control.ss(control.minreal(-pd / late, verbose=False))    # u from tau_s
+        b = control.ss(control.minreal(viscous * velocity / late, verbose=False))   # u from theta
         na, nb = a.nstates, b.nstates                                   # u = a tau_s + b theta: one 1 x 2 system
         gains = control.ss(np.block([[a.A, np.zeros((na, nb))], [np.zeros((nb, na)), b.A]]),
                            np.block([[a.B, np.zeros((na, 1))], [np.zeros((nb, 1)), b.B]]),
@@ -356,12 +358,14 @@ def _independent_sfm_loop_radius(env, controller: PD, viscous: float, rate_hz: f
 
 @pytest.mark.parametrize("env", ["exp-soft", "stiff", "locked", "link-only"])
 @pytest.mark.parametrize("controller", [PD(P=5.0, D=0.1), PD(P=4.0, D=0.08, T_f=0.002)])
-def test_sfm_loop_check_agrees_with_a_python_control_loop_and_flags_a_large_viscous(env, controller):
+@pytest.mark.parametrize("delay_samples", [0, 1])
+def test_sfm_loop_check_agrees_with_a_python_control_loop_and_flags_a_large_viscous(env, controller, delay_samples):
     environment = environment_preset(env)
     design = Design(testbed=Testbed.nominal(), environment=environment)
     for viscous in (0.0, 0.3, 265.8):
-        check = sfm_loop_check(design, {"viscous": viscous, "coulomb": 0.1}, controller=controller)
-        radius = _independent_sfm_loop_radius(environment, controller, viscous)
+        check = sfm_loop_check(design, {"viscous": viscous, "coulomb": 0.1}, controller=controller,
+                               delay_samples=delay_samples)
+        radius = _independent_sfm_loop_radius(environment, controller, viscous, delay_samples=delay_samples)
         assert check.spectral_radius == pytest.approx(radius, abs=1e-9), viscous
         assert check.stable == (radius < 1.0)
         # the motor's own damping, compensated, keeps the loop; 266 N m s/rad (a log that never slid) does not
