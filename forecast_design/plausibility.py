@@ -20,7 +20,9 @@ each defined by what a user may rely on:
     *Use the interval, not the number.* The log pins the value only to an
     interval wider than +-10 % of it (the interval may include zero), or a
     check of the fit (a richer model the residual asks for, a sensor scale the
-    log cannot separate) moves it by more than that interval.
+    log cannot separate) moves it by more than that interval. A friction number
+    whose method's error could not be estimated (both repeated fits failed) is
+    ``uncertain`` too, saying that its interval carries the noise only.
 ``at_bound``
     *Neither.* The estimate sits on a bound of the solver (a box constraint, the
     end of a search grid, a datasheet tolerance): the data pushed it there, so

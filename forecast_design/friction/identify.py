@@ -433,10 +433,10 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
         angle) and its whiteness (:mod:`forecast_design.friction.adequacy`); a parameter
         such a structure moves outside its interval becomes ``uncertain``.
     method_error : bool
-        Add the method's own error to the standard deviations: the shift of every estimate
-        when the analysis is repeated on every other sample
-        (:mod:`forecast_design.friction.method_error`); when that repeated fit fails, the
-        ``identified`` numbers become ``uncertain`` (their intervals carry the noise only).
+        Add the method's own error to the standard deviations: the larger shift of every
+        estimate when the analysis is repeated on every other sample and at half the position
+        filter's cut-off (:mod:`forecast_design.friction.method_error`); when both repeated fits
+        fail, the ``identified`` numbers become ``uncertain`` (their intervals carry the noise only).
     **nonlinear_options
         Passed to the nonlinear solver (``max_iter``, ``sigma0_init``); unknown
         keys raise ParameterError.
@@ -476,8 +476,9 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
     autocorrelation (filtered, decimated residuals are not white; the
     classical IDIM ``sigma^2 (Phi^T Phi)^-1`` is kept as ``std_iid``), the
     Jacobian taking the place of ``Phi`` for nonlinear models, with the
-    method's own error (the shift of each estimate at twice the sample period,
-    :mod:`forecast_design.friction.method_error`) added in quadrature. Every number
+    method's own error (the shift of each estimate at half the rate and at half
+    the filter cut-off, :mod:`forecast_design.friction.method_error`) added in
+    quadrature. Every number
     is then graded by :mod:`forecast_design.plausibility` (``status``): a
     solver's convergence is not a verdict on it.
     """
@@ -541,7 +542,7 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
             std[i] = std_iid[i] = std_method[i] = math.nan
     status = grade(model, params, dict(zip(names, std)), scales, held=held, overrides=est.overrides,
                    active=est.active)
-    if me is not None and me.failure:
+    if me is not None and not me.std:   # both repeated fits failed
         for name, st in status.items():
             if st.identified:
                 status[name] = dataclasses.replace(st, status="uncertain", reason=(

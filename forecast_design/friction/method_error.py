@@ -51,7 +51,7 @@ __all__ = ["MethodError", "method_error"]
 
 @dataclass(frozen=True, slots=True)
 class MethodError:
-    """How far a fit's estimates move when the analysis is repeated at twice the sample period.
+    """How far a fit's estimates move when the analysis is repeated at twice its time scales.
 
     Parameters
     ----------

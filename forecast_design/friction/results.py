@@ -236,9 +236,9 @@ class FrictionFit:
         Structure left in the residual (direction, speed, angle) and its whiteness
         (:mod:`forecast_design.friction.adequacy`); None when not tested.
     std_method : mapping of str to float
-        The method's own error, same units: how far each estimate moves when the whole
-        analysis is repeated at twice the sample period
-        (:func:`~forecast_design.friction.identify.method_error`); empty when not estimated.
+        The method's own error, same units: the larger shift of each estimate when the whole
+        analysis is repeated at half the rate and at half the position filter's cut-off
+        (:func:`~forecast_design.friction.method_error.method_error`); empty when not estimated.
     """
 
     model: FrictionModel
