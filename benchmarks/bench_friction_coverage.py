@@ -1,6 +1,7 @@
 """Friction identification on independent logs: interval coverage per model and confident wrong numbers.
 
-Run: python benchmarks/bench_friction_coverage.py [--logs N] [--workers W] [--families ...] [--cache DIR]
+Run: python benchmarks/bench_friction_coverage.py [--logs N] [--workers W] [--families ...] [--laws ...]
+[--cache DIR]
 
 Families (each log drawn from its own seed, parameters drawn around the Forecast testbed's):
 
@@ -197,13 +198,16 @@ def main() -> None:
     ap.add_argument("--logs", type=int, default=24, help="logs per family and model (open: per law)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--families", default="open,closed,coarse,little,wrong")
+    ap.add_argument("--laws", default=",".join(LAWS), help="keep only the logs of these laws (same seeds as all)")
     ap.add_argument("--seed", type=int, default=2500)
     ap.add_argument("--json", metavar="OUT", help="also write every record as JSON")
     ap.add_argument("--cache", metavar="DIR", help="keep the simulated logs (experiment files) here and reuse them")
     args = ap.parse_args()
     per_family = {"open": args.logs * len(LAWS), "closed": args.logs, "coarse": args.logs, "little": 2 * len(LAWS),
                   "wrong": 12}
-    all_jobs = [{**j, "cache": args.cache} for f in args.families.split(",") for j in jobs(f, per_family[f], args.seed)]
+    laws = set(args.laws.split(","))
+    all_jobs = [{**j, "cache": args.cache} for f in args.families.split(",") for j in jobs(f, per_family[f], args.seed)
+                if j["law"] in laws]
     t0 = time.perf_counter()
     print(f"{len(all_jobs)} logs on {args.workers} workers; machine {platform.machine()}, {os.cpu_count()} cores, "
           f"{platform.processor() or platform.platform()}; load {os.getloadavg()[0]:.2f}; "

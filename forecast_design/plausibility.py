@@ -10,12 +10,19 @@ each defined by what a user may rely on:
     and its 95 % interval is no wider than +-:data:`RELATIVE_PRECISION` (10 %) of
     the value: the number is known to within a tenth of itself, and the
     interval (which the identification checks on independent logs to cover
-    the truth in >= 93 % of cases) says by how much more precisely.
+    the truth in >= 93 % of cases) says by how much more precisely. For a
+    friction fit the standard deviation is the noise's (Newey-West) and the
+    method's own error in quadrature: how far the estimate moves when the
+    analysis is repeated at half the rate and at half the filter cut-off
+    (:mod:`forecast_design.friction.method_error`); an interval narrower
+    than the error the method makes would promise what it cannot hold.
 ``uncertain``
     *Use the interval, not the number.* The log pins the value only to an
     interval wider than +-10 % of it (the interval may include zero), or a
     check of the fit (a richer model the residual asks for, a sensor scale the
-    log cannot separate) moves it by more than that interval.
+    log cannot separate) moves it by more than that interval. A friction number
+    whose method's error could not be estimated (both repeated fits failed) is
+    ``uncertain`` too, saying that its interval carries the noise only.
 ``at_bound``
     *Neither.* The estimate sits on a bound of the solver (a box constraint, the
     end of a search grid, a datasheet tolerance): the data pushed it there, so

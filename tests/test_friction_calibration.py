@@ -110,21 +110,26 @@ def test_lugre_with_enough_sliding_is_recovered():
         assert fit.status[k].identified, k
     assert fit.params["sigma1"] == pytest.approx(true["sigma1"], rel=0.10)
     # the bristles relax (F_c / (sigma0 |v|) ~ 0.4 ms at the median sliding speed) within one 0.5 ms
-    # sample: the bristle parameters' intervals would not cover their few-percent bias (sigma0 +1-2 %
-    # at 4-5 std on other logs), so they are flagged, not trusted
+    # sample: the bristle parameters' few-percent discretisation error is in their intervals (the
+    # method's error, a refit at half the rate), which hold the truth
     for k in ("sigma0", "sigma1"):
-        st = fit.status[k]
-        assert st.identified or (st.status == "uncertain" and "relax within one sample" in st.reason), k
+        lo, hi = fit.interval95[k]
+        assert lo <= true[k] <= hi, k
+        assert fit.std_method[k] > 0, k
 
 
 @pytest.mark.parametrize("rate_hz", [500.0, 1000.0])
-def test_lugre_damping_is_not_reported_when_the_bristles_relax_within_a_sample(rate_hz):
-    # On these logs sigma1 came out 7-16 % low with intervals 7-25 std away from the truth (the
-    # transient it acts in lasts less than a sample); the other parameters stay identified.
+def test_lugre_damping_interval_carries_its_discretisation_error_when_the_bristles_relax_within_a_sample(rate_hz):
+    # On these logs sigma1 comes out 9-10 % low (the transient it acts in lasts less than a sample; at
+    # half the rate 18-19 % low: an error of first order in the sample period); with the noise alone its
+    # interval missed the truth by 7-25 std. The method's error puts the truth inside, sigma1 is not
+    # reported as a number, and the other parameters stay within 5 %.
     exp, true = friction_log("lugre", seed=0, duration_s=30.0, rate_hz=rate_hz)
     fit = identify(exp, "lugre", holdout=0.0)
     st = fit.status["sigma1"]
-    assert st.status == "uncertain" and "relax within one sample" in st.reason
+    lo, hi = fit.interval95["sigma1"]
+    assert st.status == "uncertain" and lo <= true["sigma1"] <= hi
+    assert fit.std_method["sigma1"] > 0.5 * fit.std["sigma1"]   # most of the width is the method's error
     assert "sigma1" in fit.to_mapping()["not_identified"]
     for k in ("sigma0", "static", "coulomb", "viscous"):
         assert fit.params[k] == pytest.approx(true[k], rel=0.05), k

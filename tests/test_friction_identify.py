@@ -173,11 +173,16 @@ def test_lugre_static_parameters_within_10_percent():
     for k in ("sigma0", "sigma1", "stribeck_velocity"):
         assert fit.params[k] == pytest.approx(LUGRE[k], rel=0.15), k
     assert fit.solver["success"]
-    # identified = a 95 % interval within +-10 % of the value (plausibility.RELATIVE_PRECISION); only the
-    # Stribeck velocity (within 7 %, interval +-11 %) is known less precisely on this log
-    assert [k for k, st in fit.status.items() if not st.identified] == ["stribeck_velocity"]
-    lo, hi = fit.interval95["stribeck_velocity"]
-    assert math.log(hi / lo) / 2 > 0.1 and "10 %" in fit.status["stribeck_velocity"].reason
+    # identified = a 95 % interval within +-10 % of the value (plausibility.RELATIVE_PRECISION). The
+    # intervals carry the method's own error (refits at half the rate and half the filter cut-off) and
+    # hold every truth; sigma1 (10 % low: the discrete bristle step; it shifts by 10 % more at twice the
+    # time scale) and the Stribeck velocity (7 % low) are known only to their intervals (+-22 %, +-15 %).
+    # With the noise alone sigma1 was `identified` 10 % off.
+    for k, (lo, hi) in fit.interval95.items():
+        assert lo <= LUGRE[k] <= hi, k
+    assert [k for k, st in fit.status.items() if not st.identified] == ["sigma1", "stribeck_velocity"]
+    for k in ("sigma1", "stribeck_velocity"):
+        assert "10 %" in fit.status[k].reason and fit.std_method[k] > 0, k
 
 
 def test_unphysical_fit_is_constrained_and_matches_scipy_bounded_lsq(rng):

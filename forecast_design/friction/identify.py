@@ -26,6 +26,7 @@ from .tau_s import tau_s_scale_check, tau_s_zero_offset
 from .results import (FrictionFit, FrictionValidation, IdentificationData, IllConditionedWarning,
                       _relative_error, _ro, fit_percent)
 from .verdict import grade, identifiability
+from .method_error import method_error as _method_error
 
 __all__ = [
     "FrictionFit",
@@ -377,7 +378,7 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
                  settings: FilterSettings | None = None, holdout: float = 0.0,
                  constrain: bool = True, selection: SampleSelection | str | bool | None = "auto",
                  encoder_step: float | None = None, zoh_force: bool = False,
-                 scales: LogScales | None = None, adequacy: bool = True,
+                 scales: LogScales | None = None, adequacy: bool = True, method_error: bool = True,
                  **nonlinear_options: Any) -> FrictionFit:
     """Identify a friction model from one log.
 
@@ -431,6 +432,11 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
         Test the residual for structure a richer model would explain (direction, speed,
         angle) and its whiteness (:mod:`forecast_design.friction.adequacy`); a parameter
         such a structure moves outside its interval becomes ``uncertain``.
+    method_error : bool
+        Add the method's own error to the standard deviations: the larger shift of every
+        estimate when the analysis is repeated on every other sample and at half the position
+        filter's cut-off (:mod:`forecast_design.friction.method_error`); when both repeated fits
+        fail, the ``identified`` numbers become ``uncertain`` (their intervals carry the noise only).
     **nonlinear_options
         Passed to the nonlinear solver (``max_iter``, ``sigma0_init``); unknown
         keys raise ParameterError.
@@ -469,7 +475,10 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
     ``(Phi^T Phi)^-1 S (Phi^T Phi)^-1`` whose bandwidth follows the residuals'
     autocorrelation (filtered, decimated residuals are not white; the
     classical IDIM ``sigma^2 (Phi^T Phi)^-1`` is kept as ``std_iid``), the
-    Jacobian taking the place of ``Phi`` for nonlinear models. Every number
+    Jacobian taking the place of ``Phi`` for nonlinear models, with the
+    method's own error (the shift of each estimate at half the rate and at half
+    the filter cut-off, :mod:`forecast_design.friction.method_error`) added in
+    quadrature. Every number
     is then graded by :mod:`forecast_design.plausibility` (``status``): a
     solver's convergence is not a verdict on it.
     """
@@ -521,13 +530,23 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
         tail = keep[n_head:]
         holdout_fit = fit_percent(data.force[n_head:][tail], y_cv[n_head:][tail])
     held = dict(est.held)
-    std = np.sqrt(np.clip(np.diag(est.covariance), 0.0, None))
+    me = _method_error(model, t, position, force, params, velocity=velocity, inertia=inertia, settings=settings,
+                       selection=rule, encoder_step=encoder_step, constrain=constrain, scales=scales,
+                       **nonlinear_options) if method_error else None
+    std_method = np.array([me.std.get(n, 0.0) if me is not None else 0.0 for n in names])
+    covariance = est.covariance + np.diag(std_method ** 2)
+    std = np.sqrt(np.clip(np.diag(covariance), 0.0, None))
     std_iid = np.sqrt(np.clip(np.diag(est.covariance_iid), 0.0, None))
     for i, n in enumerate(names):
         if n in held or n in est.overrides:  # on a bound of the fit or undefined: no interval
-            std[i] = std_iid[i] = math.nan
+            std[i] = std_iid[i] = std_method[i] = math.nan
     status = grade(model, params, dict(zip(names, std)), scales, held=held, overrides=est.overrides,
                    active=est.active)
+    if me is not None and not me.std:   # both repeated fits failed
+        for name, st in status.items():
+            if st.identified:
+                status[name] = dataclasses.replace(st, status="uncertain", reason=(
+                    f"the method's own error is not known ({me.failure}): the interval carries the noise only"))
     intervals = _intervals(names, est.params, std, m_used - len(names), est.log_scale)
     adq = None
     if adequacy:
@@ -546,7 +565,7 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
         params=MappingProxyType(params),
         std=MappingProxyType({n: float(s_) for n, s_ in zip(names, std)}),
         interval95=MappingProxyType(intervals),
-        covariance=_ro(est.covariance),
+        covariance=_ro(covariance),
         condition_number=est.condition_number,
         condition_number_unscaled=est.condition_number_unscaled,
         fit_percent_estimation=fit_percent(data.force[keep], y_hat[keep]),
@@ -569,6 +588,7 @@ def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: 
         scales=scales,
         zoh_force=bool(zoh_force),
         adequacy=adq,
+        std_method=MappingProxyType({n: float(v) for n, v in zip(names, std_method)} if me and me.std else {}),
     )
 
 

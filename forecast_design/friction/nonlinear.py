@@ -445,7 +445,7 @@ def _lugre_starts(model: FrictionModel, data, strib: NonlinearResult, vs_bounds,
 
 def _fit_lugre(model: FrictionModel, data, *, max_iter: int, sigma0_init: float | None,
                vs_bounds: tuple[float, float] | None = None, sigma0_bounds: tuple[float, float] | None = None,
-               start_keep: np.ndarray | None = None) -> NonlinearResult:
+               start_keep: np.ndarray | None = None, start: Mapping[str, float] | None = None) -> NonlinearResult:
     Phi, v, h = data.regressor, data.velocity, data.dt
     # Filtered output error: the measured friction is low-passed by the position filter (through the
     # acceleration), so the simulated friction is low-passed alike before it is compared.
@@ -470,11 +470,17 @@ def _fit_lugre(model: FrictionModel, data, *, max_iter: int, sigma0_init: float 
     # fitted away from the stops (variable projection), each simulated with sigma1 = 0. (A single
     # Stribeck start is not enough: with fast reversals a Stribeck curve with v_s near the top speed
     # fits the static part as well as the true hump.)
-    strib = _fit_stribeck(FrictionModel(terms=model.linear_terms + (Stribeck(),)), data,
-                          constrain=True, max_iter=_START_ITER, vs_bounds=vs_bounds, keep=start_keep)
-    lin0, (Fs0, Fc0, vs0, visc0), s0_best = _lugre_starts(model, data, strib, vs_bounds, start_keep,
-                                                          sigma0_init, lp, yf, Phif, core)
-    if sigma0_init is None:
+    s1_0 = 0.0
+    if start is not None:   # a neighbouring fit's optimum (the method's error): its basin, no grid
+        lin0 = np.array([float(start[n]) for n in model.linear_names])
+        Fs0, Fc0, vs0, visc0, s0_best, s1_0 = (float(start[n]) for n in ("static", "coulomb", "stribeck_velocity",
+                                                                          "viscous", "sigma0", "sigma1"))
+    else:
+        strib = _fit_stribeck(FrictionModel(terms=model.linear_terms + (Stribeck(),)), data,
+                              constrain=True, max_iter=_START_ITER, vs_bounds=vs_bounds, keep=start_keep)
+        lin0, (Fs0, Fc0, vs0, visc0), s0_best = _lugre_starts(model, data, strib, vs_bounds, start_keep,
+                                                              sigma0_init, lp, yf, Phif, core)
+    if sigma0_init is None or start is not None:
         sigma0_init = s0_best
     elif not sigma0_init > 0:
         raise ParameterError(f"sigma0_init must be > 0 [N m/rad], got {sigma0_init!r}", name="sigma0_init",
@@ -519,7 +525,7 @@ def _fit_lugre(model: FrictionModel, data, *, max_iter: int, sigma0_init: float 
         return cache["r"], cache["J"]
 
     x0 = np.concatenate([lin0 / np.where(sc_lin > 0, sc_lin, 1.0) if L else np.zeros(0),
-                         [0.0, 0.0, Fc0 / sF, (Fs0 - Fc0) / sF, 0.0, visc0 / sv]])
+                         [0.0, s1_0 / sv, Fc0 / sF, (Fs0 - Fc0) / sF, 0.0, visc0 / sv]])
     # sigma0 and v_s search their plausible ranges (forecast_design.plausibility) when given,
     # else within 1e4 (sigma0) and 1e3 (v_s) of their starts.
     s0_lo, s0_hi = (s0i / 1e4, s0i * 1e4) if sigma0_bounds is None else sigma0_bounds
@@ -586,7 +592,7 @@ def _fit_lugre(model: FrictionModel, data, *, max_iter: int, sigma0_init: float 
 def fit_nonlinear(model: FrictionModel, data, *, constrain: bool = True,
                   vs_bounds: tuple[float, float] | None = None, sigma0_bounds: tuple[float, float] | None = None,
                   keep: np.ndarray | None = None, level_max: float | None = None,
-                  **options: Any) -> NonlinearResult:
+                  start: Mapping[str, float] | None = None, **options: Any) -> NonlinearResult:
     """Fit a model with a Stribeck or LuGre term (see the module docstring).
 
     Parameters
@@ -607,6 +613,9 @@ def fit_nonlinear(model: FrictionModel, data, *, constrain: bool = True,
     level_max : float, optional
         Upper bound of the Stribeck fit's Coulomb level and static excess [N m]
         (the plausible friction level).
+    start : Mapping[str, float], optional
+        LuGre: start from these parameters (natural units, every name of the model) instead
+        of the start grid, e.g. a neighbouring analysis' optimum; ignored by Stribeck.
     **options
         ``max_iter`` (Stribeck: Brent iterations; LuGre: function evaluations of
         ``least_squares``; default 500), ``sigma0_init`` (LuGre start
@@ -628,5 +637,5 @@ def fit_nonlinear(model: FrictionModel, data, *, constrain: bool = True,
                              level_max=level_max)
     if isinstance(term, LuGre):
         return _fit_lugre(model, data, max_iter=max_iter, sigma0_init=options.get("sigma0_init"),
-                          vs_bounds=vs_bounds, sigma0_bounds=sigma0_bounds, start_keep=keep)
+                          vs_bounds=vs_bounds, sigma0_bounds=sigma0_bounds, start_keep=keep, start=start)
     raise ParameterError(f"no nonlinear fit for term {type(term).__name__}", name="model")

@@ -170,14 +170,16 @@ class FrictionFit:
         Estimates in natural units (``viscous`` [N m s/rad], ``coulomb`` [N m],
         ``inertia`` [kg m^2], ``stribeck_velocity`` [rad/s], ``sigma0`` [N m/rad] ...).
     std : mapping of str to float
-        Standard deviations, same units, from a Newey-West (HAC) sandwich
-        that follows the residuals' actual autocorrelation; NaN for a
-        parameter held on a bound of the fit (it has no interval).
+        Standard deviations, same units: the noise's, from a Newey-West (HAC) sandwich
+        that follows the residuals' actual autocorrelation, and the method's own error
+        (``std_method``) added in quadrature; NaN for a parameter held on a bound of the
+        fit (it has no interval).
     interval95 : mapping of str to (float, float)
-        95 % confidence intervals (Student t on the HAC std; on the log scale
+        95 % confidence intervals (Student t on ``std``; on the log scale
         for ``stribeck_velocity`` and ``sigma0``).
     covariance : ndarray, shape (p, p)
-        HAC parameter covariance in the order of ``model.names``.
+        HAC parameter covariance in the order of ``model.names``, with ``std_method``
+        squared added to its diagonal.
     condition_number : float
         Condition number of the column-scaled regressor (or Jacobian) [-].
     condition_number_unscaled : float
@@ -230,6 +232,10 @@ class FrictionFit:
     adequacy : Adequacy or None
         Structure left in the residual (direction, speed, angle) and its whiteness
         (:mod:`forecast_design.friction.adequacy`); None when not tested.
+    std_method : mapping of str to float
+        The method's own error, same units: the larger shift of each estimate when the whole
+        analysis is repeated at half the rate and at half the position filter's cut-off
+        (:func:`~forecast_design.friction.method_error.method_error`); empty when not estimated.
     """
 
     model: FrictionModel
@@ -260,6 +266,7 @@ class FrictionFit:
     scales: LogScales | None = None
     zoh_force: bool = False
     adequacy: Any = None
+    std_method: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def identified(self) -> bool:
@@ -306,7 +313,7 @@ class FrictionFit:
             ``{"model", "params", "std", "interval95", "fit_percent": {"estimation",
             "holdout"}, "relative_error_percent", "condition_number",
             "condition_number_unscaled", "n_samples", "n_samples_used", "n_raw_samples",
-            "holdout", "filter", "selection", "covariance", "std_iid", "status",
+            "holdout", "filter", "selection", "covariance", "std_iid", "std_method", "status",
             "not_identified", "identified", "identifiability", "scales", "zoh_force",
             "inertia_nominal", "constrained", "active_constraints", "solver", "adequacy"}`` plus
             ``"validation": {"relative_error_percent", ...}`` when validated. Non-finite
@@ -318,6 +325,7 @@ class FrictionFit:
             "std": {k: _json_float(v) for k, v in self.std.items()},
             "interval95": {k: [_json_float(lo), _json_float(hi)] for k, (lo, hi) in self.interval95.items()},
             "std_iid": {k: _json_float(v) for k, v in self.std_iid.items()},
+            "std_method": {k: _json_float(v) for k, v in self.std_method.items()},
             "status": {k: st.to_mapping() for k, st in self.status.items()},
             "not_identified": list(self.not_identified),
             "identified": self.identified,
@@ -332,7 +340,8 @@ class FrictionFit:
             "holdout": self.holdout,
             "filter": self.filter.to_mapping(),
             "selection": None if self.selection is None else self.selection.to_mapping(),
-            "covariance": {"method": "Newey-West (Bartlett, VAR(1) prewhitened, Andrews bandwidth)",
+            "covariance": {"method": "Newey-West (Bartlett, VAR(1) prewhitened, Andrews bandwidth) + the "
+                                     "method's error (std_method) squared on the diagonal",
                            "lags": self.hac_lags},
             "scales": None if self.scales is None else self.scales.to_mapping(),
             "zoh_force": self.zoh_force,

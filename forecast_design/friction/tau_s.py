@@ -60,7 +60,8 @@ def tau_s_scale_check(log: Any, fit: FrictionFit, fm: FrictionModel, fit_frictio
     data = friction_log(encoders)
     try:
         other = fit_friction(data.t, data.position, data.force, fm,
-                             inertia=None if "inertia" in fm.names else data.inertia, adequacy=False, **options)
+                             inertia=None if "inertia" in fm.names else data.inertia, adequacy=False,
+                             **{**options, "method_error": False})
     except ForecastError:
         return fit
     status = dict(fit.status)

@@ -153,27 +153,6 @@ def identifiability(model: FrictionModel, status: Mapping[str, ParameterStatus],
                                                     reason=f"not identifiable: {why}", plausible=st.plausible)
             kept = [n for n in status if n not in lost and status[n].identified]
             return f"not identifiable: {why}" + (f"; still identified: {', '.join(kept)}" if kept else "")
-        if isinstance(term, LuGre) and isinstance(status, dict) and status["sigma1"].status in ("identified",
-                                                                                                "uncertain"):
-            # sigma1 acts only while the bristles relax after a reversal, over F_c / (sigma0 |v|);
-            # when that is shorter than a sample the discrete model cannot resolve the transient
-            # and sigma1 comes out biased low (5-25 % on independent logs, beyond its interval)
-            v_med = float(np.median(v[v > gross])) if np.any(v > gross) else 0.0
-            level = max(float(status["coulomb"].value), 1e-12)
-            relax = float(data.dt) * float(status["sigma0"].value) * v_med / level
-            if relax > 1.0:
-                # the stiffness shapes the same transient (the bristles' step into sliding): on such logs it
-                # came out 1-2 % high, 4-5 std from the truth (independent generator, 2 kHz, sigma0 ~1600)
-                for name, what in (("sigma1", "the damping acts"), ("sigma0", "the stiffness shapes the step into "
-                                                                           "sliding")):
-                    st = status[name]
-                    if st.status not in ("identified", "uncertain"):
-                        continue
-                    status[name] = ParameterStatus(
-                        name=name, value=st.value, std=st.std, status="uncertain", plausible=st.plausible,
-                        reason=f"the bristles relax within one sample (dt sigma0 |v| / F_c = {relax:.2g} at the median "
-                               f"sliding speed {v_med:.3g}): {what} in transients shorter than the "
-                               f"{1e3 * float(data.dt):.3g} ms sample period, not resolved; log faster")
     bad = [n for n, st in status.items() if not st.identified]
     if not bad:
         return "identified"
