@@ -301,9 +301,13 @@ def test_a_scheduler_killed_mid_benchmark_ends_the_command_in_one_line(tmp_path)
     worker = bench = None
     try:
         deadline = time.monotonic() + 120
-        while not file.exists() and time.monotonic() < deadline:
-            time.sleep(0.2)
-        address = json.loads(file.read_text())["address"]
+        address = None
+        while address is None and time.monotonic() < deadline:     # the file appears before it is written
+            try:
+                address = json.loads(file.read_text())["address"]
+            except (FileNotFoundError, json.JSONDecodeError, KeyError):
+                time.sleep(0.2)
+        assert address is not None, "the scheduler wrote no address within 120 s"
         worker = subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--nworkers", "1"],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         with distributed.Client(address, timeout=60) as watch:
