@@ -263,7 +263,7 @@ def _resolve(spec: Any, link: dict[str, float], seed: int) -> EnvironmentSet:
 
 
 def _link_defaults(testbed: Any) -> dict[str, float]:
-    base = {f.name: f.default for f in dataclasses.fields(Environment) if f.name in ("J_l", "d_l")}
+    base = dict(zip(("J_l", "d_l"), TABLE1_LINK))
     for key in ("J_l", "d_l"):
         value = getattr(testbed, key, None)
         if value is not None:
@@ -341,7 +341,7 @@ def _from_text(spec: str | os.PathLike, link: dict[str, float], seed: int) -> li
 
 def _with_link(env: Environment, link: Mapping[str, float]) -> Environment:
     """A preset on the default link takes the testbed's (the link belongs to the SEA, not the preset)."""
-    if (env.J_l, env.d_l) == TABLE1_LINK and (link["J_l"], link["d_l"]) != TABLE1_LINK:
+    if not env.link_given and (link["J_l"], link["d_l"]) != TABLE1_LINK:
         return dataclasses.replace(env, J_l=link["J_l"], d_l=link["d_l"])
     return env
 
@@ -440,8 +440,8 @@ def _build(values: Mapping[str, Any], link: Mapping[str, float], where: str) -> 
     else:
         for key in ("J_e", "d_e", "k_e"):
             kwargs.setdefault(key, 0.0)
-    for key in ("J_l", "d_l"):
-        kwargs.setdefault(key, link[key])
+    if (link["J_l"], link["d_l"]) != TABLE1_LINK:   # the testbed's link (Table 1's: the unset default)
+        kwargs = {**link, **kwargs}
     try:
         return Environment(**kwargs, locked=bool(locked)), notes
     except ParameterError as exc:

@@ -225,11 +225,24 @@ class Environment:
     J_e: float            # environment inertia            [kg m^2]
     d_e: float            # environment damping            [N m s/rad]
     k_e: float            # environment stiffness          [N m/rad]
-    J_l: float = 0.0018   # link inertia (TABLE1_LINK)     [kg m^2]
-    d_l: float = 0.35     # link damping (TABLE1_LINK)     [N m s/rad]
+    J_l: float | None = None   # link inertia (None: TABLE1_LINK)    [kg m^2]
+    d_l: float | None = None   # link damping (None: TABLE1_LINK)    [N m s/rad]
     locked: bool = False  # output locked, q == 0
+    #: The link was given (not left on Table 1's): a testbed's own link then does not replace it.
+    #: Inferred when None; kept through ``dataclasses.replace`` unless the link changes.
+    link_given: bool | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
+        given = self.link_given
+        if given is None:
+            given = self.J_l is not None or self.d_l is not None
+        if self.J_l is None:
+            object.__setattr__(self, "J_l", TABLE1_LINK[0])
+        if self.d_l is None:
+            object.__setattr__(self, "d_l", TABLE1_LINK[1])
+        if not given and (self.J_l, self.d_l) != TABLE1_LINK:
+            given = True        # replace(env, J_l=...) of a defaulted environment
+        object.__setattr__(self, "link_given", bool(given))
         for name in ("J_e", "d_e", "k_e", "J_l", "d_l"):
             object.__setattr__(self, name, _number("[environment]", name, getattr(self, name)))
             check_physical("[environment]", name, getattr(self, name))
@@ -510,10 +523,10 @@ _OBSERVER_KEYS = ("w_q_hz", "q_family", "q_order", "q_damping")
 class Design:
     """Everything the nominal model says about one set-up.
 
-    A testbed that carries its link (``Testbed.J_l``, ``d_l``) gives it to an environment left on
-    the default link (:data:`TABLE1_LINK`, e.g. a preset): the link belongs to the SEA, so a user's
-    testbed never runs with the paper's link by default. An environment with a link of its own
-    keeps it. ``environment`` may be a one-member
+    A testbed that carries its link (``Testbed.J_l``, ``d_l``) gives it to an environment that gives
+    no link of its own (``Environment.link_given`` false, e.g. a preset): the link belongs to the
+    SEA, so a user's testbed never runs with the paper's link by default. An environment that gives
+    a link keeps it, even Table 1's. ``environment`` may be a one-member
     :class:`~forecast_design.environments.EnvironmentSet` (e.g. ``resolve_environments("f.toml#name")``).
     """
 
@@ -536,7 +549,7 @@ class Design:
                 raise ParameterError(f"Design {name} must be a {kind.__name__}{' or None' if optional else ''}, "
                                      f"got {type(value).__name__} {value!r}{hint}", name=name, value=value)
         link, env = self.testbed.link, self.environment
-        if link is not None and (env.J_l, env.d_l) == TABLE1_LINK and link != TABLE1_LINK:
+        if link is not None and not env.link_given and link != TABLE1_LINK:
             object.__setattr__(self, "environment", dataclasses.replace(env, J_l=link[0], d_l=link[1]))
 
     @classmethod

@@ -73,6 +73,12 @@ def test_the_testbed_file_carries_the_link_to_every_environment(mysea):
         _no_table1_link(env)
     # an environment with a link of its own keeps it
     assert resolve_environments("k_e=20,J_e=0.02,J_l=0.01,d_l=0.5", testbed=tb).single()[1].J_l == 0.01
+    # ... even when that link is exactly Table 1's (given, not left on the default)
+    table1 = f"k_e=20,J_e=0.02,J_l={TABLE1_LINK[0]},d_l={TABLE1_LINK[1]}"
+    assert (resolve_environments(table1, testbed=tb).single()[1].J_l,) == (TABLE1_LINK[0],)
+    given = fd.Environment(J_e=0.1, d_e=0.3, k_e=5.0, J_l=TABLE1_LINK[0], d_l=TABLE1_LINK[1])
+    assert (fd.Design(testbed=tb, environment=given).environment.J_l,
+            fd.Design(testbed=tb, environment=given).environment.d_l) == TABLE1_LINK
     # Design gives the testbed's link to an environment on the default link, in Python too
     assert fd.Design.nominal("stiff", testbed=tb).environment.J_l == J_L
     assert fd.Design(testbed=tb, environment=fd.Environment(J_e=0.1, d_e=0.3, k_e=5.0)).environment.d_l == D_L
