@@ -234,6 +234,9 @@ class Environment:
 
     def __post_init__(self) -> None:
         given = self.link_given
+        if given is not None and not isinstance(given, bool):
+            raise ParameterError(f"[environment] link_given must be true, false or unset, got {given!r}",
+                                 name="link_given", value=given)
         if given is None:
             given = self.J_l is not None or self.d_l is not None
         if self.J_l is None:

@@ -303,3 +303,9 @@ def test_an_environment_file_with_its_testbed_needs_no_testbed_option(mysea, tmp
                           "--duration", "0.2", "--no-plots", "--workers", "1", "--out", tmp_path / "bench", "--json")
     assert json.loads(out)["benchmark"]["testbed"] == {"J_m": J_M, "d_m": D_M, "k": K}
     assert "mysea.toml's [testbed]" in err
+
+
+def test_link_given_is_a_flag_or_unset():
+    with pytest.raises(ParameterError, match="link_given must be true, false or unset"):
+        fd.Environment(J_e=0.1, d_e=0.3, k_e=5.0, link_given="yes")
+    assert fd.Environment(J_e=0.1, d_e=0.3, k_e=5.0, link_given=True).link_given
