@@ -75,7 +75,9 @@ class _Coef:
 def _design_matrix(coefs: Sequence[_Coef], rows: np.ndarray | None = None) -> np.ndarray:
     """The coefficients' stacked columns side by side (on ``rows`` only when given), one column at a time:
     ``np.column_stack`` of the stacked columns would hold each of them twice."""
-    A = np.empty((coefs[0].column.size if rows is None else int(np.count_nonzero(rows)), len(coefs)))
+    first = coefs[0].parts
+    n = len(first) * next(part.size for part in first if part is not None)   # the stacked length, not built
+    A = np.empty((n if rows is None else int(np.count_nonzero(rows)), len(coefs)))
     for j, c in enumerate(coefs):
         A[:, j] = c.column if rows is None else c.column[rows]
     return A
