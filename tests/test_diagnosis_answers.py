@@ -8,6 +8,9 @@
 11. a real but weak effect is the verdict graded ``weak``; effect-free logs stay ``none`` (coarse
     encoders, a torque sensor's zero and scale, the other SEA);
 12. a verdict lowers the total held-out gap;
+    (and the parsimony between friction laws: a richer law that the log resolves wins without a fixed
+    share of the gap, a stiction fit with F_s = F_c is a Coulomb law; one friction level for both
+    directions where the log hardly moves one way, a level per direction where friction differs);
 13. a torque gain inside the datasheet tolerance and a delay on its search bound never count.
 """
 
@@ -21,6 +24,8 @@ from hypothesis import strategies as st
 
 from forecast_design.effects import Effect
 from forecast_design.gap import GapOptions, diagnose
+from forecast_design.gap.candidates import levels_shared
+from forecast_design.gap.grading import explainable_reduction, noise_floor
 from forecast_design.independent import Excitation, IndependentCase, draw_independent_case, simulate_independent
 from forecast_design.controllers import PD
 from forecast_design.params import Testbed, environment_preset
@@ -286,3 +291,60 @@ def test_a_small_delay_under_stiction_is_never_a_confident_wrong_number(env, exc
     assert not alone.identified and (not at_bound or any("bound" in why for why in alone.assessment.reasons))
     if diag.secondary is not None and diag.secondary.effect is Effect.DELAY:
         assert diag.secondary.params["delay_s"] == pytest.approx(delay_s, rel=0.5)
+
+
+# --- parsimony between friction laws, and one level or two ------------------------------------------
+
+
+def _friction_rows(diag):
+    return {r.effect: r for r in diag.ranking}[Effect.STICTION], {r.effect: r for r in diag.ranking}[Effect.COULOMB]
+
+
+def test_stiction_the_log_resolves_is_named_without_a_fixed_share_of_coulombs_gap():
+    # a 16-bit open-loop multisine on the other SEA (F_c 0.209, F_s 0.382 N m): stiction removes 14 % of what
+    # coulomb leaves above the quantisation floor, at p = 2e-7 on the units where the laws differ, with
+    # F_s - F_c at 3 standard deviations. A fixed share (half of min_reduction, 20 %) named coulomb.
+    exp = _drawn(Effect.STICTION, 1, 0)
+    assert exp.design.testbed.k == 145.0
+    diag = diagnose(exp, joint=False)
+    stiction, coulomb = _friction_rows(diag)
+    held = diag.data.stacked(diag.data.held_out)
+    extra = explainable_reduction(diag.fits["coulomb"], diag.fits["stiction"], held, noise_floor(diag.data))
+    assert 0.0 < extra < 0.5 * diag.data.options.min_reduction
+    assert diag.effect is Effect.STICTION
+    f_s = stiction.assessment.status["F_s"]
+    assert f_s.value - diag.params["F_c"] > 1.96 * f_s.std
+
+
+def test_a_stiction_fit_without_breakaway_or_resolved_bristles_leaves_the_verdict_to_coulomb():
+    # open-loop square with Coulomb friction (sticking below F_c = 0.195 N m): the stiction law fits F_s = F_c
+    # (its Stribeck coefficient on the bound 0) with one-count presliding and removes 24 % of what coulomb
+    # leaves; by the vocabulary (F_s > F_c) that fit is a Coulomb law
+    exp = _drawn(Effect.COULOMB, 7, 0)
+    diag = diagnose(exp, joint=False)
+    stiction = diag.fits["stiction"]
+    x_p = dict((g[0], g[1:]) for g in stiction.structure.grid).get("x_p")
+    assert stiction.params["F_s"] == pytest.approx(stiction.params["F_c"], rel=1e-9)
+    assert x_p is None or x_p[0] == x_p[1]
+    assert diag.effect is Effect.COULOMB
+    assert diag.params["F_c"] == pytest.approx(0.1949, rel=0.02)
+
+
+def test_a_log_turning_almost_always_one_way_fits_one_friction_level_for_both_directions():
+    # open-loop square turning the motor ~0.2 rad, almost always the same way (stiction F_c 0.238, F_s 0.320):
+    # a level per direction put 39 N m on the other direction's handful of reversal rows, and both friction
+    # laws were rejected as "a constant torque"; the verdict was an environment mismatch removing 0.8 %
+    exp = _drawn(Effect.STICTION, 6, 0)
+    diag = diagnose(exp, joint=False)
+    assert diag.effect is Effect.STICTION and diag.reduction > 0.5
+    assert levels_shared(diag.fits["stiction"]) and diag.params["F_c_neg"] == diag.params["F_c"]
+    assert diag.params["F_c"] == pytest.approx(0.238, rel=0.05)
+    assert any("one stiction level for both directions" in c for c in diag.caveats)
+
+
+def test_friction_that_differs_by_direction_keeps_a_level_per_direction():
+    exp = _log((Effect.COULOMB,), {"F_c": 0.3, "F_c_neg": 0.2}, env="soft", excitation=SWEEP, duration_s=12.0)
+    diag = diagnose(exp, joint=False)
+    assert diag.effect is Effect.COULOMB and not levels_shared(diag.fits["coulomb"])
+    assert diag.params["F_c"] == pytest.approx(0.3, rel=0.05)
+    assert diag.params["F_c_neg"] == pytest.approx(0.2, rel=0.05)

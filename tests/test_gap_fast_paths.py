@@ -11,7 +11,7 @@ import pytest
 from scipy import signal
 
 from forecast_design.friction.derivatives import decimate_columns, default_filter_settings
-from forecast_design.gap import candidates, residuals
+from forecast_design.gap import candidates, joint, residuals
 from forecast_design.gap.residuals import GapData, lowpass
 
 
@@ -80,7 +80,7 @@ def test_group_lasso_path_matches_cvxpy_on_the_same_problem():
     weight = 1.0 / n
     lams = [1e-1, 1e-2, 1e-4]
     Q, R = np.linalg.qr(A)
-    got = candidates._group_lasso_path(R, Q.T @ y, weight, spans, lo, hi, lams)
+    got = joint._group_lasso_path(R, Q.T @ y, weight, spans, lo, hi, lams)
     w = cp.Variable(p)
     lam = cp.Parameter(nonneg=True)
     penalty = sum(np.sqrt(s.stop - s.start) * cp.norm(w[s], 2) for s in spans)

@@ -1,7 +1,8 @@
 """Sim-to-real gap diagnosis: where a log departs from the nominal model, which effect explains it, how far the gap shrinks."""
 
 from .bench import BenchCase, BenchResult, benchmark
-from .candidates import CANDIDATE_EFFECTS, CandidateFit, JointAttribution, fit_joint, fit_pair
+from .candidates import CANDIDATE_EFFECTS, CandidateFit, fit_pair
+from .joint import JointAttribution, fit_joint
 from .diagnose import Diagnosis, RankedCandidate, diagnose, held_out_test
 from .locate import Location, empirical_response, locate_gap
 from .replay import ReplayCheck, replay_check, replay_trace

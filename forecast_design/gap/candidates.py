@@ -46,8 +46,7 @@ from ..effects import Effect
 from .residuals import GapData, delayed_input, gap_log_scales, near_rest
 
 __all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_constant_torque", "fit_all", "fit_pair",
-           "CANDIDATE_EFFECTS",
-           "JointAttribution", "fit_joint"]
+           "levels_shared", "CANDIDATE_EFFECTS"]
 
 #: Effects with a candidate, in the order they are tried.
 CANDIDATE_EFFECTS: tuple[Effect, ...] = (
@@ -258,7 +257,9 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
                               level=lambda p: max(p[0], p[1]), n_params=2, tests=((0, 1),)))
     elif effect is Effect.STICTION:
         # LuGre-type friction: presliding (bristle) direction state s in [-1, 1] with
-        # presliding displacement x_p, a Stribeck bump of width v_s and bristle damping.
+        # presliding displacement x_p, a Stribeck bump of width v_s and bristle damping. Its Coulomb
+        # level is tested on its own too: a bump with F_c = 0 (on its bound) is a narrow spike at
+        # the reversals, which a delay in closed loop makes, not friction.
         v = data.raw["v"]
         dt = 1.0 / data.experiment.rate_hz
         # searches bounded by the log: a Stribeck bump narrower than twice the speed resolution, or a
@@ -281,7 +282,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
                     lambda p, v_s=v_s, x_p=x_p: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
                                                  "sigma0": float((p[0] + p[1]) / x_p), "sigma1": float(p[2]),
                                                  "F_c_neg": float(p[3])},
-                    level=lambda p: max(p[0], p[3]) + p[1], n_params=6, tests=((0, 1, 3),),
+                    level=lambda p: max(p[0], p[3]) + p[1], n_params=6, tests=((0, 1, 3), (0,)),
                     grid=(("v_s", float(v_s), float(v_grid[0]), float(v_grid[-1])),
                           ("x_p", float(x_p), float(x_grid[0]), float(x_grid[-1])))))
         # Static (switched) Stribeck friction without presliding, x_p -> 0: the Coulomb candidate's
@@ -298,7 +299,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
                 [c_pos, _coef(data, "dF", {"motor": bump}, 0.0), c_neg],
                 lambda p, v_s=v_s: {"F_s": float(p[0] + p[1]), "F_c": float(p[0]), "v_s": float(v_s),
                                     "F_c_neg": float(p[2])},
-                level=lambda p: max(p[0], p[2]) + p[1], n_params=4, tests=((0, 1, 2),),
+                level=lambda p: max(p[0], p[2]) + p[1], n_params=4, tests=((0, 1, 2), (0,)),
                 grid=(("v_s", float(v_s), float(v_grid[0]), float(v_grid[-1])),)))
     elif effect in (Effect.COGGING, Effect.POSITION_FRICTION):
         th = data.raw["theta"]
@@ -533,6 +534,10 @@ def fit_constant_torque(data: GapData) -> CandidateFit:
 def fit_candidate(data: GapData, effect: Effect) -> CandidateFit | None:
     """Fit one candidate; grid over its nonlinear parameter, chosen on the fit blocks.
 
+    A friction law with a level per direction of motion is fitted with one level for both
+    directions as well; the levels stay apart only when that lowers the held-out gap
+    (:func:`_levels_chosen`).
+
     Parameters
     ----------
     data : GapData
@@ -547,12 +552,77 @@ def fit_candidate(data: GapData, effect: Effect) -> CandidateFit | None:
         to this log (``environment_mismatch`` on a locked output, ``backlash`` without
         spring deflection).
     """
+    return _levels_chosen(data, effect, lambda s: s)
+
+
+def _best_on_grid(data: GapData, effect: Effect, structures: Sequence[_Structure],
+                  wrap: Callable[[_Structure], _Structure | None]) -> CandidateFit | None:
     best: CandidateFit | None = None
-    for structure in _structures(effect, data):
-        fit = _fit(data, effect, structure)
+    for structure in structures:
+        merged = wrap(structure)
+        if merged is None:
+            continue
+        fit = _fit(data, effect, merged)
         if best is None or fit.gap_fit < best.gap_fit:
             best = fit
     return best
+
+
+def _levels_chosen(data: GapData, effect: Effect,
+                   wrap: Callable[[_Structure], _Structure | None]) -> CandidateFit | None:
+    """The best grid point, with a friction level per direction only where the held-out data ask for it.
+
+    A level per direction is a refinement of one level for both (friction often differs by
+    direction by tens of percent). Where the log moves almost always one way, the other
+    direction's level is fitted to a handful of reversal rows and can take any value (39 N m
+    on a log whose Coulomb level is 0.24 N m): on the held-out blocks it then predicts worse
+    than one shared level, which is the one kept.
+    """
+    apart = _best_on_grid(data, effect, _structures(effect, data), wrap)
+    if apart is None or effect not in (Effect.COULOMB, Effect.STICTION):
+        return apart
+    key = ("tied", effect)
+    if key not in data.cache:
+        data.cache[key] = [_tied_levels(s) for s in _structures(effect, data)]
+    shared = _best_on_grid(data, effect, data.cache[key], wrap)
+    return shared if shared is not None and shared.gap_held_out <= apart.gap_held_out else apart
+
+
+def levels_shared(fit: CandidateFit) -> bool:
+    """Whether a friction fit holds one level for both directions of motion (``F_c_neg = F_c`` assumed).
+
+    Parameters
+    ----------
+    fit : CandidateFit
+        Any fit.
+
+    Returns
+    -------
+    bool
+        True when the fit reports ``F_c_neg`` without fitting it.
+    """
+    s = fit.structure
+    return s is not None and "F_c_neg" in fit.params and all(c.name != "F_c_neg" for c in s.coefs)
+
+
+def _tied_levels(s: _Structure) -> _Structure:
+    """The same friction structure with ``F_c_neg = F_c``: one coefficient on both directions' columns."""
+    names = [c.name for c in s.coefs]
+    i, j = names.index("F_c"), names.index("F_c_neg")
+    assert i < j, "the positive level comes first"
+    a, b = s.coefs[i], s.coefs[j]
+    parts = tuple(x if y is None else y if x is None else x + y for x, y in zip(a.parts, b.parts))
+    coefs = list(s.coefs)
+    coefs[i] = _Coef("F_c", parts, a.lo, a.hi)
+    del coefs[j]
+
+    def expand(p: np.ndarray) -> np.ndarray:
+        return np.insert(np.asarray(p, dtype=float), j, p[i])
+
+    tests = tuple(tuple(sorted({k - (k > j) for k in g if k != j})) for g in s.tests)
+    level = None if s.level is None else (lambda p: s.level(expand(p)))
+    return _Structure(coefs, lambda p: s.to_params(expand(p)), level=level, n_params=s.n_params - 1,
+                      tests=tests, grid=s.grid)
 
 
 def _merge(a: _Structure, b: _Structure) -> _Structure:
@@ -592,14 +662,8 @@ def fit_pair(data: GapData, first: CandidateFit, effect: Effect) -> CandidateFit
     s1 = _best_structure(data, first.effect, first)
     if s1 is None:
         return None
-    best: CandidateFit | None = None
-    for s2 in _structures(effect, data):
-        if s1.level is not None and s2.level is not None:
-            continue
-        fit = _fit(data, effect, _merge(s1, s2))
-        if best is None or fit.gap_fit < best.gap_fit:
-            best = fit
-    return best
+    return _levels_chosen(data, effect,
+                          lambda s2: None if s1.level is not None and s2.level is not None else _merge(s1, s2))
 
 
 def fit_all(data: GapData, effects: Sequence[Effect] = CANDIDATE_EFFECTS) -> list[CandidateFit]:
@@ -625,34 +689,6 @@ def fit_all(data: GapData, effects: Sequence[Effect] = CANDIDATE_EFFECTS) -> lis
     return fits
 
 
-@dataclass(frozen=True, slots=True, kw_only=True)
-class JointAttribution:
-    """Joint sparse attribution over all candidates at once (group lasso).
-
-    Parameters
-    ----------
-    effects : tuple of Effect
-        Effects whose coefficient group survived, largest contribution first.
-    contributions : Mapping[str, float]
-        RMS contribution of each candidate's group on the held-out blocks [N m].
-    lam : float
-        Group-lasso weight chosen on the held-out blocks [-].
-    gap_held_out : float
-        Held-out gap of the refitted (unpenalised) model on the selected groups [N m].
-    """
-
-    effects: tuple[Effect, ...]
-    contributions: Mapping[str, float]
-    lam: float
-    gap_held_out: float
-
-    def to_mapping(self) -> dict[str, Any]:
-        """JSON-ready mapping."""
-        return {"effects": [str(e) for e in self.effects],
-                "contributions": {k: float(v) for k, v in self.contributions.items()},
-                "lambda": float(self.lam), "gap_held_out": float(self.gap_held_out)}
-
-
 def _best_structure(data: GapData, effect: Effect, fit: CandidateFit) -> _Structure | None:
     """The grid point of a fitted candidate."""
     if fit.structure is not None:
@@ -663,138 +699,3 @@ def _best_structure(data: GapData, effect: Effect, fit: CandidateFit) -> _Struct
         if all(abs(probe[k] - fit.params.get(k, np.nan)) <= 1e-12 * max(1.0, abs(probe[k])) for k in keys):
             return s
     return None
-
-
-def fit_joint(data: GapData, fits: Sequence[CandidateFit], *, n_lambda: int = 8) -> JointAttribution:
-    """All candidates' linear features at once, with a group-sparsity penalty (Clarabel).
-
-    Nonlinear parameters are fixed at each candidate's one-at-a-time optimum. The
-    objective is ``||A w - y||^2 / n + lam * sum_g sqrt(p_g) ||w_g||_2`` on the fit
-    blocks with standardised columns and the calibration coefficients unpenalised and
-    bounded; ``lam`` is chosen on the held-out blocks (largest ``lam`` whose held-out
-    gap is within 2 % of the best), then the selected groups are refitted without
-    penalty.
-
-    Parameters
-    ----------
-    data : GapData
-        Prepared equation errors.
-    fits : sequence of CandidateFit
-        One-at-a-time fits (their grid optima fix the nonlinear parameters).
-    n_lambda : int
-        Number of penalty weights on the log-spaced path [-].
-
-    Returns
-    -------
-    JointAttribution
-        The selected effects and their held-out contributions.
-    """
-    cal = _calibration(data)
-    groups: list[tuple[Effect, list[_Coef]]] = []
-    for fit in fits:
-        s = _best_structure(data, fit.effect, fit)
-        if s is not None:
-            groups.append((fit.effect, s.coefs))
-    coefs = cal + [c for _, g in groups for c in g]
-    As = _design_matrix(coefs)
-    y = data.stacked_target()
-    fit_rows = ~data.stacked(data.held_out)
-    scale = np.sqrt(np.mean(As[fit_rows] ** 2, axis=0))
-    scale[scale == 0.0] = 1.0
-    As /= scale          # in place: the same quotients as As / scale, one matrix fewer
-    # a few thousand rows are plenty for the selection; the refit uses all rows
-    idx = np.flatnonzero(fit_rows)
-    idx = idx[:: max(1, idx.size // 3000)]
-    Af, yf = As[idx], y[idx]
-    n_cal = len(cal)
-    spans = []
-    k = n_cal
-    for _, g in groups:
-        spans.append(slice(k, k + len(g)))
-        k += len(g)
-    lo = np.array([c.lo for c in coefs]) * scale
-    hi = np.array([c.hi for c in coefs]) * scale
-    y_rms = float(np.sqrt(np.mean(yf ** 2))) or 1.0
-    # ||Af w - yf||^2 = ||R w - Q'yf||^2 + ||yf - Q Q'yf||^2 for Af = Q R (reduced QR): the same
-    # minimiser from a square problem (the solver's work no longer grows with the rows).
-    Q, R = np.linalg.qr(Af)
-    held = data.stacked(data.held_out)
-    A_held, y_held = As[held], y[held]
-    results = []
-    lams = np.geomspace(1e-1, 1e-5, n_lambda)
-    path = _group_lasso_path(R, Q.T @ yf, 1.0 / (idx.size * y_rms ** 2), spans, lo, hi, lams)
-    for value, wv in zip(lams, path):
-        if wv is None:
-            continue
-        sel = tuple(i for i, sp in enumerate(spans)
-                    if np.linalg.norm(wv[sp]) > 1e-3 * max(1.0, np.linalg.norm(wv[n_cal:])))
-        gap = float(np.sqrt(np.mean((y_held - A_held @ wv) ** 2)))
-        results.append((value, sel, gap))
-    if not results:
-        return JointAttribution(effects=(), contributions={}, lam=float("nan"), gap_held_out=float("nan"))
-    best_gap = min(r[2] for r in results)
-    value, sel, _ = max((r for r in results if r[2] <= 1.02 * best_gap), key=lambda r: r[0])
-    # unpenalised refit on the selected groups
-    chosen = cal + [c for i in sel for c in groups[i][1]]
-    p = _solve(data, chosen, fit_rows)
-    del As, A_held
-    Ac = _design_matrix(chosen)
-    r = y - Ac @ p
-    contributions = {}
-    k = n_cal
-    for i in sel:
-        n = len(groups[i][1])
-        contributions[str(groups[i][0])] = float(np.sqrt(np.mean((Ac[held, k:k + n] @ p[k:k + n]) ** 2)))
-        k += n
-    order = sorted(sel, key=lambda i: -contributions[str(groups[i][0])])
-    return JointAttribution(effects=tuple(groups[i][0] for i in order), contributions=contributions,
-                            lam=float(value), gap_held_out=float(np.sqrt(np.mean(r[held] ** 2))))
-
-
-def _group_lasso_path(R: np.ndarray, c: np.ndarray, weight: float, spans: Sequence[slice], lo: np.ndarray,
-                      hi: np.ndarray, lams: Sequence[float]) -> list[np.ndarray | None]:
-    """``argmin weight ||R w - c||^2 + lam sum_g sqrt(p_g) ||w_g||_2`` s.t. ``lo <= w <= hi``, per ``lam``.
-
-    The conic program that cvxpy built for this problem, given to Clarabel directly (cvxpy's
-    import and canonicalisation cost more than the solves): variables ``(w, t)``, one
-    second-order cone ``||w_g|| <= t_g`` per group ``g`` (``spans``), the finite bounds as
-    non-negative slacks. Returns ``w`` per ``lam``, None where Clarabel reports no solution.
-    """
-    import clarabel
-    from scipy import sparse
-
-    p, n_groups = R.shape[1], len(spans)
-    n = p + n_groups
-    P = np.zeros((n, n))
-    P[:p, :p] = 2.0 * weight * (R.T @ R)
-    q0 = np.zeros(n)
-    q0[:p] = -2.0 * weight * (R.T @ c)
-    rows: list[tuple[int, float]] = []          # (variable, coefficient) of each constraint row
-    b: list[float] = []
-    for i in np.flatnonzero(np.isfinite(lo)):
-        rows.append((int(i), -1.0))             # s = w_i - lo_i >= 0
-        b.append(-float(lo[i]))
-    for i in np.flatnonzero(np.isfinite(hi)):
-        rows.append((int(i), 1.0))              # s = hi_i - w_i >= 0
-        b.append(float(hi[i]))
-    cones: list[Any] = [clarabel.NonnegativeConeT(len(rows))] if rows else []
-    for g, span in enumerate(spans):
-        rows.append((p + g, -1.0))              # s = (t_g, w_g) in the second-order cone
-        b.append(0.0)
-        for i in range(span.start, span.stop):
-            rows.append((i, -1.0))
-            b.append(0.0)
-        cones.append(clarabel.SecondOrderConeT(1 + span.stop - span.start))
-    Acon = sparse.csc_matrix(([v for _, v in rows], ([r for r in range(len(rows))], [j for j, _ in rows])),
-                             shape=(len(rows), n))
-    Pu = sparse.triu(sparse.csc_matrix(P)).tocsc()
-    settings = clarabel.DefaultSettings()
-    settings.verbose = False
-    ok = (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved)
-    out: list[np.ndarray | None] = []
-    for lam in lams:
-        q = q0.copy()
-        q[p:] = [lam * np.sqrt(sp.stop - sp.start) for sp in spans]
-        sol = clarabel.DefaultSolver(Pu, q, Acon, np.array(b), cones, settings).solve()
-        out.append(np.asarray(sol.x[:p], dtype=float) if sol.status in ok else None)
-    return out

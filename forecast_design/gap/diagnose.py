@@ -25,11 +25,12 @@ probability or scales with the information in the log; none is tuned to one gene
 4. Among the candidates that count, the winner minimises a held-out BIC,
    ``n log(SSE / n) + p log(n)`` (p = number of effect parameters).
 5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
-   ``stiction`` or ``position_friction`` wins over ``coulomb`` only if it removes at least
-   ``min_reduction / 2`` of ``coulomb``'s held-out gap above the quantisation floor and beats
-   ``coulomb`` by the held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison
-   between two laws that both count) on the held-out units where the two laws' predictions
-   differ by more than the floor;
+   ``stiction`` or ``position_friction`` wins over ``coulomb`` only if it resolves what it adds
+   (stiction: ``F_s > F_c`` or bristles wider than one count; position_friction: its harmonics) and beats ``coulomb`` by the
+   held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison between two laws that
+   both count) on the held-out units where the two laws' predictions differ by more than the
+   floor; a friction law keeps a level per direction of motion only where that lowers the
+   held-out gap (else one level for both, stated in a caveat);
    the same rule applies to the two-effect path and to the second effect.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
    reduction, graded ``weak`` (:mod:`.grading`), or ``none`` when there is none.
@@ -67,16 +68,16 @@ from threadpoolctl import threadpool_limits
 from ..effects import Effect
 from ..errors import ParameterError
 from ..experiment import Experiment
+from .joint import JointAttribution, fit_joint
 from .candidates import (
     CANDIDATE_EFFECTS,
     effect_rows,
     CandidateFit,
-    JointAttribution,
     fit_all,
     fit_baseline,
     fit_constant_torque,
-    fit_joint,
     fit_pair,
+    levels_shared,
 )
 from .identifiability import CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, isolability
 from .locate import Location, locate_gap
@@ -316,8 +317,7 @@ def _metric_text(data: GapData) -> str:
             f"length gives p < {o.alpha:g}/n_candidates (Bonferroni), and it is identified (defining coefficients "
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
             f"within its plausible range); the winner minimises the held-out BIC; stiction/position_friction must "
-            f"remove {100 * o.min_reduction / 2:g} % of coulomb's gap above the quantisation floor and beat coulomb by "
-            f"the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
+            f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
             f"than the floor; a second effect fitted together with the winner is reported when it passes the test against "
             f"the winner alone.")
 
@@ -568,6 +568,9 @@ def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandida
             out.append(f"Caution: '{verdict}' acts in the same direction as a re-calibration of J_m, d_m and k; it "
                        f"is named because that re-calibration is limited to the datasheet tolerance "
                        f"(+-{100 * opts.calibration_tolerance:g} %): nominal values off by more would look the same.")
+    if chosen is not None and levels_shared(chosen):
+        out.append(f"Assumed: one {verdict} level for both directions of motion (F_c_neg = F_c); a level per "
+                   "direction predicted the held-out data worse (this log hardly moves one way).")
     for r in ranked:
         if r.effect is not verdict and r.assessment is not None and not r.assessment.identified \
                 and r.reduction >= opts.min_reduction:

@@ -52,7 +52,7 @@ from ..friction._lsq import group_wald_p, hac_covariance
 from .candidates import CandidateFit, _calibration, _design_matrix, _fit_rows as _candidate_fit_rows
 from .residuals import GapData, gap_log_scales
 
-__all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status",
+__all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "terms_wald_p",
            "isolability", "gap_log_scales", "ISOLABILITY_THRESHOLD", "CALIBRATION"]
 
 #: Smallest separation (sine of the largest principal angle) at which two candidates count as isolable [-].
@@ -88,12 +88,7 @@ def _coefficient_covariance(data: GapData, fit: CandidateFit) -> tuple[np.ndarra
     A = _design_matrix(coefs)
     rows = _fit_rows(data, fit)
     p = np.asarray(fit.coef, dtype=float)
-    lo = np.array([c.lo for c in coefs])
-    hi = np.array([c.hi for c in coefs])
-    with np.errstate(invalid="ignore"):
-        tol = 1e-9 * np.maximum.reduce([np.abs(p), np.where(np.isfinite(lo), np.abs(lo), 0.0),
-                                        np.where(np.isfinite(hi), np.abs(hi), 0.0), np.full(p.size, 1e-12)])
-        bound = (np.isfinite(lo) & (np.abs(p - lo) <= tol)) | (np.isfinite(hi) & (np.abs(p - hi) <= tol))
+    bound = _on_bound(coefs, p)
     r = data.stacked_target() - A @ p
     # Newey-West sandwich with prewhitening (the friction identification's own): the equation
     # errors are filtered and decimated, so their residuals are not white
@@ -108,6 +103,16 @@ class _Design:
     residual: np.ndarray   # stacked residual of the fit
     coef: np.ndarray       # all coefficients
     bound: np.ndarray      # coefficients on a bound
+
+
+def _on_bound(coefs: Sequence[Any], p: np.ndarray) -> np.ndarray:
+    """Mask of the coefficients that sit on one of their bounds (to 1e-9 relative)."""
+    lo = np.array([c.lo for c in coefs])
+    hi = np.array([c.hi for c in coefs])
+    with np.errstate(invalid="ignore"):
+        tol = 1e-9 * np.maximum.reduce([np.abs(p), np.where(np.isfinite(lo), np.abs(lo), 0.0),
+                                        np.where(np.isfinite(hi), np.abs(hi), 0.0), np.full(p.size, 1e-12)])
+        return (np.isfinite(lo) & (np.abs(p - lo) <= tol)) | (np.isfinite(hi) & (np.abs(p - hi) <= tol))
 
 
 def _group_wald_p(design: _Design, group: Sequence[int]) -> float:
@@ -300,6 +305,40 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
 _RESOLUTION_END = {"v_s": lambda sc: max(1e-3, 2.0 * sc.speed_resolution),
                    "x_p": lambda sc: max(1e-4, sc.encoder_step),
                    "width_rad": lambda sc: 2.0 * sc.encoder_step}
+
+
+def terms_wald_p(data: GapData, fit: CandidateFit, names: Sequence[str]) -> float:
+    """p-value of the joint Wald test that the named effect coefficients of a fit are zero [-].
+
+    The test of :func:`assess_fit`'s coefficient groups (Newey-West covariance, collinear columns
+    tested in the directions they determine) on a group of the caller's choice, e.g. a stiction
+    law's Stribeck coefficient ``dF`` (its breakaway above the Coulomb level) or a position-dependent
+    level's harmonics. In a pair fit the first law's coefficients come first and a name is taken at
+    its first occurrence.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    fit : CandidateFit
+        A candidate (or pair) fit.
+    names : sequence of str
+        Coefficient names of the fit's structure (``dF``, ``a1``, ``b1`` ...).
+
+    Returns
+    -------
+    float
+        The p-value; 1 when a named coefficient is missing or every one sits on a bound.
+    """
+    s = fit.structure
+    if s is None or fit.coef is None:
+        return 1.0
+    own = [c.name for c in s.coefs]
+    if not names or any(nm not in own for nm in names):
+        return 1.0
+    _, bound, design = _coefficient_covariance(data, fit)
+    free = [fit.n_cal + own.index(nm) for nm in names if not bound[fit.n_cal + own.index(nm)]]
+    return _group_wald_p(design, free) if free else 1.0
 
 
 def _is_harmonic(name: str) -> bool:
