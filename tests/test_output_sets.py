@@ -39,11 +39,13 @@ def _temporaries(folder: Path) -> list[str]:
 
 
 _FORKER = textwrap.dedent("""
-    import json, os, signal, sys, time
+    import importlib, json, os, signal, sys, time
     from pathlib import Path
 
-    from forecast_design.cli import main
     from forecast_design.fileio import atomic_write, staged_set
+
+    for name in sys.argv[1:]:     # what the writers import, imported once: an import writes nothing
+        importlib.import_module(name)
 
 
     def staged_writer(root):
@@ -64,7 +66,11 @@ _FORKER = textwrap.dedent("""
                 for fd in (0, 1, 2):
                     os.dup2(null, fd)
                 argv = job["argv"]
-                code = staged_writer(argv[1]) if argv[0] == "staged-writer" else main(argv)
+                if argv[0] == "staged-writer":
+                    code = staged_writer(argv[1])
+                else:
+                    from forecast_design.cli import main
+                    code = main(argv)
             finally:
                 os._exit(code or 0)
         deadline = None if job["kill_after_s"] is None else t0 + job["kill_after_s"]
@@ -90,11 +96,11 @@ class _Forker:
     a kill should hit, and it costs more than the writing): ``run`` waits for one, ``kill_at`` sends it
     SIGKILL after ``delay_s`` [s] unless it finished before. Each writer is reaped before the call returns."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, preload: tuple[str, ...] = ()) -> None:
         script = folder / "forker.py"
         script.write_text(_FORKER)
-        self.proc = subprocess.Popen([sys.executable, str(script)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     text=True)
+        self.proc = subprocess.Popen([sys.executable, str(script), *preload], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True, env={**os.environ, "MPLBACKEND": "Agg"})
 
     def _job(self, argv: list[str], kill_after_s: float | None) -> dict:
         self.proc.stdin.write(json.dumps({"argv": argv, "kill_after_s": kill_after_s}) + "\n")
@@ -120,6 +126,15 @@ class _Forker:
 @pytest.fixture
 def forker(tmp_path):
     f = _Forker(tmp_path)
+    yield f
+    f.close()
+
+
+@pytest.fixture
+def cli_forker(tmp_path):
+    """A forker whose writers run the command line (its modules, the table and plot libraries imported)."""
+    f = _Forker(tmp_path, ("forecast_design.cli", "forecast_design.benchmark", "forecast_design.plotting.benchmark",
+                           "forecast_design.export.firmware", "matplotlib.pyplot", "pyarrow.parquet"))
     yield f
     f.close()
 
@@ -224,7 +239,8 @@ def _bench_argv(out: Path, seed: int) -> list[str]:
             "--workers", "1", "--seed", str(seed), "--out", str(out)]
 
 
-def test_benchmark_killed_at_random_times_leaves_one_consistent_result_set(tmp_path, forker):
+def test_benchmark_killed_at_random_times_leaves_one_consistent_result_set(tmp_path, cli_forker):
+    forker = cli_forker
     # report.md and summary.json also say how the run went (cells reused, seconds): compared through the seed
     names = ("results.csv", "results.parquet", "indicators.png", "overlays.png", "heatmap.png")
     work = tmp_path / "work"
@@ -285,7 +301,8 @@ def _export_argv(out: Path, compensator: str, w_q: str) -> list[str]:
     return ["export", "--firmware", "--compensator", compensator, "--w-q-hz", w_q, "--out", str(out)]
 
 
-def test_firmware_export_killed_at_random_times_never_builds_a_mixed_project(tmp_path, forker):
+def test_firmware_export_killed_at_random_times_never_builds_a_mixed_project(tmp_path, cli_forker):
+    forker = cli_forker
     variants = {"A": ("lo-dob", "10"), "B": ("ea-fob", "20")}
     ref = {}
     for tag, (comp, wq) in variants.items():
