@@ -102,7 +102,11 @@ def _children_cpu() -> float:
 
 def measure_benchmark(workers: int, compensators: str, times: int = 1) -> dict:
     """Wall and CPU seconds of the benchmark command (fresh folder each), ``times`` rounds."""
-    tmp = Path(tempfile.mkdtemp(prefix="bench-code-"))
+    with tempfile.TemporaryDirectory(prefix="bench-code-") as folder:     # removed afterwards
+        return _measure_benchmark(Path(folder), workers, compensators, times)
+
+
+def _measure_benchmark(tmp: Path, workers: int, compensators: str, times: int) -> dict:
     (tmp / "set.toml").write_text(SET)
     env = {**os.environ, "MPLBACKEND": "Agg"}
     cmd = [sys.executable, "-m", "forecast_design", "benchmark", "--no-plots", "--workers", str(workers)]

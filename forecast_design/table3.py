@@ -32,6 +32,7 @@ copied from the truth. Metrics per cell:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
@@ -444,7 +445,22 @@ def identify_extended_sfm(effects: Sequence[Any] = TABLE3_TRUTH, *, seed: int = 
         The identification result.
     run : SimulationResult
         The identification run (homed at absolute angle 0).
+
+    Notes
+    -----
+    Deterministic and seconds long: the last four are kept in this process (reproduce_table3 and
+    a benchmark's SFM ask for the same one) and returned again, the same ``fit`` and ``run``.
     """
+    try:
+        hash(key := (tuple(effects), seed, hold_s, testbed))
+    except TypeError:            # effects or testbed not hashable: not kept
+        key = None
+    params, fit, run = (_identify_extended_sfm_kept(*key) if key is not None
+                        else _identify_extended_sfm(effects, seed, hold_s, testbed))
+    return dict(params), fit, run
+
+
+def _identify_extended_sfm(effects, seed, hold_s, testbed):
     from .friction import identify
     from .simulation import simulate
     from .simulation.plant import stable_substeps
@@ -458,6 +474,9 @@ def identify_extended_sfm(effects: Sequence[Any] = TABLE3_TRUTH, *, seed: int = 
                    description="reproduce table3: extended-SFM identification run")
     fit = identify(run.to_experiment(), "extended-sfm")
     return {k: float(v) for k, v in fit.params.items()}, fit, run
+
+
+_identify_extended_sfm_kept = functools.lru_cache(maxsize=4)(_identify_extended_sfm)
 
 
 def reproduce_table3(*, repetitions: int = 10, amplitude: float = 0.2, duration_s: float = 1.0, seed: int = 0,

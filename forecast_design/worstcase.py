@@ -157,9 +157,10 @@ def _segment_extrema(A, B, C, D, E0, h) -> tuple[np.ndarray, np.ndarray]:
 def _rectangle_extrema(coef: np.ndarray, x_lo, x_hi, y_lo, y_hi) -> tuple[np.ndarray, np.ndarray]:
     """max and min of |G| over the rectangle [x_lo, x_hi] + j [y_lo, y_hi] at each frequency."""
     A, B, C, D = coef
-    edges = ((x_lo + 1j * y_lo, (x_hi - x_lo) + 0j), (x_lo + 1j * y_hi, (x_hi - x_lo) + 0j),
-             (x_lo + 1j * y_lo, 1j * (y_hi - y_lo)), (x_hi + 1j * y_lo, 1j * (y_hi - y_lo)))
-    hi, lo = zip(*(_segment_extrema(A, B, C, D, E0, h) for E0, h in edges))
+    # the four edges at once (rows): bottom, top, left, right
+    E0 = np.stack([x_lo + 1j * y_lo, x_lo + 1j * y_hi, x_lo + 1j * y_lo, x_hi + 1j * y_lo])
+    h = np.stack([(x_hi - x_lo) + 0j, (x_hi - x_lo) + 0j, 1j * (y_hi - y_lo), 1j * (y_hi - y_lo)])
+    hi, lo = _segment_extrema(A, B, C, D, E0, h)
     big, small = np.sqrt(np.max(hi, axis=0)), np.sqrt(np.min(lo, axis=0))
     with np.errstate(all="ignore"):
         pole, zero = -D / C, -B / A

@@ -59,7 +59,7 @@ from forecast_design.simulation.references import Multisine
 truth = PositionFriction(F_c=0.4, a=(0.05, 0.02), b=(0.03, 0.0))
 run = simulate(Design.nominal("link-only"),
                reference=Multisine(amplitudes=(1.5, 0.3), frequencies_hz=(0.2, 3.0), offset=0.8),
-               duration_s=10.0 if FAST else 20.0, effects=[truth], closed_loop=False)
+               duration_s=5.0 if FAST else 20.0, effects=[truth], closed_loop=False)
 log = run.to_experiment()
 print(f"motor travel {log.signals.theta.max() - log.signals.theta.min():.1f} rad")
 

@@ -175,7 +175,8 @@ bench_envs = tuple(list(envs.items())[:2])
 spec = BenchmarkSpec(controllers=(fd.PAPER_PD, pid), compensators=parse_compensators("none,ea-fob:10"),
                      environments=bench_envs, references=(parse_reference("step:0.2:0.6"),), repetitions=5,
                      testbed=testbed)
-cells, info = run_benchmark(spec, out=tempfile.mkdtemp(prefix="pid-bench-"))
+with tempfile.TemporaryDirectory(prefix="pid-bench-") as folder:    # the cells' store, removed afterwards
+    cells, info = run_benchmark(spec, out=folder)
 table = result_table(cells)
 print(table.groupby(["controller", "compensator"])[["repeatability", "mae_N_m", "disk_margin"]].mean())
 

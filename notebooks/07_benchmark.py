@@ -14,7 +14,8 @@
 #     --envs set.toml --repetitions 10 --reference step:0.2 --out bench [--scheduler tcp://HOST:PORT]
 # ```
 #
-# With `FORECAST_FAST=1` the set and the repetitions are smaller.
+# With `FORECAST_FAST=1` the set and the repetitions are smaller, and the SFM is identified on a
+# shorter staircase.
 
 # %%
 import os
@@ -28,9 +29,11 @@ from forecast_design.benchmark import (BenchmarkSpec, parse_compensators, parse_
 from forecast_design.environments import resolve_environments
 from forecast_design.executor import make_executor
 from forecast_design.plotting.benchmark import plot_heatmap, plot_indicators, plot_overlays
+from forecast_design.reproduce import identify_extended_sfm
 
 FAST = os.environ.get("FORECAST_FAST") == "1"
-out = Path(tempfile.mkdtemp(prefix="benchmark-"))
+work = tempfile.TemporaryDirectory(prefix="benchmark-")     # removed in the last cell
+out = Path(work.name)
 
 # %% [markdown]
 # ## The environment set
@@ -59,6 +62,10 @@ print(envs.names, envs.notes)
 # %% [markdown]
 # ## Run it
 #
+# The SFM compensates the friction it was *identified* with: a staircase of motor torques on the
+# free link of the same hardware, fitted with `forecast_design.friction.identify` (what
+# `run_benchmark` does by itself when it is given no parameters).
+#
 # Each (controller, compensator, environment, reference) cell is one task of the executor:
 # local processes here; `make_executor("tcp://HOST:PORT")` sends the same tasks to a Dask
 # cluster with bit-for-bit the same results. Every repetition starts from its own random motor
@@ -70,8 +77,11 @@ spec = BenchmarkSpec(controllers=(parse_controller("pd:5:0.1"),),
                      environments=tuple(envs.items()),
                      references=(parse_reference("step:0.2:1.0"),),
                      repetitions=3 if FAST else 10)
+sfm_params, _, _ = identify_extended_sfm(spec.effects, seed=spec.seed, testbed=spec.testbed,
+                                       hold_s=2.0 if FAST else 5.0)
+print({k: round(v, 4) for k, v in sfm_params.items()})
 with make_executor(workers=1 if FAST else None) as executor:
-    cells, info = run_benchmark(spec, out=out, executor=executor)
+    cells, info = run_benchmark(spec, out=out, executor=executor, sfm_params=sfm_params)
 print(info["computed"], "cells computed on", info["executor"])
 paths = write_tables(result_table(cells), out)
 
@@ -104,3 +114,9 @@ plot_overlays(cells);
 
 # %%
 plot_heatmap(df);
+
+# %% [markdown]
+# The result folder was temporary: remove it.
+
+# %%
+work.cleanup()

@@ -45,7 +45,8 @@ from forecast_design.simulation.code import code_runner
 from forecast_design.simulation.references import Step
 
 FAST = os.environ.get("FORECAST_FAST") == "1"
-work = Path(tempfile.mkdtemp(prefix="controllers-as-code-"))
+scratch = tempfile.TemporaryDirectory(prefix="controllers-as-code-")    # removed in the last cell
+work = Path(scratch.name)
 RATE_HZ = 2000.0   # the board's control rate [Hz]
 
 # %% [markdown]
@@ -413,3 +414,9 @@ else:
     for name in ("tau_m", "tau_s", "u", "tau_frc_hat"):
         assert np.array_equal(res.arrays[name], sil[name]), name
     print("SIL = PIL bit for bit on tau_m, tau_s, u and tau_frc_hat")
+
+# %% [markdown]
+# The files of this notebook were written to a temporary folder: remove it.
+
+# %%
+scratch.cleanup()

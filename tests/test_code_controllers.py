@@ -75,6 +75,19 @@ def _cli(*args, cwd=None, timeout=900):
     return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=timeout)
 
 
+def _main(capsys, *args):
+    """The command line's entry point in this process: exit code, stdout and stderr as ``_cli`` gives them
+    (without a process start and its imports; the verbs that leave threads or worker processes behind
+    run through ``_cli``)."""
+    from types import SimpleNamespace
+
+    from forecast_design.cli import main
+
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return SimpleNamespace(returncode=code, stdout=out.out, stderr=out.err)
+
+
 def _design(controller, compensator=None, env="exp-soft"):
     return dataclasses.replace(Design.nominal(env), controller=controller, compensator=compensator)
 
@@ -229,14 +242,18 @@ def test_a_c_step_that_never_returns_stops_the_cli_run_with_exit_1(tmp_path):
     scenario = scenario.replace('kind = "pd"\nP = 5.0\nD = 0.1\n', 'kind = "c"\nsource = "spin.c"\n')
     scenario = "\n".join(line for line in scenario.splitlines()
                          if not line.startswith(("T_f =", 'discretization = "tustin"')))
+    # the scenario's step timeout (default 10 s): 2 s, still far above any pause of a loaded machine
+    scenario = scenario.replace("[simulation]\nduration_s = 8.0\n",
+                                "[simulation]\nduration_s = 0.5\nstep_timeout_s = 2.0\n")
     (tmp_path / "s.toml").write_text(scenario)
     from forecast_design.simulation.scenario import load_scenario
 
-    assert isinstance(load_scenario(tmp_path / "s.toml").design.controller, CController)
-    # the CLI's step timeout is the default (10 s); a C step is abandoned on its thread
+    loaded = load_scenario(tmp_path / "s.toml")
+    assert isinstance(loaded.design.controller, CController) and loaded.options["step_timeout_s"] == 2.0
+    # a C step is abandoned on its thread
     p = _cli("simulate", "s.toml", "--out", "run.toml", "--json", "-", cwd=tmp_path)
     assert p.returncode == 1, p.stderr
-    assert "controller fault at t = 0.05 s (period 100)" in p.stderr and "did not return" in p.stderr
+    assert "controller fault at t = 0.05 s (period 100)" in p.stderr and "did not return within 2 s" in p.stderr
     doc = json.loads(p.stdout)
     assert doc["controller_fault"]["period"] == 100 and doc["controller"] == "c spin.c"
     from forecast_design.experiment import load_experiment
@@ -244,6 +261,21 @@ def test_a_c_step_that_never_returns_stops_the_cli_run_with_exit_1(tmp_path):
     exp = load_experiment(tmp_path / "run.toml")
     tau_m = np.asarray(exp.signals.tau_m)
     assert np.all(tau_m[100:] == 0.0) and exp.design.controller.to_mapping()["kind"] == "other"
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, float("inf"), float("nan"), "10"])
+def test_a_scenario_step_timeout_is_a_positive_finite_number_or_one_line(value):
+    import tomllib
+
+    from forecast_design.errors import ExperimentFormatError
+    from forecast_design.simulation.scenario import scenario_from_mapping
+
+    path = Path(__file__).resolve().parents[1] / "forecast_design" / "data" / "example_scenario.toml"
+    doc = tomllib.loads(path.read_text())
+    doc["simulation"]["step_timeout_s"] = value
+    with pytest.raises(ExperimentFormatError, match=r"^s\.toml: \[simulation\] step_timeout_s must be") as info:
+        scenario_from_mapping(doc, source="s.toml")
+    assert "\n" not in str(info.value)
 
 
 # --- bad code is one line --------------------------------------------------------------------------
@@ -271,15 +303,16 @@ BAD_C = {
 
 @needs_cc
 @pytest.mark.parametrize("name", sorted(BAD_C))
-def test_bad_c_is_one_line_with_exit_2(tmp_path, name):
-    text, pattern = BAD_C[name]
-    _write(tmp_path, name, text)
+def test_bad_c_is_one_line_with_exit_2(tmp_path, name, monkeypatch, capsys):
     import re
 
+    text, pattern = BAD_C[name]
+    _write(tmp_path, name, text)
+    monkeypatch.chdir(tmp_path)
     for argv in (["benchmark", "--controller", name, "--envs", "exp-soft", "--compensator", "none", "--repetitions",
                   "2", "--duration", "0.05", "--out", "b", "--no-plots"],
                  ["export", "--controller", name, "--out", "c"]):      # the export compiles it once too
-        p = _cli(*argv, cwd=tmp_path)
+        p = _main(capsys, *argv)
         assert p.returncode == 2, p.stderr
         lines = [line for line in p.stderr.splitlines() if line.startswith("forecast-design: error")]
         assert len(lines) == 1 and "Traceback" not in p.stderr
@@ -299,16 +332,17 @@ BAD_PY = {
 
 
 @pytest.mark.parametrize("name", sorted(BAD_PY))
-def test_bad_python_is_one_line_with_exit_2(tmp_path, name):
+def test_bad_python_is_one_line_with_exit_2(tmp_path, name, monkeypatch, capsys):
+    import re
+
     text, pattern = BAD_PY[name]
     _write(tmp_path, name, text)
-    p = _cli("benchmark", "--controller", f"{name}:C", "--envs", "exp-soft", "--compensator", "none",
-             "--repetitions", "2", "--duration", "0.05", "--out", "b", "--no-plots", cwd=tmp_path)
+    monkeypatch.chdir(tmp_path)
+    p = _main(capsys, "benchmark", "--controller", f"{name}:C", "--envs", "exp-soft", "--compensator", "none",
+              "--repetitions", "2", "--duration", "0.05", "--out", "b", "--no-plots")
     assert p.returncode == 2, p.stderr
     lines = [line for line in p.stderr.splitlines() if line.startswith("forecast-design: error")]
     assert len(lines) == 1 and "Traceback" not in p.stderr, p.stderr
-    import re
-
     assert re.search(pattern, lines[0]), lines[0]
 
 
@@ -377,10 +411,11 @@ def test_margins_use_the_linearisation_and_say_so():
 
 
 @needs_cc
-def test_margins_and_tuning_refuse_code_without_a_model_in_one_line(tmp_path):
+def test_margins_and_tuning_refuse_code_without_a_model_in_one_line(tmp_path, monkeypatch, capsys):
     path = _write(tmp_path, "pd.c", PD_C)
+    monkeypatch.chdir(tmp_path)
     for verb in (["margins", "--env", "exp-soft"], ["tune-q", "--env", "exp-soft", "--compensator", "ea-fob"]):
-        p = _cli(*verb, "--controller", path, cwd=tmp_path)
+        p = _main(capsys, *verb, "--controller", path)
         assert p.returncode == 2 and "is code with no linear model" in p.stderr, p.stderr
         assert p.stderr.count("\n") == 1
 
@@ -403,7 +438,7 @@ def test_tune_q_with_the_python_linearisation_answers_like_its_tf():
 @pytest.mark.slow
 def test_the_examples_are_benchmarked_against_the_paper_pd(tmp_path):
     p = _cli("benchmark", "--controller", "pd:5:0.1", "--controller", EXAMPLE_PY, "--controller", EXAMPLE_C,
-             "--compensator", "none,ea-fob", "--envs", "exp-soft,soft", "--repetitions", "2", "--duration", "0.4",
+             "--compensator", "none,ea-fob", "--envs", "exp-soft", "--repetitions", "2", "--duration", "0.4",
              "--out", "bench", "--json", "-", cwd=tmp_path)
     assert p.returncode == 0, p.stderr
     assert "note: controller c gain_scheduled_pid.c is code without a linear model" in p.stderr
@@ -419,8 +454,9 @@ def test_the_examples_are_benchmarked_against_the_paper_pd(tmp_path):
     assert (tmp_path / "bench" / "indicators.png").stat().st_size > 10_000
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def cluster():
+    """A cluster for the one test that uses it (closed after it: idle workers use CPU)."""
     distributed = pytest.importorskip("distributed")
     c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                  dashboard_address=":0")
@@ -493,7 +529,7 @@ def test_a_c_controller_without_a_compensator_exports_and_builds_with_the_strict
 
 
 @needs_cc
-def test_the_emulated_board_runs_the_c_controller_it_was_built_with(tmp_path):
+def test_the_emulated_board_runs_the_c_controller_it_was_built_with(tmp_path, monkeypatch, capsys):
     """emulate --controller FILE.c accepts the host's upload of that code (run --controller FILE.c),
     refuses another, and a NaN or an infinity from the code is fault CONTROLLER with zero torque."""
     import os
@@ -501,31 +537,37 @@ def test_the_emulated_board_runs_the_c_controller_it_was_built_with(tmp_path):
 
     from forecast_design.experiment import load_experiment
 
-    nan_c = _write(tmp_path, "nan.c", "static int n;\nvoid fd_user_init(float r) { (void)r; n = 0; }\n"
-                   "float fd_user_step(float a, float b, float c, float d) { (void)b; (void)c; (void)d; "
-                   "return ++n > 50 ? 0.0f / 0.0f : a; }\n")
-    inf_c = _write(tmp_path, "inf.c", nan_c.read_text().replace("0.0f / 0.0f", "1.0f / 0.0f"))
-    for code, expect in ((EXAMPLE_C, 0), (str(nan_c), 2), (str(inf_c), 2)):
+    # after 50 periods a / 0: an infinity under a nonzero reference, NaN (0 / 0) under a zero one
+    fault_c = _write(tmp_path, "fault.c", "static int n;\nvoid fd_user_init(float r) { (void)r; n = 0; }\n"
+                     "float fd_user_step(float a, float b, float c, float d) { (void)b; (void)c; (void)d; "
+                     "return ++n > 50 ? a / 0.0f : a; }\n")
+    monkeypatch.chdir(tmp_path)      # the host's runs are this process's; each board is a process of its own
+    for code in (EXAMPLE_C, str(fault_c)):
         emu = subprocess.Popen([*CLI, "emulate", "--controller", code], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True, cwd=tmp_path)
         try:
             port = emu.stdout.readline().strip()
             assert port.startswith("/dev/"), emu.stderr.read() if emu.poll() is not None else port
-            other = _cli("run", "--port", port, "--controller", "pd:5:0.1", "--duration", "0.05", "--timeout", "30",
-                         "--out", "pd.toml", cwd=tmp_path, timeout=300)
-            assert other.returncode == 0, other.stderr                      # linear programs are uploaded
-            p = _cli("run", "--port", port, "--controller", code, "--duration", "0.1", "--timeout", "30", "--out", "run.toml",
-                     "--json", "-", cwd=tmp_path, timeout=300)
-            assert p.returncode == expect, p.stderr
-            if expect == 0:
+            if code == EXAMPLE_C:
+                # a board built with code still takes a linear program from the host
+                other = _main(capsys, "run", "--port", port, "--controller", "pd:5:0.1", "--duration", "0.05",
+                              "--timeout", "30", "--out", "pd.toml")
+                assert other.returncode == 0, other.stderr
+                p = _main(capsys, "run", "--port", port, "--controller", code, "--duration", "0.1", "--timeout", "30",
+                          "--out", "run.toml", "--json", "-")
+                assert p.returncode == 0, p.stderr
                 u = np.asarray(load_experiment(tmp_path / "run.toml").signals.columns()["u"])
                 assert np.any(u != 0.0)
-            else:
-                assert "CONTROLLER" in p.stderr + p.stdout
-            if code == EXAMPLE_C:   # another C file is not the code this board runs
-                bad = _cli("run", "--port", port, "--controller", str(nan_c), "--duration", "0.05",
-                           "--out", "x.toml", cwd=tmp_path, timeout=300)
+                # another C file is not the code this board runs
+                bad = _main(capsys, "run", "--port", port, "--controller", str(fault_c), "--duration", "0.05",
+                            "--out", "x.toml")
                 assert bad.returncode == 2 and "BAD_PAYLOAD" in bad.stderr.upper().replace(" ", "_"), bad.stderr
+            else:
+                for reference, what in (("step:0.2", "inf"), ("step:0", "nan")):
+                    p = _main(capsys, "run", "--port", port, "--controller", code, "--reference", reference,
+                              "--duration", "0.1", "--timeout", "30", "--out", f"{what}.toml", "--json", "-")
+                    assert p.returncode == 2 and "CONTROLLER" in p.stderr + p.stdout, (what, p.stderr)
+                    assert "after 50 of 200 samples (torque set to zero)" in p.stderr, (what, p.stderr)
         finally:
             os.kill(emu.pid, signal.SIGTERM)
             emu.wait(timeout=60)
@@ -563,14 +605,15 @@ def test_sil_equals_pil_bit_for_bit_for_the_c_example(tmp_path):
 @pytest.mark.slow
 @pytest.mark.skipif(_pil_missing() is not None, reason="no qemu / arm toolchain")
 @pytest.mark.parametrize("bad", ["1.0f / 0.0f"], ids=["inf"])
-def test_pil_stops_a_nan_or_infinite_c_controller_with_fault_controller(tmp_path, bad):
+def test_pil_stops_a_nan_or_infinite_c_controller_with_fault_controller(tmp_path, bad, monkeypatch, capsys):
     """An infinity is a fault, not a command at the torque limit (the firmware checks u + hat before
     fd_step's saturation). One qemu run: the firmware's test ``!(x - x == 0)`` is the same for a NaN
     (x - x is NaN for both); the emulator and the simulator tests run the NaN."""
     _write(tmp_path, "nan.c", "static int n;\nvoid fd_user_init(float r) { (void)r; n = 0; }\n"
            "float fd_user_step(float a, float b, float c, float d) { (void)b; (void)c; (void)d; "
            f"return ++n > 50 ? {bad} : a; }}\n")
-    p = _cli("pil", "--controller", "nan.c", "--duration", "0.1", "--out", "run.toml", "--json", "-", cwd=tmp_path)
+    monkeypatch.chdir(tmp_path)
+    p = _main(capsys, "pil", "--controller", "nan.c", "--duration", "0.1", "--out", "run.toml", "--json", "-")
     assert p.returncode == 2, p.stderr
     doc = json.loads(p.stdout)
     assert doc["fault"] == "CONTROLLER" and doc["fault_index"] == 50
@@ -578,7 +621,7 @@ def test_pil_stops_a_nan_or_infinite_c_controller_with_fault_controller(tmp_path
 
 @pytest.mark.slow
 @pytest.mark.skipif(_pil_missing() is not None, reason="no qemu / arm toolchain")
-def test_the_firmware_export_measures_a_c_controller_against_the_cycle_budget(tmp_path):
+def test_the_firmware_export_measures_a_c_controller_against_the_cycle_budget(tmp_path, monkeypatch, capsys):
     """A step above the period's 84,000 cycles is refused in one line; above half of it, a warning."""
     def heavy(n):
         return ("static volatile float acc;\nvoid fd_user_init(float r) { (void)r; acc = 0.0f; }\n"
@@ -587,10 +630,11 @@ def test_the_firmware_export_measures_a_c_controller_against_the_cycle_budget(tm
 
     _write(tmp_path, "over.c", heavy(20_000))
     _write(tmp_path, "half.c", heavy(4_500))
-    p = _cli("export", "--firmware", "--controller", "over.c", "--out", "fw_over", cwd=tmp_path)
+    monkeypatch.chdir(tmp_path)
+    p = _main(capsys, "export", "--firmware", "--controller", "over.c", "--out", "fw_over")
     assert p.returncode == 2 and "would overrun on the board" in p.stderr and p.stderr.count("\n") == 1, p.stderr
     assert not (tmp_path / "fw_over").exists()
-    p = _cli("export", "--firmware", "--controller", "half.c", "--out", "fw_half", "--json", "-", cwd=tmp_path)
+    p = _main(capsys, "export", "--firmware", "--controller", "half.c", "--out", "fw_half", "--json", "-")
     assert p.returncode == 0 and "warning: C controller on the Cortex-M4" in p.stderr, p.stderr
     cyc = json.loads(p.stdout)["controller_cycles"]
     assert cyc["verdict"] == "warning" and 0.5 < cyc["max_budget_fraction"] < 1.0

@@ -112,57 +112,6 @@ def test_bad_scheduler_address_is_a_one_line_error():
         DaskExecutor("tcp://127.0.0.1:9", timeout_s=1.0)
 
 
-@pytest.fixture(scope="module")
-def cluster():
-    distributed = pytest.importorskip("distributed")
-    # ":0": the scheduler's HTTP server takes a free port (None still binds 8787, and two test
-    # processes starting clusters at once then collide on it)
-    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                 dashboard_address="127.0.0.1:0")
-    yield c
-    c.close()
-
-
-@pytest.mark.slow
-def test_dask_cluster_gives_the_local_results_bit_for_bit(cluster, local_run):
-    with make_executor(cluster.scheduler_address) as ex:
-        assert ex.workers == 2
-        cells, info = run_benchmark(_spec(), executor=ex)
-    assert info["executor"] == "dask" and info["computed"] == 4
-    _same(local_run, cells)
-
-
-@pytest.mark.slow
-def test_a_dask_worker_killed_mid_run_loses_no_result(cluster):
-    spec = _spec(duration_s=2.0, repetitions=2, envs=("exp-soft", "locked", "soft", "stiff"))
-    expected = run_benchmark(spec, executor=LocalExecutor(1))[0]
-    ex = make_executor(cluster.scheduler_address)
-    killed = []
-
-    def killer():
-        deadline = time.time() + 60
-        while time.time() < deadline:
-            busy = {w: tasks for w, tasks in ex.client.processing().items() if tasks}
-            if busy:
-                addr = next(iter(busy))
-                for worker in cluster.workers.values():
-                    if getattr(worker, "worker_address", None) == addr and worker.process is not None:
-                        os.kill(worker.process.pid, signal.SIGKILL)
-                        killed.append(addr)
-                        return
-            time.sleep(0.02)
-
-    th = threading.Thread(target=killer)
-    th.start()
-    try:
-        cells, _ = run_benchmark(spec, executor=ex)
-    finally:
-        th.join()
-        ex.close()
-    assert killed, "no worker was killed while tasks ran"
-    _same(expected, cells)
-
-
 # --- tune-q over large sets through the executor ----------------------------------------------------
 
 
@@ -194,16 +143,6 @@ def test_tune_q_verb_with_workers_gives_the_same_cutoff(serial_tuning, capsys):
                  "--workers", "2", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["w_q_hz"] == serial_tuning.w_q_hz and doc["worst_ratio"] == serial_tuning.worst_ratio
-
-
-@pytest.mark.slow
-def test_tune_q_on_a_dask_cluster_equals_local(cluster, serial_tuning):
-    with make_executor(cluster.scheduler_address) as ex:
-        on_dask = _tune(ex)
-    with LocalExecutor(1) as ex:
-        local = _tune(ex)
-    assert on_dask.to_mapping() == local.to_mapping()
-    assert on_dask.w_q_hz == serial_tuning.w_q_hz and on_dask.worst_ratio == serial_tuning.worst_ratio
 
 
 # --- issue 23: no hang, one line: malformed addresses, a scheduler without workers, a scheduler that dies ----------
@@ -368,3 +307,67 @@ def test_a_cluster_that_loses_every_worker_ends_the_command_in_one_line(tmp_path
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1, err
     assert "lost every worker and none came back within 3 s" in err[0] and time.monotonic() - t0 < 120
+
+
+# --- on a Dask cluster on the loopback (last: its idle workers use CPU until the module ends) ---------------
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    distributed = pytest.importorskip("distributed")
+    # ":0": the scheduler's HTTP server takes a free port (None still binds 8787, and two test
+    # processes starting clusters at once then collide on it)
+    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                 dashboard_address="127.0.0.1:0")
+    yield c
+    c.close()
+
+
+@pytest.mark.slow
+def test_dask_cluster_gives_the_local_results_bit_for_bit(cluster, local_run):
+    with make_executor(cluster.scheduler_address) as ex:
+        assert ex.workers == 2
+        cells, info = run_benchmark(_spec(), executor=ex)
+    assert info["executor"] == "dask" and info["computed"] == 4
+    _same(local_run, cells)
+
+
+@pytest.mark.slow
+def test_a_dask_worker_killed_mid_run_loses_no_result(cluster):
+    spec = _spec(duration_s=2.0, repetitions=2, envs=("exp-soft", "locked", "soft", "stiff"))
+    expected = run_benchmark(spec, executor=LocalExecutor(1))[0]
+    ex = make_executor(cluster.scheduler_address)
+    killed = []
+
+    def killer():
+        deadline = time.time() + 60
+        while time.time() < deadline:
+            busy = {w: tasks for w, tasks in ex.client.processing().items() if tasks}
+            if busy:
+                addr = next(iter(busy))
+                for worker in cluster.workers.values():
+                    if getattr(worker, "worker_address", None) == addr and worker.process is not None:
+                        os.kill(worker.process.pid, signal.SIGKILL)
+                        killed.append(addr)
+                        return
+            time.sleep(0.02)
+
+    th = threading.Thread(target=killer)
+    th.start()
+    try:
+        cells, _ = run_benchmark(spec, executor=ex)
+    finally:
+        th.join()
+        ex.close()
+    assert killed, "no worker was killed while tasks ran"
+    _same(expected, cells)
+
+
+@pytest.mark.slow
+def test_tune_q_on_a_dask_cluster_equals_local(cluster, serial_tuning):
+    with make_executor(cluster.scheduler_address) as ex:
+        on_dask = _tune(ex)
+    with LocalExecutor(1) as ex:
+        local = _tune(ex)
+    assert on_dask.to_mapping() == local.to_mapping()
+    assert on_dask.w_q_hz == serial_tuning.w_q_hz and on_dask.worst_ratio == serial_tuning.worst_ratio

@@ -202,3 +202,38 @@ def test_sampled_force_loop_rejects_bad_inputs():
         sampled_force_loop(design, delay_samples=-1)
     with pytest.raises(ParameterError, match="break_at"):
         sampled_force_loop(design, break_at="sensor")
+
+
+def test_the_zoh_plants_state_space_conversions_are_scipy_signals_bit_for_bit():
+    """zoh_plant converts with its own tf2ss / ss2tf (importing scipy.signal costs a process ~2 s): on
+    presets and random testbeds and environments (free outputs included) they give scipy.signal's
+    matrices and polynomials exactly."""
+    import dataclasses
+    import warnings
+
+    from scipy import linalg, signal
+
+    from forecast_design import polynomials as poly
+    from forecast_design.loops import sampled
+
+    rng = np.random.default_rng(7)
+    base = Design.nominal("soft")
+    designs = [Design.nominal(n) for n in ("soft", "stiff", "fig7", "exp-soft", "locked", "link-only")]
+    for _ in range(40):
+        env = dataclasses.replace(base.environment, k_e=float(10 ** rng.uniform(-2, 4)) * (rng.random() > 0.2),
+                                  J_e=float(10 ** rng.uniform(-4, 0)), d_e=float(10 ** rng.uniform(-4, 1)))
+        tb = dataclasses.replace(base.testbed, k=float(10 ** rng.uniform(0.5, 3)), J_m=float(10 ** rng.uniform(-5, -2)))
+        designs.append(dataclasses.replace(base, environment=env, testbed=tb))
+    for design in designs:
+        ns, nt, d = sampled._common_plant(design)
+        n = len(d) - 1
+        num = np.vstack([poly.pad(ns, n + 1), poly.pad(nt, n + 1)])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", signal.BadCoefficients)
+            ours, theirs = sampled._tf2ss(num, d), signal.tf2ss(num, d)
+        assert all(a.shape == b.shape and np.array_equal(a, b) for a, b in zip(ours, theirs))
+        A, B, C, D = theirs
+        e = linalg.expm(np.block([[A, np.eye(n)], [np.zeros((n, 2 * n))]]) / 2000.0)
+        Ad, Bd = e[:n, :n], e[:n, n:] @ B
+        for args in ((Ad, Bd, C, D), (A, B, C, np.zeros((2, 1)))):
+            assert all(np.array_equal(a, b) for a, b in zip(sampled._ss2tf(*args), signal.ss2tf(*args)))

@@ -2,7 +2,9 @@
 
 A result folder (``benchmark --out``, ``export --firmware``) is written by ``fileio.staged_set``:
 members into a staging folder, the manifest removed, members renamed in, the manifest written last.
-The tests kill writers with SIGKILL at random (seeded) times and check what every reader sees: either
+The tests kill writers with SIGKILL at random (seeded) times (each writer a process forked from one that
+imported the toolbox once, so the kill times fall in the writing, not in the imports) and check what
+every reader sees: either
 no complete set (``verify_manifest``/``read_results`` refuse, ``make`` refuses) or exactly one
 generation's files. Temporaries of killed writers are removed by the next write.
 """
@@ -10,13 +12,12 @@ generation's files. Temporaries of killed writers are removed by the next write.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import random
-import signal
 import subprocess
 import sys
 import textwrap
-import time
 from pathlib import Path
 
 import numpy as np
@@ -37,13 +38,105 @@ def _temporaries(folder: Path) -> list[str]:
     return sorted(p.name for p in folder.rglob("*") if TEMP.match(p.name))
 
 
-def _kill_at(argv: list[str], delay_s: float, **kw) -> None:
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, **kw)
-    try:
-        proc.wait(timeout=delay_s)
-    except subprocess.TimeoutExpired:
-        proc.send_signal(signal.SIGKILL)
-    proc.wait()                    # reaped: its pid no longer runs, so its temporaries count as stale
+_FORKER = textwrap.dedent("""
+    import importlib, json, os, signal, sys, time
+    from pathlib import Path
+
+    from forecast_design.fileio import atomic_write, staged_set
+
+    for name in sys.argv[1:]:     # what the writers import, imported once: an import writes nothing
+        importlib.import_module(name)
+
+
+    def staged_writer(root):
+        for gen in range(10**9):
+            with staged_set(Path(root)) as st:
+                for name in ("a.txt", "b.bin", "c.txt") + (("odd.txt",) if gen % 2 else ()):
+                    atomic_write(st / name, f"{gen}\\n" * (1 + 5000 * (name == "b.bin")))
+
+
+    for line in sys.stdin:
+        job = json.loads(line)
+        t0 = time.monotonic()
+        pid = os.fork()
+        if pid == 0:                       # the writer: a process of its own, from a state that wrote nothing
+            code = 1
+            try:
+                null = os.open(os.devnull, os.O_RDWR)
+                for fd in (0, 1, 2):
+                    os.dup2(null, fd)
+                argv = job["argv"]
+                if argv[0] == "staged-writer":
+                    code = staged_writer(argv[1])
+                else:
+                    from forecast_design.cli import main
+                    code = main(argv)
+            finally:
+                os._exit(code or 0)
+        deadline = None if job["kill_after_s"] is None else t0 + job["kill_after_s"]
+        killed = False
+        while True:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                break
+            if deadline is not None and time.monotonic() >= deadline:
+                os.kill(pid, signal.SIGKILL)
+                killed = True
+                done, status = os.waitpid(pid, 0)
+                break
+            time.sleep(0.002)
+        # reaped: its pid no longer runs, so its temporaries count as stale
+        print(json.dumps({"code": os.waitstatus_to_exitcode(status), "killed": killed,
+                          "seconds": time.monotonic() - t0}), flush=True)
+""")
+
+
+class _Forker:
+    """Runs writers as processes forked from one that imported the toolbox once (the import is not what
+    a kill should hit, and it costs more than the writing): ``run`` waits for one, ``kill_at`` sends it
+    SIGKILL after ``delay_s`` [s] unless it finished before. Each writer is reaped before the call returns."""
+
+    def __init__(self, folder: Path, preload: tuple[str, ...] = ()) -> None:
+        script = folder / "forker.py"
+        script.write_text(_FORKER)
+        self.proc = subprocess.Popen([sys.executable, str(script), *preload], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True, env={**os.environ, "MPLBACKEND": "Agg"})
+
+    def _job(self, argv: list[str], kill_after_s: float | None) -> dict:
+        self.proc.stdin.write(json.dumps({"argv": argv, "kill_after_s": kill_after_s}) + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline()
+        assert line, "the forking process died"
+        return json.loads(line)
+
+    def run(self, argv: list[str]) -> dict:
+        done = self._job(argv, None)
+        assert done["code"] == 0, done
+        return done
+
+    def kill_at(self, argv: list[str], delay_s: float) -> dict:
+        return self._job(argv, delay_s)
+
+    def close(self) -> None:
+        self.proc.stdin.close()
+        self.proc.wait(timeout=60)
+        self.proc.stdout.close()
+
+
+@pytest.fixture
+def forker(tmp_path):
+    f = _Forker(tmp_path)
+    yield f
+    f.close()
+
+
+@pytest.fixture
+def cli_forker(tmp_path):
+    """A forker whose writers run the command line (its modules, the table and plot libraries imported)."""
+    f = _Forker(tmp_path, ("forecast_design.cli", "forecast_design.benchmark", "forecast_design.plotting.benchmark",
+                           "forecast_design.export.firmware", "matplotlib.pyplot", "pyarrow.parquet"))
+    yield f
+    f.close()
 
 
 def _digests(folder: Path, names) -> dict[str, str]:
@@ -52,27 +145,14 @@ def _digests(folder: Path, names) -> dict[str, str]:
 
 # --- the mechanism ------------------------------------------------------------------------------------------------
 
-_WRITER = textwrap.dedent("""
-    import sys
-    from pathlib import Path
-    from forecast_design.fileio import atomic_write, staged_set
-
-    root = Path(sys.argv[1])
-    for gen in range(10**9):
-        with staged_set(root) as st:
-            for name in ("a.txt", "b.bin", "c.txt") + (("odd.txt",) if gen % 2 else ()):
-                atomic_write(st / name, f"{gen}\\n" * (1 + 5000 * (name == "b.bin")))
-""")
-
-
-def test_a_staged_set_killed_at_random_times_is_one_generation_or_refused(tmp_path):
+def test_a_staged_set_killed_at_random_times_is_one_generation_or_refused(tmp_path, forker):
+    """A writer replaces a set of 3-4 files again and again (a generation takes some ms) until it is
+    killed at a random time: a reader then sees one generation or no set."""
     root = tmp_path / "set"
-    script = tmp_path / "writer.py"
-    script.write_text(_WRITER)
     rng = random.Random(23)
     seen = {"complete": 0, "refused": 0}
     for _ in range(12):
-        _kill_at([sys.executable, str(script), str(root)], rng.uniform(0.6, 2.5))
+        assert forker.kill_at(["staged-writer", str(root)], rng.uniform(0.05, 0.6))["killed"]
         try:
             members = verify_manifest(root)
         except OutputError as exc:
@@ -155,22 +235,21 @@ def test_verify_manifest_names_a_member_that_changed(tmp_path):
 
 
 def _bench_argv(out: Path, seed: int) -> list[str]:
-    return [sys.executable, "-m", "forecast_design", "benchmark", "--envs", "soft", "--compensator", "none",
-            "--repetitions", "2", "--duration", "0.2", "--workers", "1", "--seed", str(seed), "--out", str(out)]
+    return ["benchmark", "--envs", "soft", "--compensator", "none", "--repetitions", "2", "--duration", "0.2",
+            "--workers", "1", "--seed", str(seed), "--out", str(out)]
 
 
-def test_benchmark_killed_at_random_times_leaves_one_consistent_result_set(tmp_path):
+def test_benchmark_killed_at_random_times_leaves_one_consistent_result_set(tmp_path, cli_forker):
+    forker = cli_forker
     # report.md and summary.json also say how the run went (cells reused, seconds): compared through the seed
     names = ("results.csv", "results.parquet", "indicators.png", "overlays.png", "heatmap.png")
     work = tmp_path / "work"
-    t0 = time.monotonic()
-    subprocess.run(_bench_argv(work, 0), check=True, capture_output=True, timeout=600)   # the folder's set: run 0
-    duration = time.monotonic() - t0
+    duration = forker.run(_bench_argv(work, 0))["seconds"]      # the folder's set: run 0
     old = _digests(work, names)
     rng = random.Random(2023)
     seen = []
     for _ in range(3):                        # run 1 over it, killed at random times
-        _kill_at(_bench_argv(work, 1), rng.uniform(0.3, 1.1) * duration)
+        forker.kill_at(_bench_argv(work, 1), rng.uniform(0.3, 1.1) * duration)
         try:
             doc, table = read_results(work)
         except OutputError as exc:
@@ -179,7 +258,7 @@ def test_benchmark_killed_at_random_times_leaves_one_consistent_result_set(tmp_p
             continue
         seen.append((doc["benchmark"]["seed"], _digests(work, names)))
         assert len(table) > 0
-    subprocess.run(_bench_argv(work, 1), check=True, capture_output=True, timeout=600)
+    forker.run(_bench_argv(work, 1))
     doc, _ = read_results(work)
     new = _digests(work, names)
     assert doc["benchmark"]["seed"] == 1 and new != old
@@ -219,25 +298,24 @@ def test_reused_cells_must_be_the_ones_their_key_names_and_intact(tmp_path):
 
 
 def _export_argv(out: Path, compensator: str, w_q: str) -> list[str]:
-    return [sys.executable, "-m", "forecast_design", "export", "--firmware", "--compensator", compensator,
-            "--w-q-hz", w_q, "--out", str(out)]
+    return ["export", "--firmware", "--compensator", compensator, "--w-q-hz", w_q, "--out", str(out)]
 
 
-def test_firmware_export_killed_at_random_times_never_builds_a_mixed_project(tmp_path):
+def test_firmware_export_killed_at_random_times_never_builds_a_mixed_project(tmp_path, cli_forker):
+    forker = cli_forker
     variants = {"A": ("lo-dob", "10"), "B": ("ea-fob", "20")}
     ref = {}
     for tag, (comp, wq) in variants.items():
-        t0 = time.monotonic()
-        subprocess.run(_export_argv(tmp_path / tag, comp, wq), check=True, capture_output=True, timeout=300)
+        seconds = forker.run(_export_argv(tmp_path / tag, comp, wq))["seconds"]
         names = sorted(p.name for p in (tmp_path / tag).iterdir() if p.name != MANIFEST)
-        ref[tag] = _digests(tmp_path / tag, names), time.monotonic() - t0
+        ref[tag] = _digests(tmp_path / tag, names), seconds
     assert ref["A"][0]["fd_blob.c"] != ref["B"][0]["fd_blob.c"]
     work = tmp_path / "work"
-    subprocess.run(_export_argv(work, *variants["A"]), check=True, capture_output=True, timeout=300)
+    forker.run(_export_argv(work, *variants["A"]))
     rng = random.Random(42)
     for i in range(6):
         tag = "B" if i % 2 == 0 else "A"
-        _kill_at(_export_argv(work, *variants[tag]), rng.uniform(0.4, 1.0) * ref[tag][1])
+        forker.kill_at(_export_argv(work, *variants[tag]), rng.uniform(0.4, 1.0) * ref[tag][1])
         make = subprocess.run(["make", "-n", "-C", str(work)], capture_output=True, text=True)
         try:
             members = verify_manifest(work)
@@ -247,5 +325,5 @@ def test_firmware_export_killed_at_random_times_never_builds_a_mixed_project(tmp
         assert make.returncode == 0, make.stderr
         found = _digests(work, members)
         assert found in (ref["A"][0], ref["B"][0]), "a mixed firmware project"
-    subprocess.run(_export_argv(work, *variants["B"]), check=True, capture_output=True, timeout=300)
+    forker.run(_export_argv(work, *variants["B"]))
     assert _digests(work, verify_manifest(work)) == ref["B"][0] and _temporaries(work) == []

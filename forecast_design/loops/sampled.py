@@ -8,7 +8,6 @@ and hands its polynomials to :mod:`forecast_design.margins`.
 from __future__ import annotations
 
 import math
-import warnings
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
@@ -266,6 +265,30 @@ class ZohPlant:
     free: bool
 
 
+def _tf2ss(num: np.ndarray, den: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``scipy.signal.tf2ss`` of rows ``num`` over ``den`` (controllable canonical form), the same
+    numbers (its normalisation and its trimming of numerator columns below 1e-14 included), without
+    importing ``scipy.signal``: that import takes over a second of every process that
+    needs a sampled loop, and only these two conversions of it are used here."""
+    den = den[np.flatnonzero(den)[0]:]
+    num, den = num / den[0], den / den[0]
+    lead = 0
+    while lead < num.shape[1] - 1 and np.all(np.abs(num[:, lead]) <= 1e-14):
+        lead += 1
+    num = np.hstack((np.zeros((num.shape[0], len(den) - num.shape[1] + lead)), num[:, lead:]))
+    A = np.r_[-np.array([den[1:]]), np.eye(len(den) - 2, len(den) - 1)]
+    return A, np.eye(len(den) - 1, 1), num[:, 1:] - np.outer(num[:, 0], den[1:]), num[:, :1]
+
+
+def _ss2tf(A: np.ndarray, B: np.ndarray, C: np.ndarray, D: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``scipy.signal.ss2tf`` of a single-input system (numerator rows, denominator), the same numbers."""
+    den = np.poly(A)
+    num = np.empty((C.shape[0], A.shape[0] + 1))
+    for k in range(C.shape[0]):
+        num[k] = np.poly(A - B @ C[k:k + 1, :]) + (D[k] - 1) * den
+    return num, den
+
+
 def zoh_plant(design: Design, rate_hz: float) -> ZohPlant:
     """ZOH discretisation of [P; P_theta] from one state-space realisation (shared poles).
 
@@ -288,15 +311,12 @@ def zoh_plant(design: Design, rate_hz: float) -> ZohPlant:
     A_w = (I + A_d)^-1 A Phi / a, hence P(w) = (1 - a w) C (w I - A_w)^-1 B~ with
     B~ = (I + A_d)^-1 Phi B / a (P is strictly proper).
     """
-    from scipy import linalg, signal
+    from scipy import linalg
 
     ns, nt, d = _common_plant(design)
     n = len(d) - 1
     num = np.vstack([poly.pad(ns, n + 1), poly.pad(nt, n + 1)])
-    with warnings.catch_warnings():
-        # strictly proper: the padded numerators start with zeros, which scipy flags
-        warnings.simplefilter("ignore", signal.BadCoefficients)
-        A, B, Cm, Dm = signal.tf2ss(num, d)
+    A, B, Cm, Dm = _tf2ss(num, d)
     if np.any(Dm != 0.0):  # pragma: no cover - P and P_theta are strictly proper
         raise ParameterError("sampled_force_loop: the plant must be strictly proper", name="P", value=None)
     T = 1.0 / rate_hz
@@ -310,10 +330,8 @@ def zoh_plant(design: Design, rate_hz: float) -> ZohPlant:
     IAd = np.eye(n) + Ad
     Aw = np.linalg.solve(IAd, A @ Phi) / a
     Bw = np.linalg.solve(IAd, Bd) / a
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", signal.BadCoefficients)
-        n1, dw = signal.ss2tf(Aw, Bw, Cm, np.zeros((2, 1)))
-        numz, denz = signal.ss2tf(Ad, Bd, Cm, Dm)
+    n1, dw = _ss2tf(Aw, Bw, Cm, np.zeros((2, 1)))
+    numz, denz = _ss2tf(Ad, Bd, Cm, Dm)
     ell = np.array([-a, 1.0])
     free = bool(d[-1] == 0.0)
     return ZohPlant(poly.trim(poly.mul(ell, n1[0])), poly.trim(poly.mul(ell, n1[1])), np.asarray(dw, float),

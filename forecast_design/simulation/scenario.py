@@ -69,6 +69,7 @@ sections, plus the hidden truth, the reference and the simulation options::
     torque_limit = 10.0              # [N m]; omit for none
     velocity_cutoff_hz = 50.0        # SFM velocity filter [Hz]
     sfm_deadband = 0.0               # [rad/s]
+    step_timeout_s = 10.0            # [s]: a controller written as code that hangs longer is a fault
 
 The controller's discretisation, derivative filter and derivative placement are keys of its
 ``[controller]`` table (``discretization``, ``T_f``, ``derivative_on``), as in a log: what the
@@ -109,7 +110,7 @@ _TOP = ("format", "description", "sampling", "testbed", "environment", "controll
         "truth", "variability", "reference", "simulation")
 _SIM_KEYS = {
     "duration_s": float, "substeps": int, "seed": int, "encoder_counts": int, "process_noise_std": float,
-    "torque_limit": float, "velocity_cutoff_hz": float, "sfm_deadband": float,
+    "torque_limit": float, "velocity_cutoff_hz": float, "sfm_deadband": float, "step_timeout_s": float,
 }
 #: Former [simulation] keys that now belong to the controller: where they went.
 _MOVED = {"derivative_cutoff_hz": "T_f (the derivative filter's time constant [s])",
@@ -597,6 +598,7 @@ def _check_simulation(options: Mapping[str, Any], rate: float, prefix: str, sour
     nyquist = rate / 2.0
     bounds = {"duration_s": (0.0, None, False), "process_noise_std": (0.0, 100.0, True),
               "torque_limit": (0.0, None, False), "sfm_deadband": (0.0, None, True),
+              "step_timeout_s": (0.0, None, False),
               "velocity_cutoff_hz": (0.0, nyquist, False)}
     for key, (lo, hi, closed) in bounds.items():
         v = options.get(key)
