@@ -179,8 +179,14 @@ def test_stribeck_static_level_is_not_reported_when_the_decay_velocity_runs_to_t
     assert fit.params["coulomb"] == pytest.approx(true["coulomb"], rel=0.05) and fit.status["coulomb"].identified
 
 
+@pytest.fixture(scope="module")
+def sensor_log():
+    """One independent extended-SFM log (20 s) whose tau_s column the torque-sensor tests rewrite."""
+    return friction_log("extended-sfm", seed=1)
+
+
 @pytest.mark.parametrize("zero,noise", [(0.03, 0.002), (-0.03, 0.002), (0.03, 0.0)])
-def test_a_torque_sensors_zero_is_fitted_by_default_and_not_leaked_into_the_harmonics(zero, noise):
+def test_a_torque_sensors_zero_is_fitted_by_default_and_not_leaked_into_the_harmonics(sensor_log, zero, noise):
     # an independent extended-SFM log whose tau_s reads the spring torque + a zero offset (+ noise:
     # a torque sensor; without noise: a logger that added a constant): unfitted, the 0.03 N m zero
     # moved cos1 (0.02 N m) by 50 % with an interval that missed the truth; by default the offset is
@@ -191,7 +197,7 @@ def test_a_torque_sensors_zero_is_fitted_by_default_and_not_leaked_into_the_harm
     from forecast_design.friction import identify
     from forecast_design.tau_s_source import tau_s_source_of
 
-    exp, truth = friction_log("extended-sfm", seed=1)
+    exp, truth = sensor_log
     s = exp.signals
     k = exp.design.testbed.k
     rng = np.random.default_rng(0)
@@ -212,7 +218,7 @@ def test_a_torque_sensors_zero_is_fitted_by_default_and_not_leaked_into_the_harm
 
 
 @pytest.mark.parametrize("scale", [1.08, 0.98])
-def test_parameters_that_follow_a_torque_sensors_scale_are_flagged(scale):
+def test_parameters_that_follow_a_torque_sensors_scale_are_flagged(sensor_log, scale):
     # a sensor reading scale x k (theta - q): the link's damping makes tau_s follow the velocity, so
     # the scale moved viscous (by 9 % at 1.08) outside its interval; the fit is repeated with the
     # encoders' torque and every parameter that moves beyond its interval is `uncertain`, naming
@@ -220,7 +226,7 @@ def test_parameters_that_follow_a_torque_sensors_scale_are_flagged(scale):
     from forecast_design import experiment_from_arrays
     from forecast_design.friction import identify
 
-    exp, truth = friction_log("extended-sfm", seed=1)
+    exp, truth = sensor_log
     s = exp.signals
     k = exp.design.testbed.k
     noise = np.random.default_rng(0).normal(0, 0.002, s.t.size)

@@ -15,6 +15,7 @@ from forecast_design.friction import (
     Coulomb,
     Harmonics,
     IllConditionedWarning,
+    LuGre,
     Viscous,
     default_filter_settings,
     fit_data,
@@ -135,6 +136,30 @@ def test_stribeck_recovered_within_5_percent():
     # v_s's interval is on the log scale: positive, and it holds the truth here
     lo, hi = fit.interval95["stribeck_velocity"]
     assert 0 < lo < STRIBECK["stribeck_velocity"] < hi
+
+
+def test_lugre_fit_simulator_gives_the_law_and_its_derivatives_on_every_sample():
+    # the LuGre fit's simulator (casadi's recursion, written into numpy buffers): its force is the law's
+    # backward Euler (LuGre.evaluate, numpy), and its sensitivities are the central differences of that
+    # force, every sample (the first one's has structural zeros) and every parameter
+    from forecast_design.friction.nonlinear import _lugre_simulator
+
+    h = 5e-4
+    t = np.arange(0.0, 2.0, h)
+    v = 0.5 * np.cos(2 * np.pi * 0.5 * t) + 0.05 * np.sin(2 * np.pi * 7.0 * t)
+    names = ("sigma0", "sigma1", "static", "coulomb", "stribeck_velocity", "viscous")
+    p = np.array([300.0, 0.5, 0.5, 0.4, 0.09, 0.1])
+    sim = _lugre_simulator(h, v)
+    F, J = sim(p)
+    assert F.shape == v.shape and J.shape == (v.size, 6)
+    np.testing.assert_allclose(F, LuGre().evaluate(dict(zip(names, p)), v, dt=h), rtol=0, atol=1e-12)
+    for j in range(6):
+        d = 1e-6 * p[j]
+        hi, lo = p.copy(), p.copy()
+        hi[j] += d
+        lo[j] -= d
+        fd = (sim(hi)[0] - sim(lo)[0]) / (2 * d)
+        np.testing.assert_allclose(J[:, j], fd, rtol=0, atol=1e-6 * np.max(np.abs(fd)), err_msg=names[j])
 
 
 def test_unconverged_nlp_raises_solver_error_with_stats():

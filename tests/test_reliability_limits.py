@@ -142,15 +142,22 @@ def _peak_rss_bytes(argv: list[str]) -> int:
     return usage.ru_maxrss * 1024
 
 
+@pytest.fixture(scope="module")
+def memory_logs(tmp_path_factory):
+    """The 100k- and 300k-sample logs of the memory test, written once for its three verbs (they only read them)."""
+    folder = tmp_path_factory.mktemp("memory")
+    paths = []
+    for n in (100_000, 300_000):
+        paths.append(folder / f"run{n}.toml")
+        subprocess.run([sys.executable, "-c", _LOG, str(n), str(paths[-1])], check=True, timeout=600)
+    return paths
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("verb, stated", [("check", 300), ("identify", 270), ("diagnose", 400)])
-def test_peak_memory_per_sample_is_what_the_limits_state(tmp_path, verb, stated):
+def test_peak_memory_per_sample_is_what_the_limits_state(memory_logs, verb, stated):
     """The slope of a verb's peak resident size between a 100k- and a 300k-sample log, in a fresh process."""
-    peaks = []
-    for n in (100_000, 300_000):
-        path = tmp_path / f"run{n}.toml"
-        subprocess.run([sys.executable, "-c", _LOG, str(n), str(path)], check=True, timeout=600)
-        peaks.append(_peak_rss_bytes([sys.executable, "-m", "forecast_design", verb, str(path)]))
+    peaks = [_peak_rss_bytes([sys.executable, "-m", "forecast_design", verb, str(path)]) for path in memory_logs]
     per_sample = (peaks[1] - peaks[0]) / 200_000
     assert per_sample < 1.2 * stated, f"{verb}: {per_sample:.0f} B per sample, stated about {stated}"
 

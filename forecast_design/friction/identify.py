@@ -12,7 +12,6 @@ from typing import Any, Mapping
 
 import numpy as np
 from scipy import special
-from threadpoolctl import threadpool_limits
 
 from ..errors import ForecastError, IdentifiabilityError, ParameterError
 from ..plausibility import LogScales, log_scales
@@ -314,10 +313,8 @@ def _fit_linear(model: FrictionModel, data: IdentificationData, *, constrain: bo
 
 def _estimate(model: FrictionModel, data: IdentificationData, *, constrain: bool, check: bool = True,
               scales: LogScales | None = None, covariance: bool = True, **nl_options: Any) -> _Estimate:
-    if model.is_linear:
-        # tall, thin products (m x p): 1 BLAS thread is as fast idle, 2-10x faster than 2 on a shared machine
-        with threadpool_limits(1, user_api="blas"):
-            return _fit_linear(model, data, constrain=constrain, check=check, covariance=covariance)
+    if model.is_linear:   # with one BLAS thread: fit_friction and method_error are _lsq.one_blas_thread
+        return _fit_linear(model, data, constrain=constrain, check=check, covariance=covariance)
     from ..plausibility import friction_bound
     from . import nonlinear
 
@@ -373,6 +370,7 @@ def _intervals(names, p, std, dof, log_scale: tuple[str, ...] = ()) -> dict[str,
     return out
 
 
+@_lsq.one_blas_thread
 def fit_friction(t: np.ndarray, position: np.ndarray, force: np.ndarray, model: FrictionModel | str, *,
                  velocity: np.ndarray | None = None, inertia: float | None = None,
                  settings: FilterSettings | None = None, holdout: float = 0.0,

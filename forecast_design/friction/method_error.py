@@ -45,6 +45,7 @@ import numpy as np
 
 from ..errors import ForecastError
 from ..plausibility import LogScales
+from ._lsq import one_blas_thread
 
 __all__ = ["MethodError", "method_error"]
 
@@ -66,6 +67,7 @@ class MethodError:
     failure: str = ""
 
 
+@one_blas_thread
 def method_error(model: Any, t: np.ndarray, position: np.ndarray, force: np.ndarray,
                  params: Mapping[str, float], *, velocity: np.ndarray | None = None,
                  inertia: float | None = None, settings: Any = None, selection: Any = "auto",

@@ -104,8 +104,10 @@ class _Plant:
         return self.u - self.spring_torque(x[0] - x[2]) - self.cogging(x[0] + self.phi0)
 
     def rhs(self, t: float, x) -> list[float]:
-        th, w, q, v, z = x[0], x[1], x[2], x[3], x[4]
-        ts = self.spring_torque(th - q)
+        # the integrators call this ~8 times per sample: Python floats (the same IEEE operations as numpy
+        # scalars, half the time) and level() / viscous() / cogging() written out for the sliding modes
+        th, w, q, v, z = x.tolist()
+        ts = self.k * (th - q) if self.spring == _LINEAR else self.spring_torque(th - q)
         if self.locked:
             dq = dv = 0.0
         else:
@@ -119,23 +121,30 @@ class _Plant:
             g = self.level(ang, w)
             dz = w - self.sigma0 * abs(w) * z / g
             tf = self.sigma0 * z + self.sigma1 * dz
+            d_m = self.d_m
         elif m == _FREE:
             tf = 0.0
-        else:
-            tf = m * self.level(ang, w, m)
-        d_m = self.d_m if self.lugre else self.viscous(w, m if m in (1, -1) else 0)
-        dw = (self.u - ts - d_m * w - tf - self.cogging(ang)) / self.J_m
+            d_m = self.d_neg if w < 0.0 else self.d_m
+        else:                             # sliding: m * level(ang, w, m), viscous(w, m)
+            f_c, f_s, d_m = (self.F_c_neg, self.F_s_neg, self.d_neg) if m < 0 else (self.F_c, self.F_s, self.d_m)
+            lv = f_c
+            if self.stribeck:
+                lv += (f_s - f_c) * math.exp(-((w / self.v_s) ** 2))
+            if self.pos:
+                lv += _harmonic(self.pos, ang)
+            tf = m * lv
+        dw = (self.u - ts - d_m * w - tf - (_harmonic(self.cog, ang) if self.cog else 0.0)) / self.J_m
         return [w, dw, dq, dv, dz]
 
     def forces(self, x) -> tuple[float, float, float]:
         """(spring, friction beyond viscous, cogging) torques at state x [N m]."""
-        th, w = x[0], x[1]
+        th, w, q, _, z = x.tolist()
         ang = th + self.phi0
-        ts = self.spring_torque(th - x[2])
+        ts = self.spring_torque(th - q)
         tc = self.cogging(ang)
         if self.lugre:
-            dz = w - self.sigma0 * abs(w) * x[4] / self.level(ang, w)
-            tf = self.sigma0 * x[4] + self.sigma1 * dz
+            dz = w - self.sigma0 * abs(w) * z / self.level(ang, w)
+            tf = self.sigma0 * z + self.sigma1 * dz
         elif self.motor == _STUCK:
             tf = self.u - ts - tc
         elif self.motor == _FREE:
@@ -163,6 +172,7 @@ class _Plant:
     def validity(self, x) -> list[float]:
         """Mode-validity functions, all >= 0 while the current modes hold (order of :meth:`tags`)."""
         out = []
+        x = x.tolist()
         m = self.motor
         if m == 1 or m == -1:
             out.append(m * x[1] + _TOL_W)
@@ -347,15 +357,17 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
     def applied(j: int) -> float:
         return plant.gain * cmd[j] if j >= 0 else 0.0
 
+    enc, sens = enc_noise.tolist(), sens_noise.tolist()     # Python floats per sample: the same values, faster
     for k in range(n):
         t_k = k * T
         # measurement at t_k
-        th_meas = round((x[0] + enc_noise[k, 0]) / step) * step
-        q_meas = 0.0 if plant.locked else round((x[2] + enc_noise[k, 1]) / step) * step
+        x0, _, x2, _, _ = x.tolist()
+        th_meas = round((x0 + enc[k][0]) / step) * step
+        q_meas = 0.0 if plant.locked else round((x2 + enc[k][1]) / step) * step
         theta_m[k], q_m[k] = th_meas, q_meas
         if tau_s_mode == "sensor":
-            tau_meas = float(format(case.sensor_gain * plant.spring_torque(x[0] - x[2]) + case.sensor_offset
-                                    + sens_noise[k], ".6e"))
+            tau_meas = float(format(case.sensor_gain * plant.spring_torque(x0 - x2) + case.sensor_offset
+                                    + sens[k], ".6e"))
         else:
             tau_meas = k_nom * (th_meas - q_meas)
         tau_s_log[k] = tau_meas
@@ -385,7 +397,7 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
             x = integ.advance(x, t_k + r_delay, t_k + T)
         else:
             x = integ.advance(x, t_k, t_k + T)
-        if not np.all(np.isfinite(x)) or abs(x[0]) > 1e6:
+        if not np.isfinite(x).all() or abs(x[0]) > 1e6:
             raise SolverError(f"the state left any physical range at t = {t_k + T} s")
 
     t = np.round(case.t0_s + np.arange(n) * T, 9)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from math import cos as _cos, sin as _sin
 from typing import Any
 
 import numpy as np
@@ -158,7 +159,11 @@ def excitation_signal(excitation: Excitation, n: int, rate_hz: float) -> np.ndar
 
 
 def _harmonic(terms: list[tuple[int, float, float]], angle: float) -> float:
-    return sum(a * math.sin(i * angle) + b * math.cos(i * angle) for i, a, b in terms)
+    total = 0      # as sum(): the terms added in order, from the integer 0 (the plant calls this per step stage)
+    for i, a, b in terms:
+        x = i * angle
+        total += a * _sin(x) + b * _cos(x)
+    return total
 
 
 def _to_log_frame(a: tuple[float, ...], b: tuple[float, ...], phi: float) -> tuple[tuple, tuple]:
