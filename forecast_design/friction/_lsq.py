@@ -23,8 +23,10 @@ def one_blas_thread(func: Callable[..., Any]) -> Callable[..., Any]:
     A friction fit is hundreds of tall, thin products and factorisations (a few thousand to 1e6
     rows, <= 40 columns: the fit, its Newey-West sums, the adequacy's Wald tests, the method
     error's refits). With OpenBLAS's default two threads on a 2-core machine with another busy
-    process, each waited for the second thread: ``qr`` of 2000 x 20 took 7 ms of CPU instead of
-    0.9 ms, and an extended-SFM fit of 2e4 samples 2.0 s instead of 0.2 s; idle, one thread is as fast.
+    process, each waited for the second thread: a QR and a Gram product of 2000 x 20 took 6.7 ms of
+    CPU instead of 0.9 ms, an extended-SFM identification of 2e4 samples 1.5 s instead of 0.18 s
+    (``benchmarks/bench_friction_threads.py``); on a calm machine the gap diagnosis measured no
+    difference.
 
     Parameters
     ----------

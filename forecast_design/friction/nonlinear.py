@@ -42,7 +42,9 @@ LuGre
     sigma2 >= 0) always imposed, since g(v) must stay positive for the bristle
     equation to exist; sigma0 and v_s search their plausible ranges. The
     start is the best of a (v_s, sigma0) grid, each v_s with its Stribeck
-    curve fitted away from the stops. The initial state is the steady state
+    curve fitted away from the stops (candidates whose sums of squares tie,
+    as every v_s of a collapsed curve does, go to the v_s nearest the typical
+    sliding speed, not to rounding). The initial state is the steady state
     of the first sample, and the residual counts from the first gross sliding
     on (the bristle state before it is unknown). A converged solver is not a
     verdict on the numbers: :func:`~forecast_design.friction.fit_friction`
