@@ -732,14 +732,17 @@ def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics
         if wants_inertia and "inertia" not in fm.names:
             fm = Inertia() + fm
     fit_options.setdefault("scales", data.scales)
-    with _naming(data.source):
+    # every fit, adequacy test and method-error repeat is a small least-squares problem: one BLAS
+    # thread, as in the linear fit and the diagnosis (two spinning threads made it 5x slower on a busy
+    # 2-core machine, and the numbers do not depend on the core count)
+    with threadpool_limits(1, user_api="blas"), _naming(data.source):
         fit = fit_friction(data.t, data.position, data.force, fm,
                            inertia=None if "inertia" in fm.names else data.inertia,
                            holdout=holdout, selection=selection, **fit_options)
         fit = tau_s_scale_check(log, fit, fm, fit_friction, holdout=holdout, selection=selection, **fit_options)
     if validation_log is not None:
         vdata = friction_log(validation_log)
-        with _naming(vdata.source):
+        with threadpool_limits(1, user_api="blas"), _naming(vdata.source):
             fit = fit.with_validation(validate(fit, vdata))
     return fit
 
