@@ -11,6 +11,7 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from scipy import special
 
 from ..errors import ForecastError, IdentifiabilityError, ParameterError
