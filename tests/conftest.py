@@ -1,5 +1,6 @@
 """Shared fixtures and the hypothesis profile."""
 
+import contextlib
 import os
 
 import numpy as np
@@ -17,3 +18,19 @@ if os.environ.get("CI"):
 def rng():
     """A seeded random generator (no module-level seeding)."""
     return np.random.default_rng(20240209)
+
+
+@contextlib.contextmanager
+def loopback_cluster(n_workers=2):
+    """A real Dask cluster of worker processes on the loopback, closed on exit (idle workers use CPU).
+
+    ":0": the scheduler's HTTP server takes a free port (None still binds 8787, and two test processes
+    starting clusters at once then collide on it).
+    """
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                       dashboard_address="127.0.0.1:0")
+    try:
+        yield cluster
+    finally:
+        cluster.close()

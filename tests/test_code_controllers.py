@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import loopback_cluster
 
 from forecast_design.controllers import CController, PythonController, resolve_controller
 from forecast_design.controllers.examples import example_path
@@ -457,11 +458,8 @@ def test_the_examples_are_benchmarked_against_the_paper_pd(tmp_path):
 @pytest.fixture
 def cluster():
     """A cluster for the one test that uses it (closed after it: idle workers use CPU)."""
-    distributed = pytest.importorskip("distributed")
-    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                 dashboard_address=":0")
-    yield c
-    c.close()
+    with loopback_cluster() as c:
+        yield c
 
 
 @pytest.mark.slow

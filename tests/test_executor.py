@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from conftest import loopback_cluster
 
 from forecast_design.benchmark import BenchmarkSpec, parse_compensators, parse_reference, run_benchmark
 from forecast_design.errors import ParameterError
@@ -314,13 +315,8 @@ def test_a_cluster_that_loses_every_worker_ends_the_command_in_one_line(tmp_path
 
 @pytest.fixture(scope="module")
 def cluster():
-    distributed = pytest.importorskip("distributed")
-    # ":0": the scheduler's HTTP server takes a free port (None still binds 8787, and two test
-    # processes starting clusters at once then collide on it)
-    c = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                 dashboard_address="127.0.0.1:0")
-    yield c
-    c.close()
+    with loopback_cluster() as c:
+        yield c
 
 
 @pytest.mark.slow
