@@ -11,7 +11,6 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 from scipy import special
 
 from ..errors import ForecastError, IdentifiabilityError, ParameterError
@@ -680,6 +679,7 @@ def validate(fit: FrictionFit, log: Any, position: np.ndarray | None = None, for
                               fit_percent=fit_percent(data.force[k], y_hat[k]), n_samples=int(k.sum()))
 
 
+@_lsq.one_blas_thread   # the scale check and the validation too, not only the fits (fit_friction's own rule)
 def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics: int | None = None,
              offset: bool | None = None, estimate_inertia: bool = False, holdout: float = 0.3,
              validation_log: Any = None, selection: SampleSelection | str = "auto",
@@ -733,17 +733,14 @@ def identify(log: Any, model: FrictionModel | str = "extended-sfm", *, harmonics
         if wants_inertia and "inertia" not in fm.names:
             fm = Inertia() + fm
     fit_options.setdefault("scales", data.scales)
-    # every fit, adequacy test and method-error repeat is a small least-squares problem: one BLAS
-    # thread, as in the linear fit and the diagnosis (two spinning threads made it 5x slower on a busy
-    # 2-core machine, and the numbers do not depend on the core count)
-    with threadpool_limits(1, user_api="blas"), _naming(data.source):
+    with _naming(data.source):
         fit = fit_friction(data.t, data.position, data.force, fm,
                            inertia=None if "inertia" in fm.names else data.inertia,
                            holdout=holdout, selection=selection, **fit_options)
         fit = tau_s_scale_check(log, fit, fm, fit_friction, holdout=holdout, selection=selection, **fit_options)
     if validation_log is not None:
         vdata = friction_log(validation_log)
-        with threadpool_limits(1, user_api="blas"), _naming(vdata.source):
+        with _naming(vdata.source):
             fit = fit.with_validation(validate(fit, vdata))
     return fit
 
