@@ -7,6 +7,8 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy import stats
 
 from forecast_design import effects as fx
@@ -190,6 +192,34 @@ def _locked_sine_log(F_c, amplitude, frequency_hz, seed, duration_s=6.0, errors=
     nominal = dataclasses.replace(tb, J_m=tb.J_m * (1 + errors[0]), d_m=tb.d_m * (1 + errors[1]),
                                   k=tb.k * (1 + errors[2]))
     return dataclasses.replace(exp, design=dataclasses.replace(exp.design, testbed=nominal)).replace_signals(tau_s=None)
+
+
+@settings(max_examples=40, deadline=None)
+@given(rate_hz=st.sampled_from([500.0, 1000.0, 2000.0]), R=st.sampled_from([5, 10, 20]),
+       levels=st.tuples(st.floats(-1.0, 1.0), st.floats(-1.0, 1.0)), jump=st.integers(-300, 300),
+       cutoff=st.floats(0.02, 0.2))
+def test_held_level_lift_bounds_a_filtered_jump_through_scipys_decimate(rate_hz, R, levels, jump, cutoff):
+    # a friction torque that jumps once from a to b (|a|, |b| <= 1) and is seen through the gap's filters (the
+    # zero-phase Butterworth, then scipy's own decimate: Chebyshev I, zero-phase) stays within
+    # max(|a|, |b|) + |b - a| / 2 o[d], d raw samples from the jump
+    from scipy import signal as sps
+
+    from forecast_design.friction.derivatives import default_filter_settings
+    from forecast_design.gap.residuals import _step_overshoot, lowpass
+
+    settings = default_filter_settings(rate_hz, position_cutoff_hz=cutoff * rate_hz, decimation_factor=R)
+    n = 40 * R + 1200
+    j = n // 2 + jump
+    a, b = levels
+    x = np.where(np.arange(n) < j, a, b)
+    y = sps.decimate(lowpass(x, settings), R, ftype="iir", zero_phase=True)
+    i = np.arange(y.size) * R
+    d = np.abs(i - j + 0.5).astype(int)
+    o = _step_overshoot(settings)
+    bound = max(abs(a), abs(b)) + abs(b - a) / 2.0 * o[np.minimum(d, o.size - 1)]
+    inner = slice(y.size // 5, 4 * y.size // 5)           # away from the signal's ends (filtfilt's padding)
+    assert np.all(np.abs(y[inner]) <= bound[inner] + 1e-9)
+    assert o[0] > 0.05 and np.all(np.diff(o) <= 0.0)        # it rings, and the bound only falls with distance
 
 
 def test_coulomb_feature_is_full_through_slow_reversals():

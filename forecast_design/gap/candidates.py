@@ -43,7 +43,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from ..effects import Effect
-from .residuals import GapData, delayed_input, gap_log_scales, near_rest
+from .residuals import GapData, delayed_input, gap_log_scales, held_level_factor, near_rest, rest_distance
 
 __all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_constant_torque", "fit_all", "fit_pair",
            "levels_shared", "CANDIDATE_EFFECTS"]
@@ -410,7 +410,7 @@ def _evaluate(data: GapData, effect: Effect, coefs: Sequence[_Coef], p: np.ndarr
     if level is not None:
         st = np.flatnonzero(data.stuck)
         lv = level(p[n_cal:])
-        lv = lv[st] if np.ndim(lv) else lv
+        lv = (lv[st] if np.ndim(lv) else lv) * held_level_factor(data)[st]
         from .grading import floor_rms, held_at_rest    # grading scores the fits made here
 
         held = held_at_rest(r[st], lv, floor_rms(data)[st])
@@ -448,11 +448,76 @@ def _fit_rows(data: GapData, structure: _Structure | None) -> np.ndarray:
     return rows & ~mask
 
 
+def _breakaway_at_rest(data: GapData, coefs: Sequence[_Coef], p: np.ndarray, n_cal: int,
+                       level: Callable, fit_rows: np.ndarray) -> np.ndarray:
+    """The Stribeck coefficient ``dF`` chosen on the fit blocks' rows at rest as well as the moving ones.
+
+    The breakaway level ``F_c + dF`` is what a motor at rest holds before it slides, and the rows at
+    rest show it directly: the net torque on a stuck motor reaches ``F_s``. The linear fit sees only
+    the moving rows (:func:`_fit_rows`: at rest the friction is set-valued), where ``dF`` lives in a
+    bump ``exp(-(v/v_s)^2)`` that a fast breakaway crosses within a few milliseconds, below the
+    decimated rate: stiction logs then fitted ``dF = 0`` although a third of their rows at rest held
+    torques 50 % above the Coulomb level. Here ``dF`` (only upwards from the moving rows' value;
+    the other coefficients kept) minimises the fit blocks' squared residual, the rows at rest taken
+    as :func:`.grading.held_at_rest` leaves them (the level lifted by the filters' ringing next to
+    motion, :func:`.residuals.held_level_factor`, as wherever a level holds a row). The objective is
+    convex (a quadratic plus squared soft thresholds): a bounded scalar search finds its minimum.
+    """
+    names = [c.name for c in coefs]
+    if "dF" not in names:
+        return p
+    j = names.index("dF")
+    m = data.t.size
+    held = data.stacked(data.held_out)
+    rest = np.zeros(held.size, dtype=bool)
+    # rows at rest at the raw rate too (a stuck row may creep or oscillate faster than the decimated
+    # band, and a level fitted there absorbs whatever the model misses); friction acts in the motor
+    # equation, stacked first
+    rest[:m] = data.stuck & (rest_distance(data) > 0)
+    rest &= ~held
+    if not np.any(rest):
+        return p
+    from .grading import floor_rms, held_at_rest    # grading scores the fits made here
+
+    A = _design_matrix(coefs)
+    r0 = data.stacked_target() - A @ p
+    col = A[:, j]
+    move, r_move, c_move = fit_rows, r0[fit_rows], col[fit_rows]
+    r_rest, c_rest, fl = r0[rest], col[rest], floor_rms(data)[rest]
+    q = np.array(p[n_cal:], dtype=float)
+    k = j - n_cal
+    rest_rows = np.flatnonzero(rest[:m])
+    lift = held_level_factor(data)[rest_rows]
+
+    def sse(d: float) -> float:
+        q[k] = d
+        step = d - p[j]
+        lv = level(q)
+        lv = (lv[rest_rows] if np.ndim(lv) else lv) * lift
+        return float(np.sum((r_move - step * c_move) ** 2) +
+                     np.sum(held_at_rest(r_rest - step * c_rest, lv, fl) ** 2))
+
+    top = float(np.max(np.abs(r_rest)))
+    if not (top > 0.0 and np.any(move)):
+        return p
+    from scipy.optimize import minimize_scalar
+
+    res = minimize_scalar(sse, bounds=(float(p[j]), float(p[j]) + top), method="bounded",
+                          options={"xatol": 1e-6 * top})
+    out = np.array(p, dtype=float)
+    if res.success and sse(float(res.x)) < sse(float(p[j])):
+        out[j] = float(res.x)
+    return out
+
+
 def _fit(data: GapData, effect: Effect, structure: _Structure | None) -> CandidateFit:
     cal = _calibration(data)
     coefs = cal + (structure.coefs if structure else [])
     level = structure.level if structure else None
-    p = _solve(data, coefs, _fit_rows(data, structure))
+    rows = _fit_rows(data, structure)
+    p = _solve(data, coefs, rows)
+    if level is not None:
+        p = _breakaway_at_rest(data, coefs, p, len(cal), level, rows)
     r, prediction = _evaluate(data, effect, coefs, p, len(cal), level)
     gap_fit, gap_held, sse = _summaries(data, r)
     calibration = _calibration_values(data, cal, p)

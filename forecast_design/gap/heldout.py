@@ -24,9 +24,10 @@ from scipy import stats
 from .candidates import CandidateFit
 from .grading import noise_floor
 from .identifiability import terms_wald_p
-from .residuals import GapData
+from .residuals import GapData, held_level_factor, rest_distance
 
 __all__ = ["held_out_test", "correlation_length", "test_units", "nested_law_test", "richer_law_justified",
+           "breakaway_resolved_at_rest",
            "NESTED_ALPHA"]
 
 
@@ -185,12 +186,63 @@ def nested_law_test(data: GapData, simpler: CandidateFit, richer: CandidateFit) 
     return _log_ratio_p(a[informative], b[informative]), k
 
 
+def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: CandidateFit) -> bool:
+    """Whether the rows at rest show a breakaway above the Coulomb level, beyond the filters and the noise.
+
+    On a row at rest at the raw rate (a ``stuck`` row whose own raw sample does not move,
+    :func:`.residuals.rest_distance`) the Coulomb law's residual is the torque the static friction
+    holds. A Coulomb friction holds at most its level ``F_c``, read through the filters up to
+    ``F_c`` times :func:`.residuals.held_level_factor` next to motion, plus quantisation noise of RMS
+    ``floor`` (:func:`.grading.noise_floor`) whose largest of ``n`` rows reaches about
+    ``floor sqrt(2 ln n)``. Stiction holds up to ``F_s``. The breakaway is resolved at rest when rows
+    of at least two separate stays at rest hold more than that and the stiction fit puts its
+    breakaway ``dF`` above the same noise allowance.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    richer : CandidateFit
+        A stiction fit (alone or first in a pair).
+    simpler : CandidateFit
+        The coulomb fit of the same data.
+
+    Returns
+    -------
+    bool
+        True when the rows at rest resolve the breakaway.
+    """
+    s, c = richer.structure, simpler.structure
+    names = [x.name for x in s.coefs] if s is not None else []
+    if "dF" not in names or richer.coef is None or c is None or c.level is None or simpler.coef is None:
+        return False
+    m = data.t.size
+    rest = data.stuck & (rest_distance(data) > 0)
+    n = int(np.count_nonzero(rest))
+    if n < 2:
+        return False
+    floor = np.sqrt(noise_floor(data)[:m][rest])
+    z = math.sqrt(2.0 * math.log(n))
+    d_f = float(richer.coef[richer.n_cal + names.index("dF")])
+    if not d_f > z * float(np.sqrt(np.mean(floor ** 2))):
+        return False
+    level = c.level(simpler.coef[simpler.n_cal:])
+    level = (level[rest] if np.ndim(level) else level) * held_level_factor(data)[rest]
+    # the Coulomb law's torque at rows at rest (its sign feature is zero there): what the motor held
+    held = np.abs(simpler.residual[:m][rest] + simpler.prediction[:m][rest])
+    over = np.zeros(m, dtype=bool)
+    over[np.flatnonzero(rest)] = held > level + z * floor
+    stays = np.cumsum(np.diff(np.concatenate([[0], data.stuck.astype(np.int8)])) == 1)   # stay number per row
+    return len(np.unique(stays[over])) >= 2
+
+
 def richer_law_justified(data: GapData, richer: CandidateFit, simpler: CandidateFit) -> bool:
     """Parsimony between nested friction laws: stiction or position_friction over plain coulomb.
 
     The richer law must (a) resolve what it adds to coulomb: for position_friction the angle
     harmonics of the level, for stiction either a breakaway above the Coulomb level (the Stribeck
-    coefficient ``dF``: the vocabulary's stiction is ``F_s > F_c``) or presliding bristles wider
+    coefficient ``dF``: the vocabulary's stiction is ``F_s > F_c``; by its Wald test, or at rest above the
+    encoders' noise, :func:`breakaway_resolved_at_rest`) or presliding bristles wider
     than the log's resolution (the presliding displacement above the grid's first point, one
     encoder count: LuGre stiction is told from coulomb by its bristles when the Stribeck bump is not
     resolved, as on the bundled Fig. 7 scenario, ``dF`` at Wald p = 0.24, stiction removing 99 % of
@@ -221,7 +273,7 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     if "dF" in names:
         bristles = next(((value, lo) for nm, value, lo, _ in s.grid if nm == "x_p"), None)
         resolved = (bristles is not None and bristles[0] > bristles[1] * (1.0 + 1e-9)) or \
-            terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA
+            breakaway_resolved_at_rest(data, richer, simpler) or terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA
     else:
         harmonics = [nm for nm in names if len(nm) > 1 and nm[0] in "ab" and nm[1:].isdigit()]
         resolved = terms_wald_p(data, richer, harmonics) < NESTED_ALPHA

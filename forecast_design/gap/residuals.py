@@ -36,6 +36,7 @@ import dataclasses
 import itertools
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Iterable, Mapping
 
 import numpy as np
@@ -47,8 +48,8 @@ from ..plausibility import DATASHEET_TOLERANCE, LogScales, encoder_step_of, log_
 from ..limits import SIGNAL_LIMITS, first_beyond
 from scipy import signal
 
-from ..friction.derivatives import (FilterSettings, butterworth, decimate_columns, default_filter_settings,
-                                    settling_samples)
+from ..friction.derivatives import (FilterSettings, _decimation_sos, butterworth, decimate_columns,
+                                    default_filter_settings, settling_samples)
 
 __all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
            "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "near_rest"]
@@ -470,6 +471,90 @@ def near_rest(data: GapData) -> np.ndarray:
         near = near[e:v.size - e][::R][:data.t.size]
         data.cache["near_rest"] = near | data.stuck
     return data.cache["near_rest"]
+
+
+@lru_cache(maxsize=16)
+def _step_overshoot(settings: FilterSettings) -> np.ndarray:
+    """``o[d]``: how far the filters' output exceeds a unit level ``d`` or more raw samples from a jump [-].
+
+    A step from -1 to +1 through the gap's filters (the zero-phase low-pass, then the decimation's
+    Chebyshev anti-alias filter) rings: ``|y| - 1`` reaches 0.15 next to the jump and a few
+    percent one or two decimated rows away. ``o[d]`` is its largest value at distance ``d`` or more,
+    non-increasing, 0 once settled (the array ends there).
+    """
+    der, dec = settling_samples(settings)
+    n = 4 * (der + dec) + 64
+    x = np.where(np.arange(2 * n) < n, -1.0, 1.0)
+    y = lowpass(x, settings)
+    if settings.decimation_factor > 1 and settings.decimation != "subsample":
+        sos, = _decimation_sos(int(settings.decimation_factor))
+        y = signal.sosfiltfilt(sos.copy(), y)
+    over = np.maximum(np.abs(y) - 1.0, 0.0)
+    d = np.abs(np.arange(2 * n) - n + 0.5).astype(int)      # raw samples from the jump (between n-1 and n)
+    o = np.zeros(n + 1)
+    np.maximum.at(o, np.minimum(d, n), over)
+    return np.maximum.accumulate(o[::-1])[::-1]
+
+
+def rest_distance(data: GapData) -> np.ndarray:
+    """Per decimated row, the raw samples from its own sample to the nearest moving one (cached on ``data``).
+
+    A raw sample moves when its filtered speed is at or above the encoder's speed resolution
+    (:func:`gap_log_scales`, the rest rule of :func:`near_rest`). A ``stuck`` row (its *decimated*
+    speed below ``GapOptions.stick_velocity``) may still move at the raw rate (a motor creeping or
+    oscillating faster than the decimated band); a row at distance 0 does.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    ndarray of int, shape (m,)
+        Distance [raw samples]; the log's length when no sample moves.
+    """
+    if "rest_distance" not in data.cache:
+        v = np.asarray(data.raw["v"], dtype=float)
+        moving = np.flatnonzero(np.abs(v) >= gap_log_scales(data).speed_resolution)
+        e, R = data.settings.edge_samples, data.settings.decimation_factor
+        pos = e + np.arange(data.t.size) * R
+        if moving.size:
+            i = np.searchsorted(moving, pos)
+            left = moving[np.clip(i - 1, 0, moving.size - 1)]
+            right = moving[np.clip(i, 0, moving.size - 1)]
+            dist = np.minimum(np.abs(pos - left), np.abs(right - pos))
+        else:
+            dist = np.full(data.t.size, v.size)
+        data.cache["rest_distance"] = dist
+    return data.cache["rest_distance"]
+
+
+def held_level_factor(data: GapData) -> np.ndarray:
+    """Per decimated row, the factor by which the filters can lift a held friction level there [-].
+
+    A friction torque that never exceeds ``F`` at the raw rate (a static friction holding up to
+    its breakaway level, a Coulomb level sliding) is seen through the zero-phase filters: next to a
+    reversal, where it jumps from ``-F`` to ``+F``, the filtered torque rings up to 15 % above
+    ``F`` (:func:`_step_overshoot`). On a row ``d`` raw samples from the nearest moving sample
+    (:func:`rest_distance`) the held torque may read up to ``F (1 + o[d])``: a Coulomb log's rows
+    at rest next to reversals read 8-40 % above ``F_c``, which a breakaway level fitted on them
+    took for stiction.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        ``1 + o[d]`` for every row.
+    """
+    if "held_level_factor" not in data.cache:
+        o = _step_overshoot(data.settings)
+        data.cache["held_level_factor"] = 1.0 + o[np.minimum(rest_distance(data), o.size - 1)]
+    return data.cache["held_level_factor"]
 
 
 def command_rms(experiment: Experiment) -> float:
