@@ -21,7 +21,11 @@ Friction candidates (``coulomb``, ``stiction``, ``position_friction``) also
 explain the samples where the motor is at rest: a static friction holds any
 net torque up to its breakaway level, so there the residual left is
 ``soft_threshold(r, level)``, but never less than the encoders' quantisation
-floor of the row, which no friction explains.
+floor of the row, which no friction explains. The level is read through the filters,
+which lift it by their ringing next to motion (:func:`.residuals.held_level_factor`),
+and stiction's breakaway above its Coulomb level is chosen on those rows too: a
+breakaway shows there, while the moving rows cross its Stribeck bump within a few
+milliseconds (:func:`_breakaway_at_rest`).
 
 Around reversals and stops the filters smear whatever torque a friction feature
 misses into the neighbouring rows where the motor moves, and a Stribeck bump

@@ -440,11 +440,11 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
     if winner is not None:
         simpler, extra = _simplest_tied(data, winner, [r for r in ranked if r.significant], by_effect)
         if simpler is not winner:
-            caveats.append(f"Tied: fitted on top of '{simpler.effect}' ({by_effect[str(simpler.effect)].n_params} "
-                           f"parameters), '{winner.effect}' ({by_effect[str(winner.effect)].n_params}) removes "
-                           f"{100 * max(extra, 0.0):.0f} % of what is left, below the {100 * opts.min_reduction:g} % "
-                           "a second effect needs: this log cannot tell them apart, and the verdict is the one with "
-                           "fewer parameters.")
+            n_s, n_w = by_effect[str(simpler.effect)].n_params, by_effect[str(winner.effect)].n_params
+            caveats.append(f"Tied: fitted on top of '{simpler.effect}' ({n_s} parameters), '{winner.effect}' "
+                           f"({n_w}) removes {100 * max(extra, 0.0):.0f} % of what is left, below the "
+                           f"{100 * opts.min_reduction:g} % a second effect needs: this log cannot tell them "
+                           "apart, and the verdict is the one with fewer parameters.")
             winner = simpler
             ranked.remove(winner)
             ranked.insert(0, winner)
@@ -525,7 +525,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
 
 def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[RankedCandidate],
                    by_effect: Mapping[str, CandidateFit]) -> tuple[RankedCandidate, float]:
-    """Parsimony between candidates that are not nested: the fewest parameters among those that leave the winner nothing.
+    """Parsimony between candidates that are not nested: the simplest that leaves the winner nothing to add.
 
     The ranking's BIC counts every decimated row as independent, while filtered equation errors are
     correlated over many rows, and a many-parameter candidate also soaks up part of whatever else the

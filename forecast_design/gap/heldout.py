@@ -273,7 +273,8 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     if "dF" in names:
         bristles = next(((value, lo) for nm, value, lo, _ in s.grid if nm == "x_p"), None)
         resolved = (bristles is not None and bristles[0] > bristles[1] * (1.0 + 1e-9)) or \
-            breakaway_resolved_at_rest(data, richer, simpler) or terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA
+            breakaway_resolved_at_rest(data, richer, simpler) or \
+            terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA
     else:
         harmonics = [nm for nm in names if len(nm) > 1 and nm[0] in "ab" and nm[1:].isdigit()]
         resolved = terms_wald_p(data, richer, harmonics) < NESTED_ALPHA

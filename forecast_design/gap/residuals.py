@@ -439,6 +439,14 @@ def gap_log_scales(data: GapData) -> LogScales:
     return data.cache["scales"]
 
 
+def _raw_rest(data: GapData) -> np.ndarray:
+    """Raw samples at rest: filtered speed below the encoder's speed resolution (cached on ``data``)."""
+    if "raw_rest" not in data.cache:
+        v = np.asarray(data.raw["v"], dtype=float)
+        data.cache["raw_rest"] = np.abs(v) < gap_log_scales(data).speed_resolution
+    return data.cache["raw_rest"]
+
+
 def near_rest(data: GapData) -> np.ndarray:
     """Decimated rows that a motor at rest reaches through the derivative filter (cached on ``data``).
 
@@ -461,14 +469,14 @@ def near_rest(data: GapData) -> np.ndarray:
         True for the rows a static friction law is not fitted on.
     """
     if "near_rest" not in data.cache:
-        v = np.asarray(data.raw["v"], dtype=float)
-        rest = np.abs(v) < gap_log_scales(data).speed_resolution
+        rest = _raw_rest(data)
+        n = rest.size
         w = settling_samples(data.settings)[0]
         c = np.concatenate([[0], np.cumsum(rest, dtype=np.int64)])
-        idx = np.arange(v.size)
-        near = (c[np.minimum(idx + w + 1, v.size)] - c[np.maximum(idx - w, 0)]) > 0
+        idx = np.arange(n)
+        near = (c[np.minimum(idx + w + 1, n)] - c[np.maximum(idx - w, 0)]) > 0
         e, R = data.settings.edge_samples, data.settings.decimation_factor
-        near = near[e:v.size - e][::R][:data.t.size]
+        near = near[e:n - e][::R][:data.t.size]
         data.cache["near_rest"] = near | data.stuck
     return data.cache["near_rest"]
 
@@ -515,8 +523,8 @@ def rest_distance(data: GapData) -> np.ndarray:
         Distance [raw samples]; the log's length when no sample moves.
     """
     if "rest_distance" not in data.cache:
-        v = np.asarray(data.raw["v"], dtype=float)
-        moving = np.flatnonzero(np.abs(v) >= gap_log_scales(data).speed_resolution)
+        rest = _raw_rest(data)
+        moving = np.flatnonzero(~rest)
         e, R = data.settings.edge_samples, data.settings.decimation_factor
         pos = e + np.arange(data.t.size) * R
         if moving.size:
@@ -525,7 +533,7 @@ def rest_distance(data: GapData) -> np.ndarray:
             right = moving[np.clip(i, 0, moving.size - 1)]
             dist = np.minimum(np.abs(pos - left), np.abs(right - pos))
         else:
-            dist = np.full(data.t.size, v.size)
+            dist = np.full(data.t.size, rest.size)
         data.cache["rest_distance"] = dist
     return data.cache["rest_distance"]
 
