@@ -48,7 +48,7 @@ from ..plausibility import DATASHEET_TOLERANCE, LogScales, encoder_step_of, log_
 from ..limits import SIGNAL_LIMITS, first_beyond
 from scipy import signal
 
-from ..friction.derivatives import (FilterSettings, _decimation_sos, butterworth, decimate_columns,
+from ..friction.derivatives import (FilterSettings, antialias, butterworth, decimate_columns,
                                     default_filter_settings, settling_samples)
 
 __all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
@@ -493,10 +493,7 @@ def _step_overshoot(settings: FilterSettings) -> np.ndarray:
     der, dec = settling_samples(settings)
     n = 4 * (der + dec) + 64
     x = np.where(np.arange(2 * n) < n, -1.0, 1.0)
-    y = lowpass(x, settings)
-    if settings.decimation_factor > 1 and settings.decimation != "subsample":
-        sos, = _decimation_sos(int(settings.decimation_factor))
-        y = signal.sosfiltfilt(sos.copy(), y)
+    y = antialias(lowpass(x, settings), settings)
     over = np.maximum(np.abs(y) - 1.0, 0.0)
     d = np.abs(np.arange(2 * n) - n + 0.5).astype(int)      # raw samples from the jump (between n-1 and n)
     o = np.zeros(n + 1)
