@@ -235,6 +235,25 @@ def test_every_counted_candidate_lowers_the_total_held_out_gap_and_a_small_gain_
         assert not delay.identified and any("bound" in why for why in delay.assessment.reasons)
 
 
+def test_a_gain_that_rescales_the_whole_motor_equation_of_a_locked_log_is_not_an_effect():
+    # effect-free 14-bit locked square, tau_s derived by the logger: the torque gain, the spring scale and J_m
+    # scaled alike multiply the whole motor equation, which only shrinks its residual; least squares took them to
+    # the calibration's bound (gain 0.970, spring scale 0.970: 3 % less residual on every held-out unit, p = 2e-22)
+    # and the verdict was a torque gain
+    from forecast_design.independent import make_independent_log
+
+    log = make_independent_log(Effect.NONE, 5, 25, magnitude_scale=0.125)
+    diag = diagnose(log.experiment, joint=False)
+    gain = {r.effect: r for r in diag.ranking}[Effect.TORQUE_GAIN]
+    fit = diag.fits["torque_gain"]
+    tol = diag.data.options.calibration_tolerance
+    assert fit.calibration["spring_scale"] == pytest.approx(1.0 - tol)
+    assert abs(fit.params["gain"] - 1.0) > tol                       # beyond the tolerance on its own
+    assert abs(fit.params["gain"] / fit.calibration["spring_scale"] - 1.0) < tol
+    assert not gain.identified and any("whole motor equation" in why for why in gain.assessment.reasons)
+    assert diag.effect is Effect.NONE
+
+
 def _drawn(word, index, seed, attempt=0, **changes):
     """A case the generator draws (its set-ups included), with some fields replaced, simulated."""
     case = dataclasses.replace(draw_independent_case(word, index, seed, attempt=attempt), **changes)

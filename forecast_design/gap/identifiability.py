@@ -295,6 +295,19 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         # re-calibration absorbed stays a gain)
         reasons.append(f"gain {base['gain']:.4g} is within the re-calibration's datasheet tolerance "
                        f"(+-{100 * data.options.calibration_tolerance:g} %): a rescaling of J_m, d_m and k, not an effect")
+    if "gain" in base and not data.tau_s_measured:
+        # With a derived tau_s a gain, the spring scale, J_m and d_m scaled alike multiply the whole motor
+        # equation: that only shrinks its residual, and least squares takes it to the calibration's bound
+        # (an effect-free locked log: gain 0.970 with the spring scale on 0.970, "better" on every held-out
+        # unit). What the log shows is the gain relative to the spring torque's scale.
+        relative = base["gain"] / fit.calibration["spring_scale"]
+        spring = calibration_status(data, fit).get("spring_scale")
+        if spring is not None and spring.status == "at_bound" and \
+                abs(relative - 1.0) <= data.options.calibration_tolerance:
+            reasons.append(f"gain {base['gain']:.4g} with the spring scale on its bound "
+                           f"({fit.calibration['spring_scale']:.4g}): the whole motor equation rescaled, a gain of "
+                           f"{relative:.4g} relative to the spring torque, within the datasheet tolerance "
+                           f"(+-{100 * data.options.calibration_tolerance:g} %): not an effect")
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
     data.cache[key] = (fit, out)
     return out
