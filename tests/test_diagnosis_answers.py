@@ -314,6 +314,27 @@ def test_a_small_delay_under_stiction_is_never_a_confident_wrong_number(env, exc
         assert diag.secondary.params["delay_s"] == pytest.approx(delay_s, rel=0.5)
 
 
+def test_a_stiction_verdicts_levels_carry_the_grid_points_uncertainty():
+    # a quarter-size stiction log (F_s 0.0561, F_c 0.0360 N m): fitted at the chosen point of the (v_s, x_p) grid,
+    # F_s = 0.0531 +- 0.0003 was "identified" 12 standard deviations from the truth. The levels are conditional on
+    # the grid point; half the largest move to a neighbouring point is one standard deviation more.
+    from forecast_design.gap.candidates import grid_neighbours
+    from forecast_design.independent import make_independent_log
+
+    log = make_independent_log(Effect.STICTION, 3, 3, magnitude_scale=0.25)
+    truth = log.case.effect_params
+    diag = diagnose(log.experiment, joint=False)
+    assert diag.effect is Effect.STICTION
+    status = diag.ranking[0].assessment.status
+    moves = grid_neighbours(diag.data, diag.fits["stiction"])
+    assert moves
+    for name in ("F_s", "F_c"):
+        st_ = status[name]
+        assert st_.std >= 0.5 * max(abs(nb.params[name] - st_.value) for nb in moves)
+        assert abs(st_.value - truth[name]) < 1.96 * st_.std
+        assert st_.status != "identified" or abs(st_.value - truth[name]) < 2.5 * st_.std
+
+
 # --- parsimony between candidates that are not nested ------------------------------------------------
 
 

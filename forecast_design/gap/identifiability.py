@@ -49,7 +49,7 @@ from scipy import stats
 from ..effects import Effect
 from ..plausibility import ParameterStatus, assess, effect_bound
 from ..friction._lsq import group_wald_p, hac_covariance
-from .candidates import CandidateFit, _calibration, _design_matrix, _fit_rows as _candidate_fit_rows
+from .candidates import CandidateFit, _calibration, _design_matrix, _fit_rows as _candidate_fit_rows, grid_neighbours
 from .residuals import GapData, gap_log_scales
 
 __all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "terms_wald_p",
@@ -188,14 +188,23 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         moved = _flatten(s.to_params(step))
         J[:, j] = [(moved[nm] - base[nm]) / h for nm in names]
     std = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", J, cov_eff, J), 0.0, None))
+    grid_std = np.zeros_like(std)
     if "gain" in names:
         # a torque gain and a common rescaling of J_m, d_m and k are one direction that only the
         # re-calibration's bound separates: the gain is known up to a bounded bias of the datasheet
         # tolerance, added so that the 95 % interval (1.96 std) spans it whole
         i = names.index("gain")
         std[i] = std[i] + abs(base["gain"]) * data.options.calibration_tolerance / 1.96
-    scales = gap_log_scales(data)
     grid = {g[0]: g for g in s.grid}
+    # the coefficients are conditional on the grid point: the optimum lies within half a step of it, and the
+    # largest move to a neighbouring point, halved, is one standard deviation more (in quadrature)
+    for nb in grid_neighbours(data, fit):
+        moved = _flatten(nb.params)
+        for i, nm in enumerate(names):
+            if nm not in grid and nm in moved and math.isfinite(moved[nm]):
+                grid_std[i] = max(grid_std[i], 0.5 * abs(moved[nm] - base[nm]))
+    std = np.hypot(std, grid_std)
+    scales = gap_log_scales(data)
     status: dict[str, ParameterStatus] = {}
     for i, nm in enumerate(names):
         depends = np.abs(J[i]) > 0
