@@ -318,7 +318,7 @@ def test_a_stiction_verdicts_levels_carry_the_grid_points_uncertainty():
     # a quarter-size stiction log (F_s 0.0561, F_c 0.0360 N m): fitted at the chosen point of the (v_s, x_p) grid,
     # F_s = 0.0531 +- 0.0003 was "identified" 12 standard deviations from the truth. The levels are conditional on
     # the grid point; half the largest move to a neighbouring point is one standard deviation more.
-    from forecast_design.gap.candidates import grid_neighbours
+    from forecast_design.gap.identifiability import grid_neighbours
     from forecast_design.independent import make_independent_log
 
     log = make_independent_log(Effect.STICTION, 3, 3, magnitude_scale=0.25)

@@ -50,7 +50,7 @@ from ..effects import Effect
 from .residuals import GapData, delayed_input, gap_log_scales, held_level_factor, near_rest, rest_distance
 
 __all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_constant_torque", "fit_all", "fit_pair",
-           "grid_neighbours", "levels_shared", "CANDIDATE_EFFECTS"]
+           "levels_shared", "CANDIDATE_EFFECTS"]
 
 #: Effects with a candidate, in the order they are tried.
 CANDIDATE_EFFECTS: tuple[Effect, ...] = (
@@ -655,48 +655,6 @@ def _levels_chosen(data: GapData, effect: Effect,
         data.cache[key] = [_tied_levels(s) for s in _structures(effect, data)]
     shared = _best_on_grid(data, effect, data.cache[key], wrap)
     return shared if shared is not None and shared.gap_held_out <= apart.gap_held_out else apart
-
-
-def grid_neighbours(data: GapData, fit: CandidateFit) -> list[CandidateFit]:
-    """The candidate refitted one grid step away from its chosen point, in each grid parameter and direction.
-
-    A grid parameter (Stribeck velocity, bristle displacement, delay, dead band) is only known to the
-    grid's step, and the coefficients fitted at a grid point are conditional on it: the coefficients
-    at the neighbouring points say how far that choice moves them.
-
-    Parameters
-    ----------
-    data : GapData
-        Prepared equation errors.
-    fit : CandidateFit
-        A single-effect fit of :func:`fit_candidate` (pair fits have no neighbours here).
-
-    Returns
-    -------
-    list of CandidateFit
-        Up to two fits per grid parameter; empty for a candidate without a grid.
-    """
-    s = fit.structure
-    if s is None or not s.grid or fit.effect is Effect.NONE:
-        return []
-    shared = levels_shared(fit)
-    key = ("tied", fit.effect)
-    structures = data.cache.get(key) if shared else _structures(fit.effect, data)
-    if not structures or not any(x is s for x in structures):
-        return []
-    here = {g[0]: g[1] for g in s.grid}
-    values = {name: sorted({g[1] for x in structures for g in x.grid if g[0] == name}) for name in here}
-    out = []
-    for name, grid_values in values.items():
-        i = grid_values.index(here[name])
-        for j in (i - 1, i + 1):
-            if not 0 <= j < len(grid_values):
-                continue
-            want = {**here, name: grid_values[j]}
-            match = next((x for x in structures if {g[0]: g[1] for g in x.grid} == want), None)
-            if match is not None:
-                out.append(_fit(data, fit.effect, match))
-    return out
 
 
 def levels_shared(fit: CandidateFit) -> bool:

@@ -49,10 +49,11 @@ from scipy import stats
 from ..effects import Effect
 from ..plausibility import ParameterStatus, assess, effect_bound
 from ..friction._lsq import group_wald_p, hac_covariance
-from .candidates import CandidateFit, _calibration, _design_matrix, _fit_rows as _candidate_fit_rows, grid_neighbours
+from .candidates import (CandidateFit, _calibration, _design_matrix, _fit, _fit_rows as _candidate_fit_rows,
+                         _structures, levels_shared)
 from .residuals import GapData, gap_log_scales
 
-__all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "terms_wald_p",
+__all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "terms_wald_p", "grid_neighbours",
            "isolability", "gap_log_scales", "ISOLABILITY_THRESHOLD", "CALIBRATION"]
 
 #: Smallest separation (sine of the largest principal angle) at which two candidates count as isolable [-].
@@ -145,6 +146,48 @@ class EffectAssessment:
                 "not_identified": [k for k, v in self.status.items() if not v.identified],
                 "status": {k: v.to_mapping() for k, v in self.status.items()},
                 "reasons": list(self.reasons)}
+
+
+def grid_neighbours(data: GapData, fit: CandidateFit) -> list[CandidateFit]:
+    """The candidate refitted one grid step away from its chosen point, in each grid parameter and direction.
+
+    A grid parameter (Stribeck velocity, bristle displacement, delay, dead band) is only known to the
+    grid's step, and the coefficients fitted at a grid point are conditional on it: the coefficients
+    at the neighbouring points say how far that choice moves them.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    fit : CandidateFit
+        A single-effect fit of :func:`.candidates.fit_candidate` (pair fits have no neighbours here).
+
+    Returns
+    -------
+    list of CandidateFit
+        Up to two fits per grid parameter; empty for a candidate without a grid.
+    """
+    s = fit.structure
+    if s is None or not s.grid or fit.effect is Effect.NONE:
+        return []
+    shared = levels_shared(fit)
+    key = ("tied", fit.effect)
+    structures = data.cache.get(key) if shared else _structures(fit.effect, data)
+    if not structures or not any(x is s for x in structures):
+        return []
+    here = {g[0]: g[1] for g in s.grid}
+    values = {name: sorted({g[1] for x in structures for g in x.grid if g[0] == name}) for name in here}
+    out = []
+    for name, grid_values in values.items():
+        i = grid_values.index(here[name])
+        for j in (i - 1, i + 1):
+            if not 0 <= j < len(grid_values):
+                continue
+            want = {**here, name: grid_values[j]}
+            match = next((x for x in structures if {g[0]: g[1] for g in x.grid} == want), None)
+            if match is not None:
+                out.append(_fit(data, fit.effect, match))
+    return out
 
 
 def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
