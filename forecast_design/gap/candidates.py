@@ -47,7 +47,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from ..effects import Effect
-from .residuals import GapData, delayed_input, gap_log_scales, held_level_factor, near_rest, rest_distance
+from .residuals import GapData, delayed_input, gap_log_scales, held_at_rest_rows, held_level_factor, near_rest
 
 __all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_constant_torque", "fit_all", "fit_pair",
            "levels_shared", "CANDIDATE_EFFECTS"]
@@ -477,7 +477,7 @@ def _breakaway_at_rest(data: GapData, coefs: Sequence[_Coef], p: np.ndarray, n_c
     # rows at rest at the raw rate too (a stuck row may creep or oscillate faster than the decimated
     # band, and a level fitted there absorbs whatever the model misses); friction acts in the motor
     # equation, stacked first
-    rest[:m] = data.stuck & (rest_distance(data) > 0)
+    rest[:m] = held_at_rest_rows(data)
     rest &= ~held
     if not np.any(rest):
         return p

@@ -78,6 +78,7 @@ from .candidates import (
     fit_constant_torque,
     fit_pair,
     levels_shared,
+    _FRICTION,
 )
 from .identifiability import CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, isolability
 from .locate import Location, locate_gap
@@ -547,7 +548,7 @@ def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[Rank
     w_fit = by_effect[str(winner.effect)]
     simpler = sorted((r for r in contenders if r is not winner
                       and by_effect[str(r.effect)].n_params < w_fit.n_params
-                      and not (r.effect in _FRICTION_LAWS and winner.effect in _FRICTION_LAWS)),
+                      and not (r.effect in _FRICTION and winner.effect in _FRICTION)),
                      key=lambda r: by_effect[str(r.effect)].n_params)
     for r in simpler:
         s_fit = by_effect[str(r.effect)]
@@ -559,8 +560,6 @@ def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[Rank
             return r, float(extra)
     return winner, float("nan")
 
-
-_FRICTION_LAWS = (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION)
 
 
 def _weak_is_distinct(data: GapData, weak: RankedCandidate, fit: CandidateFit, base: CandidateFit,

@@ -24,7 +24,7 @@ from scipy import stats
 from .candidates import CandidateFit
 from .grading import noise_floor
 from .identifiability import terms_wald_p
-from .residuals import GapData, held_level_factor, rest_distance
+from .residuals import GapData, held_at_rest_rows, held_level_factor
 
 __all__ = ["held_out_test", "correlation_length", "test_units", "nested_law_test", "richer_law_justified",
            "breakaway_resolved_at_rest",
@@ -190,7 +190,7 @@ def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: Can
     """Whether the rows at rest show a breakaway above the Coulomb level, beyond the filters and the noise.
 
     On a row at rest at the raw rate (a ``stuck`` row whose own raw sample does not move,
-    :func:`.residuals.rest_distance`) the Coulomb law's residual is the torque the static friction
+    :func:`.residuals.held_at_rest_rows`) the Coulomb law's residual is the torque the static friction
     holds. A Coulomb friction holds at most its level ``F_c``, read through the filters up to
     ``F_c`` times :func:`.residuals.held_level_factor` next to motion, plus quantisation noise of RMS
     ``floor`` (:func:`.grading.noise_floor`) whose largest of ``n`` rows reaches about
@@ -217,7 +217,7 @@ def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: Can
     if "dF" not in names or richer.coef is None or c is None or c.level is None or simpler.coef is None:
         return False
     m = data.t.size
-    rest = data.stuck & (rest_distance(data) > 0)
+    rest = held_at_rest_rows(data)
     n = int(np.count_nonzero(rest))
     if n < 2:
         return False

@@ -52,7 +52,8 @@ from ..friction.derivatives import (FilterSettings, antialias, butterworth, deci
                                     default_filter_settings, settling_samples)
 
 __all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
-           "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "near_rest"]
+           "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "near_rest", "rest_distance",
+           "held_at_rest_rows", "held_level_factor"]
 
 #: Raw-rate samples (columns x log length) filtered in one pass by ``GapData.decimate_many`` [-]:
 #: 2 MB per filter copy, a fixed size rather than one per sample.
@@ -533,6 +534,14 @@ def rest_distance(data: GapData) -> np.ndarray:
             dist = np.full(data.t.size, rest.size)
         data.cache["rest_distance"] = dist
     return data.cache["rest_distance"]
+
+
+def held_at_rest_rows(data: GapData) -> np.ndarray:
+    """Decimated rows at rest at the raw rate too: ``stuck``, their own raw sample not moving (:func:`rest_distance`).
+
+    There the friction holds whatever net torque acts: the rows that show a breakaway level.
+    """
+    return data.stuck & (rest_distance(data) > 0)
 
 
 def held_level_factor(data: GapData) -> np.ndarray:
