@@ -9,7 +9,9 @@ written for one generator:
   :func:`forecast_design.friction._lsq.hac_covariance`: filtered, decimated equation
   errors are not white), and a status from :mod:`forecast_design.plausibility` (plausible
   range from the log's own torque, speed and deflection; a coefficient on a box
-  bound or a grid parameter at a grid end is ``at_bound``). An effect counts only
+  bound or a grid parameter at a grid end is ``at_bound``; a grid parameter's own standard deviation is
+  the Gauss-Newton one, :func:`_grid_uncertainty`; an environment's scales carry the spring torque's
+  datasheet tolerance as a bounded bias). An effect counts only
   when its defining coefficients differ from zero by a Wald test at 5 % (e.g. the
   torque gain's ``1 - gain``, the harmonics of cogging jointly, tested on the feature
   directions the log's excitation resolves: :func:`forecast_design.friction._lsq.group_wald_p`) and none of its
@@ -167,6 +169,11 @@ def grid_neighbours(data: GapData, fit: CandidateFit) -> list[CandidateFit]:
     list of CandidateFit
         Up to two fits per grid parameter; empty for a candidate without a grid.
     """
+    return [_fit(data, fit.effect, x) for _, _, x in _neighbour_structures(data, fit)]
+
+
+def _neighbour_structures(data: GapData, fit: CandidateFit) -> list[tuple[str, float, Any]]:
+    """(grid parameter, its value there, structure) one grid step away from a fit's point, each way."""
     s = fit.structure
     if s is None or not s.grid or fit.effect is Effect.NONE:
         return []
@@ -186,7 +193,63 @@ def grid_neighbours(data: GapData, fit: CandidateFit) -> list[CandidateFit]:
             want = {**here, name: grid_values[j]}
             match = next((x for x in structures if {g[0]: g[1] for g in x.grid} == want), None)
             if match is not None:
-                out.append(_fit(data, fit.effect, match))
+                out.append((name, grid_values[j], match))
+    return out
+
+
+def _grid_uncertainty(data: GapData, fit: CandidateFit, design: "_Design") -> dict[str, tuple[float, dict[str, float]]]:
+    """Standard deviation of each grid parameter and how the other parameters move with it.
+
+    A grid parameter (delay, dead band, Stribeck velocity, bristle displacement) enters the model
+    nonlinearly; its uncertainty is the Gauss-Newton one: the derivative of the prediction with
+    respect to it (coefficients held, a difference between the neighbouring grid points) joins the
+    feature columns in the same autocorrelation-robust sandwich (:func:`hac_covariance`) as the
+    coefficients. The grid point is not the optimum: the Gauss-Newton step from it, at most one grid
+    step, is added in quadrature (as half the move to a neighbour is for the coefficients).
+
+    Returns
+    -------
+    dict
+        grid name -> (std in the parameter's unit, d(other parameter)/d(grid parameter) by name); the std
+        is inf where the prediction does not depend on the parameter (a Stribeck width under a zero bump).
+    """
+    s = fit.structure
+    p_eff = np.asarray(fit.coef[fit.n_cal:], dtype=float)
+    here = {g[0]: g[1] for g in s.grid}
+    base = _flatten(s.to_params(p_eff))
+    by_name: dict[str, list[tuple[float, Any]]] = {}
+    for name, value, x in _neighbour_structures(data, fit):
+        by_name.setdefault(name, []).append((value, x))
+    cols, moves, steps = [], {}, {}
+    for name, nbs in by_name.items():
+        lo_v, lo_x = min(nbs, key=lambda t: t[0])
+        hi_v, hi_x = max(nbs, key=lambda t: t[0])
+        if len(nbs) == 1:   # one-sided at a grid end
+            lo_v, lo_x = (here[name], s) if lo_v > here[name] else (lo_v, lo_x)
+            hi_v, hi_x = (here[name], s) if hi_v < here[name] else (hi_v, hi_x)
+        dv = hi_v - lo_v
+        col = (_design_matrix(hi_x.coefs) @ p_eff - _design_matrix(lo_x.coefs) @ p_eff) / dv
+        cols.append(col)
+        hi_p, lo_p = _flatten(hi_x.to_params(p_eff)), _flatten(lo_x.to_params(p_eff))
+        moves[name] = {nm: (hi_p[nm] - lo_p[nm]) / dv for nm in base if nm != name and nm in hi_p and nm in lo_p}
+        steps[name] = max(abs(v - here[name]) for v, _ in nbs)
+    if not cols:
+        return {}
+    A = np.column_stack([design.A] + cols)
+    free = np.concatenate([~design.bound, np.ones(len(cols), dtype=bool)])
+    hac = hac_covariance(A, design.residual, free=free, keep=design.rows)
+    # a grid parameter acts on few rows (a delay or a dead band at the reversals): the sandwich built from
+    # so few large scores is itself uncertain and came out below the classical variance on delay logs whose
+    # profile was flat over two grid steps; the larger of the two is kept
+    var_all = np.maximum(np.diag(hac.covariance), np.diag(hac.iid_covariance))
+    X = A[design.rows][:, free]
+    step = np.linalg.lstsq(X, design.residual[design.rows], rcond=None)[0][-len(cols):]
+    out = {}
+    for k, name in enumerate(by_name):
+        var = float(var_all[design.A.shape[1] + k])
+        resolved = np.any(cols[k]) and math.isfinite(var) and var > 0.0
+        offset = min(abs(float(step[k])), steps[name]) if np.isfinite(step[k]) else steps[name]
+        out[name] = (math.hypot(math.sqrt(var), offset) if resolved else math.inf, moves[name])
     return out
 
 
@@ -247,13 +310,25 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
             if nm not in grid and nm in moved and math.isfinite(moved[nm]):
                 grid_std[i] = max(grid_std[i], 0.5 * abs(moved[nm] - base[nm]))
     std = np.hypot(std, grid_std)
+    grid_sd = _grid_uncertainty(data, fit, design) if grid else {}
+    for i, nm in enumerate(names):
+        # a parameter read through a grid parameter (a bristle stiffness F_s / x_p) carries its uncertainty
+        moved = [abs(d_nm) * sd for sd, d in grid_sd.values() for n2, d_nm in d.items() if n2 == nm and d_nm != 0.0]
+        if moved:
+            std[i] = math.hypot(std[i], sum(moved))
+        if nm in _ENVIRONMENT_NAMES:
+            # the environment equation weighs the environment against the spring torque, whose scale is known
+            # to the datasheet tolerance only (on its bound, J, d and k_e come out scaled alike by up to the
+            # tolerance, 3 %): a bounded bias, added so that the 95 % interval spans it whole
+            std[i] = std[i] + abs(base[nm]) * data.options.calibration_tolerance / 1.96
     scales = gap_log_scales(data)
     status: dict[str, ParameterStatus] = {}
     for i, nm in enumerate(names):
         depends = np.abs(J[i]) > 0
         if nm in grid:
             _, value, lo, hi = grid[nm]
-            st = assess(nm, base[nm], bound=effect_bound(nm, scales, static=base.get("F_s")), solver_bounds=(lo, hi))
+            st = assess(nm, base[nm], std=grid_sd.get(nm, (None,))[0],
+                        bound=effect_bound(nm, scales, static=base.get("F_s")), solver_bounds=(lo, hi))
             resolution = _RESOLUTION_END.get(nm, lambda _: 0.0)(scales)
             if st.status == "at_bound" and math.isclose(base[nm], lo, rel_tol=1e-6) and lo <= resolution * (1 + 1e-9):
                 # the search starts at the log's resolution (candidates bound it there): a value on that end
@@ -367,6 +442,8 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
 
 #: The resolution of the log where a candidate's grid search starts (:func:`.candidates._build_structures`):
 #: a Stribeck bump twice the speed resolution wide, a presliding displacement or a dead band of one count.
+#: Parameters of an environment mismatch (absolute and relative to the declared environment).
+_ENVIRONMENT_NAMES = frozenset({"J", "d", "k_e", "J_scale", "d_scale", "k_e_scale"})
 _RESOLUTION_END = {"v_s": lambda sc: max(1e-3, 2.0 * sc.speed_resolution),
                    "x_p": lambda sc: max(1e-4, sc.encoder_step),
                    "width_rad": lambda sc: 2.0 * sc.encoder_step}
