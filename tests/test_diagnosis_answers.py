@@ -378,8 +378,13 @@ def test_stiction_the_log_resolves_is_named_without_a_fixed_share_of_coulombs_ga
     extra = explainable_reduction(diag.fits["coulomb"], diag.fits["stiction"], held, noise_floor(diag.data))
     assert 0.0 < extra < 0.5 * diag.data.options.min_reduction
     assert diag.effect is Effect.STICTION
+    # F_s - F_c is at 3 standard deviations of the noise (the Wald test of the breakaway); with the analysis'
+    # own error (the shift at half the filter's cut-off, which moves a breakaway the most) the verdict's
+    # interval is wide, and holds the truth
     f_s = stiction.assessment.status["F_s"]
-    assert f_s.value - diag.params["F_c"] > 1.96 * f_s.std
+    true_f_s = draw_independent_case(Effect.STICTION, 1, 0).effect_params["F_s"]
+    assert f_s.value > diag.params["F_c"] and abs(f_s.value - true_f_s) <= 1.96 * f_s.std
+    assert diag.method_shift["F_s"] > diag.method_shift["F_c"]
 
 
 def test_a_stiction_fit_without_breakaway_or_resolved_bristles_leaves_the_verdict_to_coulomb():

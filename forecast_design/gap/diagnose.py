@@ -80,7 +80,8 @@ from .candidates import (
     levels_shared,
     _FRICTION,
 )
-from .identifiability import CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, isolability
+from .identifiability import (CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, isolability,
+                              method_shift, with_method_error)
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
@@ -219,6 +220,10 @@ class Diagnosis:
     grade : str
         ``clear`` (the effect removes ``min_reduction`` of the explainable gap), ``weak`` (it passes
         every other test but removes less) or ``none`` (:mod:`.grading`).
+    method_shift : Mapping[str, float]
+        How far the verdict's parameters move when the analysis is repeated with the position filter's
+        cut-off halved (:func:`.identifiability.method_shift`), in their units; already in their
+        standard deviations (JSON ``verdict.std_method``).
     """
 
     effect: Effect
@@ -240,6 +245,7 @@ class Diagnosis:
     calibration: Mapping[str, ParameterStatus] = field(default_factory=dict)
     reading: Mapping[str, Any] | None = None
     grade: str = "clear"
+    method_shift: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def identified(self) -> bool:
@@ -284,6 +290,7 @@ class Diagnosis:
         verdict["secondary"] = None if self.secondary is None else {
             "effect": str(self.secondary.effect), "params": _jsonable(self.secondary.params),
             "gap_after": float(self.secondary.gap_after), "reduction": float(self.secondary.reduction)}
+        verdict["std_method"] = {k: float(v) for k, v in self.method_shift.items()}
         verdict["calibration"] = {k: {**v.to_mapping(), "at_bound": v.status == "at_bound"}
                                   for k, v in self.calibration.items()}
         out = {
@@ -506,6 +513,13 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
             caveats.append(f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above "
                            f"the encoders' noise floor, below the {100 * opts.min_reduction:g} % of a clear verdict, "
                            f"but passes the held-out test (p = {winner.p_value:.2g}) and is identified.")
+    shift: dict[str, float] = {}
+    if winner is not None and winner.assessment is not None:
+        # the verdict's intervals carry the analysis' own error (the filter's), as the friction fit's do
+        shift = method_shift(data, by_effect[str(winner.effect)])
+        widened = dataclasses.replace(winner, assessment=with_method_error(winner.assessment, shift))
+        ranked[ranked.index(winner)] = widened
+        winner = widened
     if winner is None:
         eff, gap_after, params = Effect.NONE, gap0, {}
     else:
@@ -521,7 +535,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -
     return Diagnosis(effect=eff, gap_before=gap0, gap_after=gap_after, reduction=reduction, params=params,
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
-                     replay=replay, isolability=iso, calibration=calibration_status(data, base), grade=grade)
+                     replay=replay, isolability=iso, calibration=calibration_status(data, base), grade=grade,
+                     method_shift=shift)
 
 
 def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[RankedCandidate],
