@@ -245,8 +245,11 @@ def test_second_effect_is_in_the_json():
     named = {m["verdict"]["effect"], (m["verdict"]["secondary"] or {}).get("effect")}
     assert named == {"coulomb", "torque_gain"}
     sec = m["verdict"]["secondary"]
-    assert set(sec) == {"effect", "params", "gap_after", "reduction"}
+    assert set(sec) == {"effect", "params", "gap_after", "reduction", "status"}
     assert sec["gap_after"] <= m["verdict"]["gap_after"] and sec["reduction"] >= m["verdict"]["reduction"]
+    # the pair's numbers carry their intervals: the gain's holds the truth
+    gain = sec["status"]["gain"]
+    assert gain["std"] is not None and abs(gain["value"] - 0.7) <= 1.96 * gain["std"]
 
 
 # --- isolability: computed from the log ---------------------------------------------------------

@@ -273,7 +273,8 @@ class Diagnosis:
             ``{"verdict": {...}, "metric": str, "location": {...}, "ranking": [...],
             "isolability": {...}, "tau_s": {...}, "caveats": [...]}``. The verdict holds
             ``effect``, ``gap_before``/``gap_after`` [N m], ``reduction``, ``params``, their
-            ``status`` (value, std, status), ``secondary`` (``effect``, ``params``,
+            ``status`` (value, std, status), ``std_method`` (the analysis' own error per parameter),
+            ``secondary`` (``effect``, ``params`` and ``status`` of the pair fitted together,
             ``gap_after`` with both effects [N m], ``reduction`` of both relative to
             ``gap_before``; null when no second effect counts) and ``calibration`` (the
             re-calibrated nominal values with ``at_bound`` flags).
@@ -289,7 +290,10 @@ class Diagnosis:
                              if top is not None and top.assessment is not None else {})
         verdict["secondary"] = None if self.secondary is None else {
             "effect": str(self.secondary.effect), "params": _jsonable(self.secondary.params),
-            "gap_after": float(self.secondary.gap_after), "reduction": float(self.secondary.reduction)}
+            "gap_after": float(self.secondary.gap_after), "reduction": float(self.secondary.reduction),
+            # the pair's numbers (both effects, fitted together) with their intervals and statuses
+            "status": ({k: v.to_mapping() for k, v in self.secondary.assessment.status.items()}
+                       if self.secondary.assessment is not None else {})}
         verdict["std_method"] = {k: float(v) for k, v in self.method_shift.items()}
         verdict["calibration"] = {k: {**v.to_mapping(), "at_bound": v.status == "at_bound"}
                                   for k, v in self.calibration.items()}
