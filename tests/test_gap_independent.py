@@ -232,6 +232,23 @@ def test_locked_output_turning_a_few_hundredths_of_a_radian_gets_no_absurd_verdi
     assert not cog["counts"] or all(v["status"] != "implausible" for v in cog["status"].values())
 
 
+@pytest.mark.slow
+def test_friction_levels_that_would_be_a_constant_torque_are_fitted_as_one_level():
+    # a 16-bit closed-loop square that hardly moves one way (stiction, F_c 0.276 N m): two levels fitted
+    # 0.965 / 0.277 N m, lower on the held-out blocks than one level, but a factor 3.5 apart, which is a
+    # constant torque, not friction; the candidate was then not identified and the verdict `none`. The
+    # friction law keeps one level for both directions, which the log identifies.
+    log = ind.make_independent_log("stiction", 4, 3)
+    assert log.case.closed_loop and log.case.encoder_counts == 2 ** 16
+    d = diagnose(log.experiment, joint=False)
+    coulomb = next(r for r in d.ranking if r.effect is Effect.COULOMB)
+    assert coulomb.params["F_c"] == coulomb.params["F_c_neg"]
+    assert coulomb.assessment.identified
+    f_c = coulomb.assessment.status["F_c"]
+    assert abs(f_c.value - log.case.effect_params["F_c"]) <= 1.96 * f_c.std
+    assert d.effect is not Effect.NONE
+
+
 # --- 6. the second effect is machine-readable --------------------------------------------------
 
 

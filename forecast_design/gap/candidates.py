@@ -604,8 +604,8 @@ def fit_candidate(data: GapData, effect: Effect) -> CandidateFit | None:
     """Fit one candidate; grid over its nonlinear parameter, chosen on the fit blocks.
 
     A friction law with a level per direction of motion is fitted with one level for both
-    directions as well; the levels stay apart only when that lowers the held-out gap
-    (:func:`_levels_chosen`).
+    directions as well; the levels stay apart only when that lowers the held-out gap and they are
+    friction, within :data:`ASYMMETRY_MAX_RATIO` of each other (:func:`_levels_chosen`).
 
     Parameters
     ----------
@@ -637,6 +637,12 @@ def _best_on_grid(data: GapData, effect: Effect, structures: Sequence[_Structure
     return best
 
 
+#: Largest ratio of a friction law's levels for the two directions of motion [-]: a drive's friction differs
+#: by direction by tens of percent; a level near zero one way is a constant torque (a driver's offset, cogging
+#: over part of a revolution), not friction.
+ASYMMETRY_MAX_RATIO = 3.0
+
+
 def _levels_chosen(data: GapData, effect: Effect,
                    wrap: Callable[[_Structure], _Structure | None]) -> CandidateFit | None:
     """The best grid point, with a friction level per direction only where the held-out data ask for it.
@@ -645,7 +651,11 @@ def _levels_chosen(data: GapData, effect: Effect,
     direction by tens of percent). Where the log moves almost always one way, the other
     direction's level is fitted to a handful of reversal rows and can take any value (39 N m
     on a log whose Coulomb level is 0.24 N m): on the held-out blocks it then predicts worse
-    than one shared level, which is the one kept.
+    than one shared level, which is the one kept. Two levels more than :data:`ASYMMETRY_MAX_RATIO`
+    apart are a constant torque, not friction (:mod:`.identifiability` refuses them), even where they
+    predict the held-out blocks better: the friction law is then the shared level (a 16-bit closed
+    loop that hardly moved one way fitted 0.965 / 0.277 N m, and its stiction went unnamed; one level,
+    0.278 N m, is identified, truth 0.276).
     """
     apart = _best_on_grid(data, effect, _structures(effect, data), wrap)
     if apart is None or effect not in (Effect.COULOMB, Effect.STICTION):
@@ -654,7 +664,12 @@ def _levels_chosen(data: GapData, effect: Effect,
     if key not in data.cache:
         data.cache[key] = [_tied_levels(s) for s in _structures(effect, data)]
     shared = _best_on_grid(data, effect, data.cache[key], wrap)
-    return shared if shared is not None and shared.gap_held_out <= apart.gap_held_out else apart
+    if shared is None:
+        return apart
+    # levels a factor ASYMMETRY_MAX_RATIO apart are a constant torque, not friction: the friction law is the shared one
+    lv = (apart.params.get("F_c", 0.0), apart.params.get("F_c_neg", 0.0))
+    friction = min(lv) >= max(lv) / ASYMMETRY_MAX_RATIO
+    return shared if shared.gap_held_out <= apart.gap_held_out or not friction else apart
 
 
 def levels_shared(fit: CandidateFit) -> bool:

@@ -30,7 +30,7 @@ probability or scales with the information in the log; none is tuned to one gene
    held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison between two laws that
    both count) on the held-out units where the two laws' predictions differ by more than the
    floor; a friction law keeps a level per direction of motion only where that lowers the
-   held-out gap (else one level for both, stated in a caveat);
+   held-out gap and the two levels are within a factor 3 (else one level for both, stated in a caveat);
    the same rule applies to the two-effect path and to the second effect.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
    reduction, graded ``weak`` (:mod:`.grading`), or ``none`` when there is none.

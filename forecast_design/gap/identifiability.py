@@ -53,7 +53,8 @@ from ..effects import Effect
 from ..errors import ForecastError
 from ..plausibility import RELATIVE_PRECISION, ParameterStatus, assess, effect_bound
 from ..friction._lsq import group_wald_p, hac_covariance
-from .candidates import (CandidateFit, _best_on_grid, _calibration, _design_matrix, _fit, _fit_rows as _candidate_fit_rows,
+from .candidates import (ASYMMETRY_MAX_RATIO, CandidateFit, _best_on_grid, _calibration, _design_matrix, _fit,
+                         _fit_rows as _candidate_fit_rows,
                          _tied_levels,
                          _structures, levels_shared)
 from .residuals import GapData, gap_log_scales, prepare_gap_data
@@ -68,8 +69,6 @@ ISOLABILITY_THRESHOLD = 0.3
 CALIBRATION = "calibration"
 #: Wald-test level of an effect's defining coefficients [-].
 WALD_ALPHA = 0.05
-#: Largest ratio of a friction candidate's levels for the two directions of motion [-].
-ASYMMETRY_MAX_RATIO = 3.0
 
 
 def _fit_rows(data: GapData, fit: CandidateFit) -> np.ndarray:
@@ -394,6 +393,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                 grid_std[i] = max(grid_std[i], 0.5 * abs(moved[nm] - base[nm]))
     std = np.hypot(std, grid_std)
     grid_sd = _grid_uncertainty(data, fit, design) if grid else {}
+    bias = np.zeros_like(std)
     for i, nm in enumerate(names):
         # a parameter read through a grid parameter (a bristle stiffness F_s / x_p) carries its uncertainty
         moved = [abs(d_nm) * sd for sd, d in grid_sd.values() for n2, d_nm in d.items() if n2 == nm and d_nm != 0.0]
@@ -403,7 +403,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
             # the environment equation weighs the environment against the spring torque, whose scale is known
             # to the datasheet tolerance only (on its bound, J, d and k_e come out scaled alike by up to the
             # tolerance, 3 %): a bounded bias, added so that the 95 % interval spans it whole
-            std[i] = std[i] + abs(base[nm]) * data.options.calibration_tolerance / 1.96
+            bias[i] = abs(base[nm]) * data.options.calibration_tolerance / 1.96
     scales = gap_log_scales(data)
     status: dict[str, ParameterStatus] = {}
     for i, nm in enumerate(names):
@@ -428,7 +428,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                                      plausible=st.plausible)
         else:
             bnd = effect_bound(nm, scales, static=base.get("F_s"))
-            st = assess(nm, base[nm], std=float(std[i]), bound=bnd)
+            st = assess(nm, base[nm], std=float(std[i] + bias[i]), bound=bnd)
             if st.status == "implausible" and _is_harmonic(nm) and bnd is not None and not math.isfinite(std[i]):
                 # a harmonic on a direction the log does not resolve (collinear over part of a revolution)
                 st = ParameterStatus(name=nm, value=base[nm], std=None, status="not_identifiable",
@@ -469,7 +469,10 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
     if len(scale_names) == 3:
         dev = np.asarray([base[k] for k in scale_names]) - 1.0
         tol = data.options.calibration_tolerance
-        sd = np.asarray([status[k].std if status[k].std is not None else np.nan for k in scale_names], dtype=float)
+        # the spread about one common scale is judged on the noise alone: the spring torque's bias moves all
+        # three alike and is no evidence that they differ
+        sd = np.asarray([status[k].std - bias[names.index(k)] if status[k].std is not None else np.nan
+                         for k in scale_names], dtype=float)
         if np.all(np.isfinite(sd) & (sd > 0)):
             # one common scale c explains the three within their uncertainty (weighted mean, chi2 test)
             w = 1.0 / sd ** 2
