@@ -132,10 +132,12 @@ def test_small_torque_gains_are_named_not_absorbed(gain):
     d = diagnose(exp, joint=False)
     assert d.effect is Effect.TORQUE_GAIN
     # the gain and a re-calibration within the datasheet tolerance are one direction: the reported
-    # interval carries that tolerance; with the generator's own nominal errors (up to 2 %) it covers the truth
+    # interval carries the distance from the fit's calibration to any within the tolerance, which covers the
+    # generator's own nominal errors (up to 2 %) too (with the +-3 % of a nominal calibration alone, the
+    # 1.05 and 1.1 gains, J_m on its bound, needed 2 % more)
     st_ = d.ranking[0].assessment.status["gain"]
     assert st_.status == "identified"
-    assert abs(st_.value - gain) <= 1.96 * st_.std + 0.02 * gain and st_.std <= 0.03
+    assert abs(st_.value - gain) <= 1.96 * st_.std
     assert (st_.value - 1.0) * (gain - 1.0) > 0
     # the re-calibration stays inside the datasheet tolerance it is allowed
     tb = exp.design.testbed
