@@ -50,7 +50,7 @@ from ..effects import Effect
 from .residuals import GapData, delayed_input, gap_log_scales, held_at_rest_rows, held_level_factor, near_rest
 
 __all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_constant_torque", "fit_all", "fit_pair",
-           "levels_shared", "CANDIDATE_EFFECTS"]
+           "levels_shared", "levels_are_friction", "ASYMMETRY_MAX_RATIO", "CANDIDATE_EFFECTS"]
 
 #: Effects with a candidate, in the order they are tried.
 CANDIDATE_EFFECTS: tuple[Effect, ...] = (
@@ -651,11 +651,9 @@ def _levels_chosen(data: GapData, effect: Effect,
     direction by tens of percent). Where the log moves almost always one way, the other
     direction's level is fitted to a handful of reversal rows and can take any value (39 N m
     on a log whose Coulomb level is 0.24 N m): on the held-out blocks it then predicts worse
-    than one shared level, which is the one kept. Two levels more than :data:`ASYMMETRY_MAX_RATIO`
-    apart are a constant torque, not friction (:mod:`.identifiability` refuses them), even where they
-    predict the held-out blocks better: the friction law is then the shared level (a 16-bit closed
-    loop that hardly moved one way fitted 0.965 / 0.277 N m, and its stiction went unnamed; one level,
-    0.278 N m, is identified, truth 0.276).
+    than one shared level, which is the one kept. Levels that are not friction (:func:`levels_are_friction`)
+    never stay apart, even where they predict better (a closed loop that hardly moved one way fitted
+    0.965 / 0.277 N m; one level, 0.278 N m, is identified, truth 0.276).
     """
     apart = _best_on_grid(data, effect, _structures(effect, data), wrap)
     if apart is None or effect not in (Effect.COULOMB, Effect.STICTION):
@@ -666,10 +664,24 @@ def _levels_chosen(data: GapData, effect: Effect,
     shared = _best_on_grid(data, effect, data.cache[key], wrap)
     if shared is None:
         return apart
-    # levels a factor ASYMMETRY_MAX_RATIO apart are a constant torque, not friction: the friction law is the shared one
-    lv = (apart.params.get("F_c", 0.0), apart.params.get("F_c_neg", 0.0))
-    friction = min(lv) >= max(lv) / ASYMMETRY_MAX_RATIO
-    return shared if shared.gap_held_out <= apart.gap_held_out or not friction else apart
+    return shared if shared.gap_held_out <= apart.gap_held_out or not levels_are_friction(apart.params) else apart
+
+
+def levels_are_friction(params: Mapping[str, Any]) -> bool:
+    """Whether a friction law's two levels ``F_c`` / ``F_c_neg`` [N m] are within :data:`ASYMMETRY_MAX_RATIO`.
+
+    Parameters
+    ----------
+    params : Mapping[str, Any]
+        A fit's parameters (a missing level counts as 0).
+
+    Returns
+    -------
+    bool
+        False when one level is below the other divided by the ratio: a constant torque, not friction.
+    """
+    lv = (float(params.get("F_c", 0.0)), float(params.get("F_c_neg", 0.0)))
+    return not (max(lv) > 0.0 and min(lv) < max(lv) / ASYMMETRY_MAX_RATIO)
 
 
 def levels_shared(fit: CandidateFit) -> bool:

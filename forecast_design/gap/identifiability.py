@@ -51,12 +51,11 @@ from scipy import stats
 
 from ..effects import Effect
 from ..errors import ForecastError
-from ..plausibility import RELATIVE_PRECISION, ParameterStatus, assess, effect_bound
+from ..plausibility import ParameterStatus, assess, effect_bound
 from ..friction._lsq import group_wald_p, hac_covariance
 from .candidates import (ASYMMETRY_MAX_RATIO, CandidateFit, _best_on_grid, _calibration, _design_matrix, _fit,
-                         _fit_rows as _candidate_fit_rows,
-                         _tied_levels,
-                         _structures, levels_shared)
+                         _fit_rows as _candidate_fit_rows, _structures, _tied_levels, levels_are_friction,
+                         levels_shared)
 from .residuals import GapData, gap_log_scales, prepare_gap_data
 
 __all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "terms_wald_p", "grid_neighbours",
@@ -302,9 +301,10 @@ def method_shift(data: GapData, fit: CandidateFit) -> dict[str, float]:
 def with_method_error(assessment: EffectAssessment, shift: Mapping[str, float]) -> EffectAssessment:
     """An assessment whose standard deviations carry the method's shift (:func:`method_shift`) in quadrature.
 
-    An ``identified`` number whose widened 95 % interval no longer excludes zero or exceeds
-    :data:`~forecast_design.plausibility.RELATIVE_PRECISION` of its value becomes ``uncertain``; the other
-    statuses do not depend on the interval and stay.
+    An ``identified`` number is graded again on its widened interval (:func:`~forecast_design.plausibility.assess`:
+    ``uncertain`` when the 95 % interval includes zero or is wider than
+    :data:`~forecast_design.plausibility.RELATIVE_PRECISION` of the value); the other statuses do not depend
+    on the interval and stay.
 
     Parameters
     ----------
@@ -325,13 +325,10 @@ def with_method_error(assessment: EffectAssessment, shift: Mapping[str, float]) 
             status[nm] = st
             continue
         std = math.hypot(st.std, d)
-        st = dataclasses.replace(st, std=std)
-        if st.status == "identified" and not (1.96 * std < abs(st.value) and 1.96 * std <= RELATIVE_PRECISION * abs(st.value)):
-            st = dataclasses.replace(st, status="uncertain",
-                                     reason=f"{nm} = {st.value:.4g}: with the analysis' own error ({d:.2g}, the shift at half the "
-                                            f"position filter's cut-off) its 95 % interval (+- {1.96 * std:.2g}) is wider than "
-                                            f"{100 * RELATIVE_PRECISION:g} % of the value")
-        status[nm] = st
+        if st.status == "identified":
+            # the interval's part of the grading, as for any number (an identified one passed the others)
+            st = dataclasses.replace(assess(nm, st.value, std=std), plausible=st.plausible)
+        status[nm] = dataclasses.replace(st, std=std)
     return dataclasses.replace(assessment, status=status)
 
 
@@ -503,8 +500,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         if nm in status and nm not in secondary and status[nm].status == "at_bound" \
                 and nm in ("delay_s", "width_rad", "v_s"):
             reasons.append(f"{status[nm].reason}: a search that stops at its bound has not found the value")
-    if "F_c_neg" in base and max(base["F_c"], base["F_c_neg"]) > 0 and \
-            min(base["F_c"], base["F_c_neg"]) < ASYMMETRY_MAX_RATIO ** -1 * max(base["F_c"], base["F_c_neg"]):
+    if "F_c_neg" in base and not levels_are_friction(base):
         # a drive's friction differs by direction by tens of percent; a level near zero one way is a constant
         # torque (a driver's offset, cogging over part of a revolution), not friction
         reasons.append(f"friction levels {base['F_c']:.3g} / {base['F_c_neg']:.3g} N m (positive / negative motion) "
@@ -534,10 +530,10 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
     return out
 
 
-#: The resolution of the log where a candidate's grid search starts (:func:`.candidates._build_structures`):
-#: a Stribeck bump twice the speed resolution wide, a presliding displacement or a dead band of one count.
 #: Parameters of an environment mismatch (absolute and relative to the declared environment).
 _ENVIRONMENT_NAMES = frozenset({"J", "d", "k_e", "J_scale", "d_scale", "k_e_scale"})
+#: The resolution of the log where a candidate's grid search starts (:func:`.candidates._build_structures`):
+#: a Stribeck bump twice the speed resolution wide, a presliding displacement or a dead band of one count.
 _RESOLUTION_END = {"v_s": lambda sc: max(1e-3, 2.0 * sc.speed_resolution),
                    "x_p": lambda sc: max(1e-4, sc.encoder_step),
                    "width_rad": lambda sc: 2.0 * sc.encoder_step}
