@@ -87,7 +87,7 @@ from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
 from .grading import explainable_reduction, noise_floor
 from .heldout import NESTED_ALPHA, correlation_length, held_out_test, richer_law_justified, test_units
-from .residuals import GapData, GapOptions, prepare_gap_data, gap_log_scales
+from .residuals import GapData, GapOptions, TauSSource, prepare_gap_data, gap_log_scales
 
 __all__ = ["Diagnosis", "RankedCandidate", "diagnose", "held_out_test", "test_units", "correlation_length"]
 
@@ -375,7 +375,8 @@ def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint
             # the column sits between a logger's rounding and a quiet sensor: try the other reading too
             # and keep the one whose verdict explains more of its gap (what the data support)
             other = "derived" if src.measured else "measured"
-            alt = _diagnose(experiment, dataclasses.replace(diag.data.options, tau_s_reading=other), joint)
+            alt = _diagnose(experiment, dataclasses.replace(diag.data.options, tau_s_reading=other), joint,
+                            tau_s_source=src)
             diag = _choose_reading(diag, alt)
         return diag
 
@@ -396,8 +397,9 @@ def _choose_reading(first: Diagnosis, second: Diagnosis) -> Diagnosis:
     return dataclasses.replace(keep, caveats=(note,) + tuple(keep.caveats), reading=alternative)
 
 
-def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool) -> Diagnosis:
-    data = prepare_gap_data(experiment, options)
+def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *,
+              tau_s_source: TauSSource | None = None) -> Diagnosis:
+    data = prepare_gap_data(experiment, options, tau_s_source=tau_s_source)
     opts = data.options
     base = fit_baseline(data)
     fits = fit_all(data, CANDIDATE_EFFECTS)

@@ -285,7 +285,7 @@ def method_shift(data: GapData, fit: CandidateFit) -> dict[str, float]:
     half = dataclasses.replace(opts, position_cutoff_hz=0.5 * data.settings.position_cutoff_hz,
                                tau_s_reading=src if src in ("derived", "measured") else opts.tau_s_reading)
     try:
-        other = prepare_gap_data(data.experiment, half)
+        other = prepare_gap_data(data.experiment, half, tau_s_source=data.tau_s_source)
     except ForecastError:
         return {}
     structures = _structures(fit.effect, other)

@@ -623,7 +623,8 @@ def equation_band(experiment: Experiment, options: GapOptions) -> tuple[float, f
     return float(dec), cutoff
 
 
-def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) -> GapData:
+def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None, *,
+                     tau_s_source: TauSSource | None = None) -> GapData:
     """Filter, differentiate and decimate a log into nominal equation errors.
 
     Parameters
@@ -632,6 +633,9 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
         The measured or simulated log; its design is the nominal model.
     options : GapOptions, optional
         Settings; defaults to ``GapOptions()``.
+    tau_s_source : TauSSource, optional
+        The ``tau_s`` column's classification already made on this log (a repeat of the analysis with
+        other settings); default: classified here (:func:`~forecast_design.tau_s_source.classify_tau_s`).
 
     Returns
     -------
@@ -700,7 +704,8 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None) 
             f"(need >= {4 * options.n_blocks}); record a longer run",
             name="n_blocks", value=options.n_blocks)
 
-    tau_s_source = classify_tau_s(sig.tau_s_derived, tau_s, theta, q)
+    if tau_s_source is None:
+        tau_s_source = classify_tau_s(sig.tau_s_derived, tau_s, theta, q)
     if options.tau_s_reading != "auto" and tau_s_source.source != "absent":
         # a reading forced by the caller (the diagnosis tries both when the decision is uncertain)
         tau_s_source = dataclasses.replace(tau_s_source, source=options.tau_s_reading)
