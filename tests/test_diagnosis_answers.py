@@ -140,6 +140,21 @@ def test_stiction_on_a_14_bit_log_is_not_rejected_for_a_deflection_below_one_cou
     assert diag.params["F_s"] > diag.params["F_c"]
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("noise_seed", [101, 104])
+def test_a_breakaway_held_at_rest_a_little_in_every_unit_is_stiction(noise_seed):
+    # an open-loop square on a locked output, 16-bit encoders, a torque sensor, asymmetric stiction
+    # (F_c 0.279 / 0.293, F_s 0.445 / 0.459 N m): the motor rests 43 % of the time and holds up to F_s.
+    # Stiction is better in 9 of the 10 held-out units, but beyond the quantisation floor in only two;
+    # the test on those two alone named coulomb (p = 0.15) for these noise draws (two of four; the
+    # generator's case of independent seed 3, log 5, with the sensor and encoder noise drawn again)
+    case = dataclasses.replace(draw_independent_case("stiction", 5, 3), seed=noise_seed)
+    exp, truth = simulate_independent(case)
+    diag = diagnose(exp, joint=False)
+    assert diag.effect is Effect.STICTION
+    assert diag.params["F_s"] == pytest.approx(case.effect_params["F_s"], rel=0.1)
+
+
 @pytest.mark.parametrize("counts", [2**14, 2**16])
 def test_coulomb_friction_on_a_coarse_encoder_stays_coulomb(counts):
     # the same sweep with Coulomb friction alone (sticking below F_c): the richer laws predict the same

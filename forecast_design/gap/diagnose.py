@@ -29,7 +29,7 @@ probability or scales with the information in the log; none is tuned to one gene
    (stiction: ``F_s > F_c`` or bristles wider than one count; position_friction: its harmonics) and beats ``coulomb`` by the
    held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison between two laws that
    both count) on the held-out units where the two laws' predictions differ by more than the
-   floor; a friction law keeps a level per direction of motion only where that lowers the
+   floor and on all of them (Simes' combination of the two); a friction law keeps a level per direction of motion only where that lowers the
    held-out gap and the two levels are within a factor 3 (else one level for both, stated in a caveat);
    the same rule applies to the two-effect path and to the second effect.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
@@ -330,7 +330,7 @@ def _metric_text(data: GapData) -> str:
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
             f"within its plausible range); the winner minimises the held-out BIC; stiction/position_friction must "
             f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
-            f"than the floor; a second effect fitted together with the winner is reported when it passes the test against "
+            f"than the floor and on all of them (Simes' combination); a second effect fitted together with the winner is reported when it passes the test against "
             f"the winner alone.")
 
 

@@ -153,7 +153,11 @@ def nested_law_test(data: GapData, simpler: CandidateFit, richer: CandidateFit) 
     squared difference at least the unit's :func:`.grading.noise_floor`) carry evidence: elsewhere
     the two laws predict the same torque within what the encoders resolve, and on a coarse encoder
     those units are quantisation noise that only widens the test. On the units left, the paired
-    t-test of :func:`held_out_test` on the log ratios ``log(SSE_simpler / SSE_richer)``.
+    t-test of :func:`held_out_test` on the log ratios ``log(SSE_simpler / SSE_richer)``. The same
+    t-test over every unit finds what the first misses: differences each below the floor that all
+    point one way (a breakaway held at rest, seen a little in every unit). The two p-values are
+    combined by Simes' rule, ``min(2 p_(1), p_(2))``, a valid level for tests that are positively
+    dependent, as two tests on the same units are (Sarkar, Ann. Statist. 26, 1998).
 
     Parameters
     ----------
@@ -165,7 +169,7 @@ def nested_law_test(data: GapData, simpler: CandidateFit, richer: CandidateFit) 
     Returns
     -------
     p : float
-        p-value of "the richer law is no better" [-]; 1 when fewer than two units separate the laws.
+        Combined p-value of "the richer law is no better" [-].
     n_units : int
         Number of units where the laws' predictions differ by more than the floor.
     """
@@ -181,9 +185,14 @@ def nested_law_test(data: GapData, simpler: CandidateFit, richer: CandidateFit) 
     floor = np.bincount(u, weights=noise_floor(data)[use], minlength=n)
     informative = (apart >= floor) & (apart > 0.0)
     k = int(np.count_nonzero(informative))
-    if k < 2:
-        return 1.0, k
-    return _log_ratio_p(a[informative], b[informative]), k
+    p_apart = _log_ratio_p(a[informative], b[informative]) if k >= 2 else 1.0
+    # and over every unit: differences below the floor in each unit still add up when they all point
+    # one way (a stiction log resting 43 % of the time, its breakaway held at rest: 9 of 10 units
+    # better, 2 of them beyond the floor); two tests on the same units, positively dependent:
+    # Simes' combination (valid there, and never below both tests' own power, as Bonferroni's is)
+    p_all = _log_ratio_p(a, b)
+    lo, hi = sorted((p_apart, p_all))
+    return min(1.0, 2.0 * lo, hi), k
 
 
 def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: CandidateFit) -> bool:
