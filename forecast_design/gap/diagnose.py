@@ -19,7 +19,10 @@ probability or scales with the information in the log; none is tuned to one gene
    held-out *test units* gives p < ``alpha / n_candidates`` (Bonferroni) -- units are
    twice the correlation length of the candidate's residual (:func:`test_units`), so
    the number of independent units, and the power, grows with the log's length and
-   its excitation -- and (d) it is *identified* (:mod:`.identifiability`): its defining
+   its excitation; the test runs over every unit and over the units where the
+   candidate's prediction differs from the nominal one by more than the floor (an effect
+   that acts in a few units, a delay at the edges of a slow square), Simes-combined
+   (:func:`.heldout.units_test`) -- and (d) it is *identified* (:mod:`.identifiability`): its defining
    coefficients pass a joint Wald test with the residual's autocorrelation accounted
    for, and no parameter is outside the plausible range of :mod:`forecast_design.plausibility`.
 4. Among the candidates that count, the winner minimises a held-out BIC,
@@ -29,7 +32,8 @@ probability or scales with the information in the log; none is tuned to one gene
    (stiction: ``F_s > F_c`` or bristles wider than one count; position_friction: its harmonics) and beats ``coulomb`` by the
    held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison between two laws that
    both count) on the held-out units where the two laws' predictions differ by more than the
-   floor and on all of them (Simes' combination of the two); a friction law keeps a level per direction of motion only where that lowers the
+   floor and on all of them (Simes' combination of the two), or, for stiction, shows its breakaway
+   both at rest and in a Stribeck coefficient distinguishable from zero; a friction law keeps a level per direction of motion only where that lowers the
    held-out gap and the two levels are within a factor 3 (else one level for both, stated in a caveat);
    the same rule applies to the two-effect path and to the second effect.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
@@ -326,11 +330,13 @@ def _metric_text(data: GapData) -> str:
             f">= {100 * o.min_reduction:g} % of the held-out gap above the encoders' quantisation floor (an effect "
             f"that passes every other test but removes less is the verdict graded weak when none counts) and explains >= {100 * o.min_effect_fraction:g} % of the RMS command, a one-sided "
             f"t-test on the log ratio of squared errors over held-out units of twice the residual's correlation "
-            f"length gives p < {o.alpha:g}/n_candidates (Bonferroni), and it is identified (defining coefficients "
+            f"length (all units, and those where the candidate differs from the nominal model by more than the floor, "
+            f"Simes' combination) gives p < {o.alpha:g}/n_candidates (Bonferroni), and it is identified (defining coefficients "
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
             f"within its plausible range); the winner minimises the held-out BIC; stiction/position_friction must "
             f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
-            f"than the floor and on all of them (Simes' combination); a second effect fitted together with the winner is reported when it passes the test against "
+            f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway both at rest and in a "
+            f"Stribeck coefficient distinguishable from zero; a second effect fitted together with the winner is reported when it passes the test against "
             f"the winner alone.")
 
 
@@ -422,11 +428,11 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             red_own = 0.0   # below the motor's torque accuracy: not an effect
         all_units = test_units(data, fit)
         units = np.where(own, all_units, -1)
-        p = held_out_test(base, fit, held_blocks, units=units)
+        p = held_out_test(base, fit, held_blocks, units=units, floor=floor)
         # and the total gap, all equations, must drop by the same test: a candidate that explains its own
         # (quiet) equation while the total hardly moves is no verdict (an environment mismatch fitted to an
         # environment equation of quantisation next to a motor equation full of stiction)
-        p_total = p if bool(np.all(own)) else held_out_test(base, fit, held_blocks, units=all_units)
+        p_total = p if bool(np.all(own)) else held_out_test(base, fit, held_blocks, units=all_units, floor=floor)
         lowers_total = red > 0.0 and p_total < alpha
         sse = fit.gap_held_out ** 2 * n_held
         bic = n_held * math.log(max(sse / n_held, 1e-300)) + fit.n_params * math.log(n_held)
