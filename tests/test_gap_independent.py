@@ -265,6 +265,31 @@ def test_friction_levels_that_would_be_a_constant_torque_are_fitted_as_one_level
     assert d.effect is not Effect.NONE
 
 
+# --- 5b. the environment fit on a coarse output encoder -------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("word, index, seed, scale, want", [
+    ("none", 0, 54, 0.25, Effect.NONE),                   # stiff, 16-bit: J fitted at 0.22 of the declared one
+    ("none", 4, 54, 0.25, Effect.NONE),                   # stiff, 16-bit: J at 0.69
+    ("environment_mismatch", 6, 54, 1.0, Effect.ENVIRONMENT_MISMATCH),   # stiff, 16-bit, d x 2.55: kept
+])
+def test_an_output_inertia_shrunk_by_the_encoders_quantisation_is_no_mismatch(word, index, seed, scale, want):
+    # errors in variables: the output's quantisation in q'' makes a least-squares J "explain" the noise by
+    # shrinking; in half the band the effect-free logs' J comes back to 0.92-0.99 while a true mismatch keeps its
+    # value (the d x 2.55 of the third log: 2.542 -> 2.546). Before: both effect-free logs were named
+    # environment_mismatch, with J, d, k_e identified
+    log = ind.make_independent_log(word, index, seed, magnitude_scale=scale)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is want
+    env = next(r for r in d.ranking if r.effect is Effect.ENVIRONMENT_MISMATCH)
+    if want is Effect.NONE:
+        assert not env.identified
+        assert any("half the equation band" in reason for reason in env.assessment.reasons)
+    else:
+        assert d.params["d_scale"] == pytest.approx(log.case.effect_params["d_factor"], rel=0.03)
+
+
 # --- 6. the second effect is machine-readable --------------------------------------------------
 
 
