@@ -25,8 +25,9 @@ probability or scales with the information in the log; none is tuned to one gene
    (:func:`.heldout.units_test`) -- and (d) it is *identified* (:mod:`.identifiability`): its defining
    coefficients pass a joint Wald test with the residual's autocorrelation accounted
    for, and no parameter is outside the plausible range of :mod:`forecast_design.plausibility`; an
-   environment mismatch also keeps its deviation in half the equation band
-   (:func:`.identifiability.environment_in_half_band`: the output's quantisation shrinks a fitted J).
+   environment mismatch and a delay also persist in half the equation band
+   (:func:`.halfband.persists_in_half_band`: the encoders' quantisation shrinks a fitted J, and a
+   closed loop's answer to it looks like a delay).
 4. Among the candidates that count, the winner minimises a held-out BIC,
    ``n log(SSE / n) + p log(n)`` (p = number of effect parameters).
 5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
@@ -86,8 +87,9 @@ from .candidates import (
     levels_shared,
     _FRICTION,
 )
-from .identifiability import (CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, environment_in_half_band, isolability,
+from .identifiability import (CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, isolability,
                               method_shift, with_method_error)
+from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
@@ -335,7 +337,7 @@ def _metric_text(data: GapData) -> str:
             f"length (all units, and those where the candidate differs from the nominal model by more than the floor, "
             f"Simes' combination) gives p < {o.alpha:g}/n_candidates (Bonferroni), and it is identified (defining coefficients "
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
-            f"within its plausible range; an environment mismatch also keeps its deviation in half the band); the winner minimises the held-out BIC; stiction/position_friction must "
+            f"within its plausible range; an environment mismatch or a delay also persists in half the band); the winner minimises the held-out BIC; stiction/position_friction must "
             f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
             f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway both at rest and in a "
             f"Stribeck coefficient distinguishable from zero; a second effect fitted together with the winner is reported when it passes the test against "
@@ -439,8 +441,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         sse = fit.gap_held_out ** 2 * n_held
         bic = n_held * math.log(max(sse / n_held, 1e-300)) + fit.n_params * math.log(n_held)
         assessment = assess_fit(data, fit)
-        if fit.effect is Effect.ENVIRONMENT_MISMATCH and assessment.identified and p < alpha and lowers_total:
-            assessment = environment_in_half_band(data, fit, assessment)     # a refit: only where it can decide
+        if fit.effect in HALF_BAND_CHECKED and assessment.identified and p < alpha and lowers_total:
+            assessment = persists_in_half_band(data, fit, assessment)     # a refit: only where it can decide
         ranked.append(RankedCandidate(effect=fit.effect, gap_after=fit.gap_held_out,
                                       reduction=float(min(max(red, 0.0), 1.0)), params=fit.params,
                                       p_value=p, bic=bic, assessment=assessment, reduction_own=red_own,

@@ -59,7 +59,7 @@ from .candidates import (ASYMMETRY_MAX_RATIO, CandidateFit, _best_on_grid, _cali
 from .residuals import GapData, gap_log_scales, prepare_gap_data
 
 __all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "terms_wald_p", "grid_neighbours",
-           "method_shift", "with_method_error", "environment_in_half_band",
+           "method_shift", "with_method_error",
            "isolability", "gap_log_scales", "ISOLABILITY_THRESHOLD", "CALIBRATION"]
 
 #: Smallest separation (sine of the largest principal angle) at which two candidates count as isolable [-].
@@ -330,53 +330,6 @@ def with_method_error(assessment: EffectAssessment, shift: Mapping[str, float]) 
             st = dataclasses.replace(assess(nm, st.value, std=std), plausible=st.plausible)
         status[nm] = dataclasses.replace(st, std=std)
     return dataclasses.replace(assessment, status=status)
-
-
-def environment_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAssessment) -> EffectAssessment:
-    """An environment mismatch whose deviation does not persist in half the equation band is not identified.
-
-    The environment equation reads the output's acceleration ``q''``, whose quantisation grows with the band as
-    ``f^2.5``; on a coarse output encoder a least-squares fit of ``J`` then "explains" that noise by shrinking
-    ``J`` (errors in variables: effect-free 14- and 16-bit logs in a stiff environment fitted ``J`` at 0.12-0.69
-    of the declared value, and 0.92-1.0 with the band halved, while every true mismatch of seven seeds kept its
-    value within a few percent). The candidate is refitted on the log prepared with half the decimated rate;
-    a scale's deviation persists when, in half the band, it keeps its sign, at least half its size and more than
-    the spring torque's datasheet tolerance. With none persisting, the assessment gets that reason.
-
-    Parameters
-    ----------
-    data : GapData
-        The prepared log.
-    fit : CandidateFit
-        Its environment_mismatch fit.
-    assessment : EffectAssessment
-        That fit's assessment.
-
-    Returns
-    -------
-    EffectAssessment
-        The same, or not identified with the scales in both bands as the reason; unchanged when the log is too
-        short for half the band.
-    """
-    st, opts = data.settings, data.options
-    dec = 0.5 * st.decimated_rate_hz
-    half = dataclasses.replace(opts, decimated_rate_hz=dec, position_cutoff_hz=min(st.position_cutoff_hz, dec))
-    try:
-        other = prepare_gap_data(data.experiment, half, tau_s_source=data.tau_s_source)
-    except ForecastError:
-        return assessment
-    refit = _best_on_grid(other, fit.effect, _structures(fit.effect, other), lambda x: x)
-    if refit is None:
-        return assessment
-    tol = opts.calibration_tolerance
-    pairs = [(k, fit.params[k], refit.params[k]) for k in ("J_scale", "d_scale", "k_e_scale")
-             if k in fit.params and k in refit.params]
-    if any((a - 1.0) * (b - 1.0) > 0.0 and abs(b - 1.0) >= max(0.5 * abs(a - 1.0), tol) for _, a, b in pairs):
-        return assessment
-    moved = ", ".join(f"{k} {a:.3g} -> {b:.3g}" for k, a, b in pairs)
-    why = (f"the deviation does not persist in half the equation band ({moved}): the output encoder's "
-           "quantisation in q'', not the environment")
-    return dataclasses.replace(assessment, identified=False, reasons=tuple(assessment.reasons) + (why,))
 
 
 def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
