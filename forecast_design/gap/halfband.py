@@ -39,7 +39,7 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
       20 ms, the search's end, at 0.04). The delay's effective size, coefficient times delay, persists when in
       half the band it is within a factor 2 (true delays of four seeds: within 1.5, most within 1 %);
     * a friction level of a few millinewton metres on an effect-free 16-bit log (1.7 mN m; in half the band
-      0.1 mN m, while true levels of 0.04-0.12 N m moved by at most 3 %) must keep at least half its size.
+      0.1 mN m, while true levels of 0.04-0.12 N m moved by at most 5 %) must keep at least half its size.
 
     The candidate is refitted on the log prepared with half the decimated rate.
 
