@@ -25,9 +25,9 @@ probability or scales with the information in the log; none is tuned to one gene
    (:func:`.heldout.units_test`) -- and (d) it is *identified* (:mod:`.identifiability`): its defining
    coefficients pass a joint Wald test with the residual's autocorrelation accounted
    for, and no parameter is outside the plausible range of :mod:`forecast_design.plausibility`; an
-   environment mismatch and a delay also persist in half the equation band
-   (:func:`.halfband.persists_in_half_band`: the encoders' quantisation shrinks a fitted J, and a
-   closed loop's answer to it looks like a delay).
+   environment mismatch, a delay and a Coulomb level also persist in half the equation band
+   (:func:`.halfband.persists_in_half_band`: the encoders' quantisation shrinks a fitted J, a closed
+   loop's answer to it looks like a delay, and it can fit a level of a few mN m).
 4. Among the candidates that count, the winner minimises a held-out BIC,
    ``n log(SSE / n) + p log(n)`` (p = number of effect parameters).
 5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
@@ -337,7 +337,7 @@ def _metric_text(data: GapData) -> str:
             f"length (all units, and those where the candidate differs from the nominal model by more than the floor, "
             f"Simes' combination) gives p < {o.alpha:g}/n_candidates (Bonferroni), and it is identified (defining coefficients "
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
-            f"within its plausible range; an environment mismatch or a delay also persists in half the band); the winner minimises the held-out BIC; stiction/position_friction must "
+            f"within its plausible range; an environment mismatch, a delay or a Coulomb level also persists in half the band); the winner minimises the held-out BIC; stiction/position_friction must "
             f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
             f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway both at rest and in a "
             f"Stribeck coefficient distinguishable from zero; a second effect fitted together with the winner is reported when it passes the test against "

@@ -12,10 +12,9 @@ from __future__ import annotations
 import dataclasses
 
 from ..effects import Effect
-from ..errors import ForecastError
-from .candidates import CandidateFit, _best_on_grid, _structures, _tied_levels, levels_shared
-from .identifiability import EffectAssessment, assess_fit
-from .residuals import GapData, prepare_gap_data
+from .candidates import CandidateFit
+from .identifiability import EffectAssessment, assess_fit, refit_prepared_again
+from .residuals import GapData
 
 __all__ = ["persists_in_half_band", "HALF_BAND_CHECKED"]
 
@@ -25,9 +24,9 @@ HALF_BAND_CHECKED = (Effect.ENVIRONMENT_MISMATCH, Effect.DELAY, Effect.COULOMB)
 
 
 def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAssessment) -> EffectAssessment:
-    """An environment mismatch or a delay that does not persist in half the equation band is not identified.
+    """An environment mismatch, a delay or a Coulomb level that does not persist in half the band is not identified.
 
-    Quantisation, differentiated twice, grows with the band as ``f^2.5``, and two fits can "explain" it:
+    Quantisation, differentiated twice, grows with the band as ``f^2.5``, and three fits can "explain" it:
 
     * the environment equation reads the output's acceleration ``q''``: on a coarse output encoder least squares
       shrinks ``J`` (errors in variables: effect-free 14- and 16-bit logs in a stiff environment fitted ``J`` at
@@ -50,7 +49,7 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
     data : GapData
         The prepared log.
     fit : CandidateFit
-        Its environment_mismatch or delay fit.
+        Its environment_mismatch, delay or coulomb fit.
     assessment : EffectAssessment
         That fit's assessment.
 
@@ -62,11 +61,10 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
     """
     if fit.effect not in HALF_BAND_CHECKED:
         return assessment
-    opts = data.options
-    refit = _refit_in_band(data, fit, 0.5)
-    if refit is None:
+    half = _refit_in_band(data, fit, 0.5)
+    if half is None:
         return assessment
-    refit = refit[1]
+    refit = half[1]
     if fit.effect is Effect.COULOMB:
         a, b = (max(f.params["F_c"], f.params.get("F_c_neg", 0.0)) for f in (fit, refit))
         if b >= 0.5 * a:
@@ -80,7 +78,7 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
         why = (f"the delay does not persist in half the equation band (coefficient x delay {1e3 * a:.3g} -> "
                f"{1e3 * b:.3g} ms): the closed loop's answer to the encoders' noise, not a delay")
     else:
-        tol = opts.calibration_tolerance
+        tol = data.options.calibration_tolerance
         pairs = [(k, fit.params[k], refit.params[k]) for k in ("J_scale", "d_scale", "k_e_scale")
                  if k in fit.params and k in refit.params]
         def persists(a: float, b: float) -> bool:
@@ -106,18 +104,6 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
 
 def _refit_in_band(data: GapData, fit: CandidateFit, factor: float) -> tuple[GapData, CandidateFit] | None:
     """The log prepared with ``factor`` times the decimated rate and the candidate refitted on it (None: too short)."""
-    st = data.settings
-    dec = factor * st.decimated_rate_hz
-    options = dataclasses.replace(data.options, decimated_rate_hz=dec,
-                                  position_cutoff_hz=min(st.position_cutoff_hz, dec))
-    try:
-        # prepared again for each candidate checked (rarely more than one): kept, its raw-rate columns would
-        # stay in memory for the whole diagnosis
-        other = prepare_gap_data(data.experiment, options, tau_s_source=data.tau_s_source)
-    except ForecastError:
-        return None
-    structures = _structures(fit.effect, other)
-    if levels_shared(fit):
-        structures = [_tied_levels(x) for x in structures]
-    refit = _best_on_grid(other, fit.effect, structures, lambda x: x)
-    return None if refit is None else (other, refit)
+    dec = factor * data.settings.decimated_rate_hz
+    return refit_prepared_again(data, fit, dataclasses.replace(
+        data.options, decimated_rate_hz=dec, position_cutoff_hz=min(data.settings.position_cutoff_hz, dec)))

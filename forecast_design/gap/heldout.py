@@ -16,6 +16,7 @@ named coulomb.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -62,17 +63,11 @@ def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks:
     """
     if units is None:
         return _log_ratio_p(reference.block_sse[held_blocks], candidate.block_sse[held_blocks])
-    if floor is None:
-        use = units >= 0
-        n_units = int(units.max()) + 1 if np.any(use) else 0
-        a = np.bincount(units[use], weights=reference.residual[use] ** 2, minlength=n_units)
-        b = np.bincount(units[use], weights=candidate.residual[use] ** 2, minlength=n_units)
-        return _log_ratio_p(a, b)
     return units_test(reference.residual, candidate.residual, units, floor)[0]
 
 
 def units_test(reference: np.ndarray, candidate: np.ndarray, units: np.ndarray,
-               floor: np.ndarray) -> tuple[float, int]:
+               floor: np.ndarray | None) -> tuple[float, int]:
     """Paired test over held-out units that ``candidate`` predicts better, on every unit and where the fits differ.
 
     Two one-sided t-tests on the per-unit log ratios ``log(SSE_reference / SSE_candidate)``: over every
@@ -92,8 +87,9 @@ def units_test(reference: np.ndarray, candidate: np.ndarray, units: np.ndarray,
         Stacked residuals of the two fits [N m].
     units : ndarray of int
         Test unit of every stacked row (-1: not tested), :func:`test_units`.
-    floor : ndarray
-        Quantisation floor of every stacked row (:func:`.grading.noise_floor`) [N m^2].
+    floor : ndarray or None
+        Quantisation floor of every stacked row (:func:`.grading.noise_floor`) [N m^2]; None: the test over
+        every unit alone.
 
     Returns
     -------
@@ -109,6 +105,8 @@ def units_test(reference: np.ndarray, candidate: np.ndarray, units: np.ndarray,
     u = units[use]
     a = np.bincount(u, weights=reference[use] ** 2, minlength=n)
     b = np.bincount(u, weights=candidate[use] ** 2, minlength=n)
+    if floor is None:
+        return _log_ratio_p(a, b), 0
     apart = np.bincount(u, weights=(reference[use] - candidate[use]) ** 2, minlength=n)
     informative = (apart >= np.bincount(u, weights=floor[use], minlength=n)) & (apart > 0.0)
     k = int(np.count_nonzero(informative))
@@ -308,9 +306,10 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     names = [c.name for c in s.coefs] if s is not None else []
     if "dF" in names:
         bristles = next(((value, lo) for nm, value, lo, _ in s.grid if nm == "x_p"), None)
-        resolved = (bristles is not None and bristles[0] > bristles[1] * (1.0 + 1e-9)) or \
-            breakaway_resolved_at_rest(data, richer, simpler) or \
-            terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA
+        # each computed once, when first asked for (the bristles may decide alone)
+        at_rest = functools.cache(lambda: breakaway_resolved_at_rest(data, richer, simpler))
+        stribeck = functools.cache(lambda: terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA)
+        resolved = (bristles is not None and bristles[0] > bristles[1] * (1.0 + 1e-9)) or at_rest() or stribeck()
     else:
         harmonics = [nm for nm in names if len(nm) > 1 and nm[0] in "ab" and nm[1:].isdigit()]
         resolved = terms_wald_p(data, richer, harmonics) < NESTED_ALPHA
@@ -324,5 +323,4 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     # stiction log: stiction removes 47 % of the gap, coulomb 43 %, p = 0.45 over 30 units). Two other lines
     # of evidence then decide together: rows at rest that hold more than any Coulomb level can, and a
     # Stribeck coefficient distinguishable from zero (each alone also passed on a coulomb log or two).
-    return bool("dF" in names and breakaway_resolved_at_rest(data, richer, simpler)
-                and terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA)
+    return bool("dF" in names and at_rest() and stribeck())

@@ -56,10 +56,10 @@ from ..friction._lsq import group_wald_p, hac_covariance
 from .candidates import (ASYMMETRY_MAX_RATIO, CandidateFit, _best_on_grid, _calibration, _design_matrix, _fit,
                          _fit_rows as _candidate_fit_rows, _structures, _tied_levels, levels_are_friction,
                          levels_shared)
-from .residuals import GapData, gap_log_scales, prepare_gap_data
+from .residuals import GapData, GapOptions, gap_log_scales, prepare_gap_data
 
 __all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "terms_wald_p", "grid_neighbours",
-           "method_shift", "with_method_error",
+           "method_shift", "with_method_error", "refit_prepared_again",
            "isolability", "gap_log_scales", "ISOLABILITY_THRESHOLD", "CALIBRATION"]
 
 #: Smallest separation (sine of the largest principal angle) at which two candidates count as isolable [-].
@@ -280,22 +280,43 @@ def method_shift(data: GapData, fit: CandidateFit) -> dict[str, float]:
         Absolute shift per (flattened) parameter, in its unit; empty when the repeated analysis is not
         possible (a log too short for the narrower filter).
     """
-    opts = data.options
-    src = data.tau_s_source.source
-    half = dataclasses.replace(opts, position_cutoff_hz=0.5 * data.settings.position_cutoff_hz,
-                               tau_s_reading=src if src in ("derived", "measured") else opts.tau_s_reading)
-    try:
-        other = prepare_gap_data(data.experiment, half, tau_s_source=data.tau_s_source)
-    except ForecastError:
+    again = refit_prepared_again(data, fit, dataclasses.replace(
+        data.options, position_cutoff_hz=0.5 * data.settings.position_cutoff_hz))
+    if again is None:
         return {}
+    a, b = _flatten(fit.params), _flatten(again[1].params)
+    return {k: abs(b[k] - a[k]) for k in a if k in b and math.isfinite(a[k]) and math.isfinite(b[k])}
+
+
+def refit_prepared_again(data: GapData, fit: CandidateFit, options: GapOptions) -> tuple[GapData, CandidateFit] | None:
+    """The log prepared again with other settings, and the same candidate refitted on it.
+
+    The ``tau_s`` reading and the choice of one or two friction levels are those of the first analysis.
+
+    Parameters
+    ----------
+    data : GapData
+        The prepared log the fit was made on.
+    fit : CandidateFit
+        A single-effect fit.
+    options : GapOptions
+        The settings of the repeat.
+
+    Returns
+    -------
+    tuple of (GapData, CandidateFit) or None
+        The repeat's data and fit; None when the log is too short for those settings.
+    """
+    try:
+        # prepared for this one repeat and dropped after it: kept, its raw-rate columns would stay in memory
+        other = prepare_gap_data(data.experiment, options, tau_s_source=data.tau_s_source)
+    except ForecastError:
+        return None
     structures = _structures(fit.effect, other)
     if levels_shared(fit):
         structures = [_tied_levels(x) for x in structures]
     refit = _best_on_grid(other, fit.effect, structures, lambda x: x) if structures else None
-    if refit is None:
-        return {}
-    a, b = _flatten(fit.params), _flatten(refit.params)
-    return {k: abs(b[k] - a[k]) for k in a if k in b and math.isfinite(a[k]) and math.isfinite(b[k])}
+    return None if refit is None else (other, refit)
 
 
 def with_method_error(assessment: EffectAssessment, shift: Mapping[str, float]) -> EffectAssessment:
