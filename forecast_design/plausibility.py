@@ -105,6 +105,8 @@ __all__ = [
     "encoder_step_of",
     "speed_resolution",
     "not_identified",
+    "ASYMMETRY_MAX_RATIO",
+    "levels_are_friction",
 ]
 
 #: Statuses of a fitted number, best first.
@@ -601,3 +603,26 @@ def benchtop_warnings(values: Mapping[str, float | None], where: str = "[testbed
         for line in lines:
             warnings.warn(line, ImplausibleInputWarning, stacklevel=2)
     return lines
+
+
+#: Largest ratio of a friction law's levels for the two directions of motion [-]: a drive's friction differs
+#: by direction by tens of percent; a level near zero one way is a constant torque (a driver's offset, cogging
+#: over part of a revolution), not friction.
+ASYMMETRY_MAX_RATIO = 3.0
+
+
+def levels_are_friction(params: Mapping[str, Any]) -> bool:
+    """Whether a friction law's two levels ``F_c`` / ``F_c_neg`` [N m] are within :data:`ASYMMETRY_MAX_RATIO`.
+
+    Parameters
+    ----------
+    params : Mapping[str, Any]
+        A fit's parameters (a missing level counts as 0).
+
+    Returns
+    -------
+    bool
+        False when one level is below the other divided by the ratio: a constant torque, not friction.
+    """
+    lv = (float(params.get("F_c", 0.0)), float(params.get("F_c_neg", 0.0)))
+    return not (max(lv) > 0.0 and min(lv) < max(lv) / ASYMMETRY_MAX_RATIO)

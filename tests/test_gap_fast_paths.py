@@ -11,7 +11,7 @@ import pytest
 from scipy import signal
 
 from forecast_design.friction.derivatives import decimate_columns, default_filter_settings
-from forecast_design.gap import candidates, joint, residuals
+from forecast_design.gap import joint, residuals, structures
 from forecast_design.gap.residuals import GapData, lowpass
 
 
@@ -64,7 +64,7 @@ def test_dahl_state_equals_the_scalar_recursion(chunk):
     for vk in v:
         s = (s + dt / x_p * vk) / (1.0 + dt / x_p * abs(vk))
         want.append(s)
-    assert np.array_equal(candidates._dahl(v, dt, x_p, chunk), np.array(want))   # across chunk boundaries
+    assert np.array_equal(structures._dahl(v, dt, x_p, chunk), np.array(want))   # across chunk boundaries
 
 
 def test_group_lasso_path_matches_cvxpy_on_the_same_problem():

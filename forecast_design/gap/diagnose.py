@@ -27,7 +27,10 @@ probability or scales with the information in the log; none is tuned to one gene
    for, and no parameter is outside the plausible range of :mod:`forecast_design.plausibility`; an
    environment mismatch, a delay and a Coulomb level also persist in half the equation band
    (:func:`.halfband.persists_in_half_band`: the encoders' quantisation shrinks a fitted J, a closed
-   loop's answer to it looks like a delay, and it can fit a level of a few mN m).
+   loop's answer to it looks like a delay, and it can fit a level of a few mN m). What a log resolves
+   only together is fitted that way: a delay short against the band, which shows only as coefficient x
+   delay, is read where that ridge leaves the coefficient's bound; an output J shrunk below a tenth of the
+   declared one is held at it (stated in a caveat) while d and k_e are fitted (:mod:`.candidates`).
 4. Among the candidates that count, the winner minimises a held-out BIC,
    ``n log(SSE / n) + p log(n)`` (p = number of effect parameters).
 5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
@@ -49,7 +52,8 @@ probability or scales with the information in the log; none is tuned to one gene
    plausible candidates are each paired the same way (second step: ``min_reduction / 2``
    of the remaining gap); the best pair that removes ``min_reduction`` of the gap and
    passes the test against the nominal model becomes verdict + secondary effect, the verdict
-   being the one of the two that removes more of the gap alone.
+   being the one of the two that removes more of the gap alone. A fit that failed the half-band
+   check alone is quantisation and joins no pair.
 8. Caveats are computed from the log: the isolability matrix names the words this log
    cannot tell from the verdict; candidates that would remove ``min_reduction`` of the
    gap but are not identified are listed with the reason; a re-calibration on its
@@ -85,7 +89,6 @@ from .candidates import (
     fit_constant_torque,
     fit_pair,
     levels_shared,
-    _FRICTION,
 )
 from .identifiability import (CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, isolability,
                               method_shift, with_method_error)
@@ -94,6 +97,7 @@ from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
 from .grading import explainable_reduction, noise_floor
+from .structures import _FRICTION, j_held
 from .heldout import NESTED_ALPHA, correlation_length, held_out_test, richer_law_justified, test_units
 from .residuals import GapData, GapOptions, TauSSource, prepare_gap_data, gap_log_scales
 
@@ -337,7 +341,9 @@ def _metric_text(data: GapData) -> str:
             f"length (all units, and those where the candidate differs from the nominal model by more than the floor, "
             f"Simes' combination) gives p < {o.alpha:g}/n_candidates (Bonferroni), and it is identified (defining coefficients "
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
-            f"within its plausible range; an environment mismatch, a delay or a Coulomb level also persists in half the band); the winner minimises the held-out BIC; stiction/position_friction must "
+            f"within its plausible range; an environment mismatch, a delay or a Coulomb level also persists in half the band; a delay "
+            f"short against the band is read where coefficient x delay leaves the coefficient's bound, an output J "
+            f"shrunk below a tenth of the declared one is held at it); the winner minimises the held-out BIC; stiction/position_friction must "
             f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
             f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway both at rest and in a "
             f"Stribeck coefficient distinguishable from zero; a second effect fitted together with the winner is reported when it passes the test against "
@@ -421,6 +427,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     held_rows = data.stacked(data.held_out)
     tau_rms = data.command_rms
     floor = noise_floor(data)
+    in_band_only: set[Effect] = set()
     for fit in fits:
         red = 1.0 - fit.gap_held_out / gap0 if gap0 > 0 else 0.0
         # judged on the equations where the effect acts: a quiet equation's gap is not diluted by
@@ -443,6 +450,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         assessment = assess_fit(data, fit)
         if fit.effect in HALF_BAND_CHECKED and assessment.identified and p < alpha and lowers_total:
             assessment = persists_in_half_band(data, fit, assessment)     # a refit: only where it can decide
+            # the encoders' quantisation, not an effect: in a pair too
+            in_band_only |= set() if assessment.identified else {fit.effect}
         ranked.append(RankedCandidate(effect=fit.effect, gap_after=fit.gap_held_out,
                                       reduction=float(min(max(red, 0.0), 1.0)), params=fit.params,
                                       p_value=p, bic=bic, assessment=assessment, reduction_own=red_own,
@@ -478,16 +487,18 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     iso = isolability(data, fits)
     jt = fit_joint(data, fits) if joint and fits else None
     secondary = None
+    pairable = [f for f in fits if f.effect not in in_band_only]
     if winner is not None:
-        secondary = _second_effect(data, by_effect[str(winner.effect)], fits, gap0, n_held, held_blocks, alpha)
+        secondary = _second_effect(data, by_effect[str(winner.effect)], pairable, gap0, n_held, held_blocks, alpha)
     else:
         # Two effects of similar size: neither alone may remove min_reduction of the gap. Try the
         # best candidates as a first step; the pair counts only if it removes min_reduction of the
         # gap in total, the second step passes the test as well, and both effects are identified.
         best_pair = None
         for first in [r for r in ranked if r.reduction > 0.0 and r.assessment is not None
+                      and r.effect not in in_band_only
                       and not any(st.status == "implausible" for st in r.assessment.status.values())][:3]:
-            pair = _second_effect(data, by_effect[str(first.effect)], fits, gap0, n_held, held_blocks, alpha,
+            pair = _second_effect(data, by_effect[str(first.effect)], pairable, gap0, n_held, held_blocks, alpha,
                                   min_extra=0.5 * opts.min_reduction, base=base)
             if pair is not None and pair.reduction >= opts.min_reduction and \
                     (best_pair is None or pair.bic < best_pair[1].bic):
@@ -499,7 +510,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                 f_w = fit_pair(data, by_effect[str(best_pair[0].effect)], best_pair[1].effect)
                 f_c = fit_pair(data, by_effect[str(Effect.COULOMB)], best_pair[1].effect)
                 if f_w is not None and f_c is not None and not richer_law_justified(data, f_w, f_c):
-                    alt = _second_effect(data, by_effect[str(Effect.COULOMB)], fits, gap0, n_held, held_blocks,
+                    alt = _second_effect(data, by_effect[str(Effect.COULOMB)], pairable, gap0, n_held, held_blocks,
                                          alpha, min_extra=0.5 * opts.min_reduction, base=base)
                     if alt is not None and alt.reduction >= opts.min_reduction:
                         best_pair = (coul, alt)
@@ -654,6 +665,10 @@ def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandida
     if chosen is not None and levels_shared(chosen):
         out.append(f"Assumed: one {verdict} level for both directions of motion (F_c_neg = F_c); a level per "
                    "direction predicted the held-out data worse (this log hardly moves one way).")
+    if chosen is not None and j_held(chosen.params):
+        out.append("Assumed: the environment's J at its declared value, not estimated: fitted, it came out below a "
+                   "tenth of it, the output encoder's quantisation in q'' (errors in variables), so only d and k_e "
+                   "are fitted.")
     for r in ranked:
         if r.effect is not verdict and r.assessment is not None and not r.assessment.identified \
                 and r.reduction >= opts.min_reduction:

@@ -51,12 +51,12 @@ from scipy import stats
 
 from ..effects import Effect
 from ..errors import ForecastError
-from ..plausibility import ParameterStatus, assess, effect_bound
+from ..plausibility import ASYMMETRY_MAX_RATIO, ParameterStatus, assess, effect_bound, levels_are_friction
 from ..friction._lsq import group_wald_p, hac_covariance
-from .candidates import (ASYMMETRY_MAX_RATIO, CandidateFit, _best_on_grid, _calibration, _design_matrix, _fit,
-                         _fit_rows as _candidate_fit_rows, _structures, _tied_levels, levels_are_friction,
-                         levels_shared)
+from .candidates import (CandidateFit, _best_on_grid, _calibration, _fit, _fit_rows as _candidate_fit_rows,
+                         _tied_levels, levels_shared)
 from .residuals import GapData, GapOptions, gap_log_scales, prepare_gap_data
+from .structures import _design_matrix, _j_held, _structures, j_held
 
 __all__ = ["EffectAssessment", "Isolability", "assess_fit", "calibration_status", "terms_wald_p", "grid_neighbours",
            "method_shift", "with_method_error", "refit_prepared_again",
@@ -291,7 +291,8 @@ def method_shift(data: GapData, fit: CandidateFit) -> dict[str, float]:
 def refit_prepared_again(data: GapData, fit: CandidateFit, options: GapOptions) -> tuple[GapData, CandidateFit] | None:
     """The log prepared again with other settings, and the same candidate refitted on it.
 
-    The ``tau_s`` reading and the choice of one or two friction levels are those of the first analysis.
+    The ``tau_s`` reading, the choice of one or two friction levels and an environment's held ``J`` are those of
+    the first analysis.
 
     Parameters
     ----------
@@ -315,6 +316,8 @@ def refit_prepared_again(data: GapData, fit: CandidateFit, options: GapOptions) 
     structures = _structures(fit.effect, other)
     if levels_shared(fit):
         structures = [_tied_levels(x) for x in structures]
+    if j_held(fit.params):
+        structures = [_j_held(x) for x in structures]
     refit = _best_on_grid(other, fit.effect, structures, lambda x: x) if structures else None
     return None if refit is None else (other, refit)
 
@@ -553,7 +556,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
 
 #: Parameters of an environment mismatch (absolute and relative to the declared environment).
 _ENVIRONMENT_NAMES = frozenset({"J", "d", "k_e", "J_scale", "d_scale", "k_e_scale"})
-#: The resolution of the log where a candidate's grid search starts (:func:`.candidates._build_structures`):
+#: The resolution of the log where a candidate's grid search starts (:func:`.structures._build_structures`):
 #: a Stribeck bump twice the speed resolution wide, a presliding displacement or a dead band of one count.
 _RESOLUTION_END = {"v_s": lambda sc: max(1e-3, 2.0 * sc.speed_resolution),
                    "x_p": lambda sc: max(1e-4, sc.encoder_step),

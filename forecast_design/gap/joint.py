@@ -12,8 +12,9 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from ..effects import Effect
-from .candidates import CandidateFit, _best_structure, _calibration, _Coef, _design_matrix, _solve
+from .candidates import CandidateFit, _best_structure, _calibration, _solve
 from .residuals import GapData
+from .structures import _Coef, _design_matrix
 
 __all__ = ["JointAttribution", "fit_joint"]
 
