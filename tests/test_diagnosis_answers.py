@@ -329,16 +329,18 @@ def test_a_candidate_whose_total_held_out_gap_rises_never_counts_on_a_two_effect
 @pytest.mark.parametrize("delay_s", [1e-3, 2e-3])
 def test_a_small_delay_under_stiction_is_never_a_confident_wrong_number(env, excitation, loop, delay_s):
     # stiction with a 1-2 ms delay (a third to a half of the typical): the verdict is the friction; the delay
-    # fitted alone absorbs friction torque and runs to its 20 ms search bound, which is reported as not
-    # identified; fitted with the stiction it removes 0-37 % of what is left (below the 40 % a second effect
-    # needs), so it is not named, and when it is, its value is the truth's
+    # fitted alone absorbs friction torque (in closed loop its coefficient x delay is 15 ms, read at 9.6-11.6 ms):
+    # never a number to rely on -- not identified, or its interval of +-9 ms says "use the interval" (uncertain);
+    # fitted with the stiction it removes 0-37 % of what is left (below the 40 % a second effect needs), so it is
+    # not named, and when it is, its value is the truth's
     exp = _log((Effect.STICTION, Effect.DELAY), {"F_c": 0.2, "F_s": 0.33, "v_s": 0.05, "delay_s": delay_s}, env=env,
                excitation=excitation, **loop)
     diag = diagnose(exp, joint=False)
     assert diag.effect is Effect.STICTION
     alone = next(r for r in diag.ranking if r.effect is Effect.DELAY)
-    at_bound = alone.assessment.status["delay_s"].status == "at_bound"
-    assert not alone.identified and (not at_bound or any("bound" in why for why in alone.assessment.reasons))
+    delay = alone.assessment.status["delay_s"]
+    assert delay.status != "identified"
+    assert delay.status != "at_bound" or any("bound" in why for why in alone.assessment.reasons)
     if diag.secondary is not None and diag.secondary.effect is Effect.DELAY:
         assert diag.secondary.params["delay_s"] == pytest.approx(delay_s, rel=0.5)
 
