@@ -290,12 +290,9 @@ def test_a_fit_that_explains_the_encoders_quantisation_does_not_persist_in_half_
     d = diagnose(log.experiment, joint=False)
     assert d.effect is want
     if checked is not None:
-        # never counts: refused by the half band, or (the Coulomb level, since a creeping motor has a direction:
-        # 14 mN m) no better than the nominal model on the held-out data
         fit = next(r for r in d.ranking if r.effect is checked)
-        assert not (fit.significant or fit.weak)
-        assert fit.reduction == 0.0 or (not fit.identified and any("half the equation band" in reason
-                                                                     for reason in fit.assessment.reasons))
+        assert not fit.identified
+        assert any("half the equation band" in reason for reason in fit.assessment.reasons)
     else:
         assert d.params["d_scale"] == pytest.approx(log.case.effect_params["d_factor"], rel=0.05)
 
@@ -336,19 +333,18 @@ def test_an_environment_whose_inertia_the_output_encoder_cannot_resolve_is_fitte
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("index, seed", [(0, 61), (4, 3)])
-def test_a_motor_creeping_below_the_speed_resolution_of_a_coarse_encoder_is_coulomb(index, seed):
-    # 14-bit encoders, Coulomb friction: a closed-loop square on the other SEA pushing against 0.39 / 0.27 N m, and an
-    # open-loop sweep in a stiff environment, creep a count every few tens of milliseconds. Below the speed
-    # resolution (one step per derivative window) the friction's direction was taken as unresolved, on 91 % of the
-    # first log's samples, while the friction slid at its full level: coulomb could not explain it (F_c fitted at 0)
-    # and the verdicts were environment_mismatch and stiction. Where the recorded angle moves the same way on both
-    # sides of a sample, fast enough over a window that resolves it, between two samples moving that way, the
-    # direction is that way: the truth's in 89-98 % of those samples (9-17 % of the log)
+@pytest.mark.parametrize("index, seed", [(0, 61), (6, 53)])
+def test_a_closed_loop_creeping_below_the_speed_resolution_of_a_coarse_encoder_is_coulomb(index, seed):
+    # a 14-bit closed-loop square on the other SEA pushing against a Coulomb friction of 0.35-0.39 N m creeps a
+    # count every few tens of milliseconds: below the speed resolution (one step per derivative window) the
+    # friction's direction was taken as unresolved, 25 % of the samples and 91 % of one log's, while the friction
+    # slid at its full level; coulomb could not explain it (F_c fitted at 0) and the verdicts were
+    # environment_mismatch and a weak delay. Where the angle resolves the creep over a longer window between two
+    # samples moving the same way, the direction is that way -- the truth's in 88-93 % of those samples
     from forecast_design.gap.residuals import gap_log_scales, motion_direction
 
     log = ind.make_independent_log("coulomb", index, seed)
-    assert log.case.encoder_counts == 2 ** 14
+    assert log.case.closed_loop and log.case.encoder_counts == 2 ** 14
     d = diagnose(log.experiment, joint=False)
     direction, v = motion_direction(d.data), d.data.raw["v"]
     creeping = (np.abs(v) < gap_log_scales(d.data).speed_resolution) & (direction != 0.0)

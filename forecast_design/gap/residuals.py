@@ -449,10 +449,9 @@ def motion_direction(data: GapData) -> np.ndarray:
     tens of milliseconds, and 57-91 % of such a log's samples lay below the resolution while the friction
     slid at its full level (a Coulomb log of 0.40 N m was then fitted by a "torque gain" of 0.21). A
     stretch below the resolution between two samples moving the same way creeps that way wherever the
-    angle, over a window that resolves ``GapOptions.stick_velocity`` by one encoder step, moves that way at
-    least that fast, and moves on both sides of the sample (a motor that has just stopped moved on one side
-    only: without that rule 67 % of a stiction log's "creeping" samples were at rest);
-    the rest of it, and every stretch between opposite directions (a reversal), is at rest.
+    angle, over a window that resolves ``GapOptions.stick_velocity`` by one encoder step, moves that way
+    at least that fast; the rest of it, and every stretch between opposite directions (a reversal), is
+    at rest.
 
     Parameters
     ----------
@@ -470,17 +469,13 @@ def motion_direction(data: GapData) -> np.ndarray:
         d = np.sign(v)
         slow = np.abs(v) < scales.speed_resolution
         d[slow] = 0.0
-        th = np.asarray(data.experiment.signals.theta, dtype=float)     # as recorded: still where it rests
+        th = np.asarray(data.raw["theta"], dtype=float)
         rate, stick = float(data.experiment.rate_hz), float(data.options.stick_velocity)
         w = int(math.ceil(scales.encoder_step / (2.0 * stick) * rate))     # half-window [raw samples]
         if w > 0 and np.any(slow) and np.any(~slow):
             n = v.size
             idx = np.arange(n)
-            back = th - th[np.maximum(idx - w, 0)]
-            fwd = th[np.minimum(idx + w, n - 1)] - th
-            # the angle must move on both sides of the sample: a motor that has just stopped or is about to
-            # start moved on one side only
-            creep = np.where(back * fwd > 0.0, (back + fwd) * rate / (2.0 * w), 0.0)
+            creep = (th[np.minimum(idx + w, n - 1)] - th[np.maximum(idx - w, 0)]) * rate / (2.0 * w)
             moving = np.flatnonzero(~slow)
             k = np.searchsorted(moving, idx)
             left = np.where(k > 0, d[moving[np.maximum(k - 1, 0)]], 0.0)
