@@ -333,27 +333,6 @@ def test_an_environment_whose_inertia_the_output_encoder_cannot_resolve_is_fitte
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("index, seed", [(0, 61), (6, 53)])
-def test_a_closed_loop_creeping_below_the_speed_resolution_of_a_coarse_encoder_is_coulomb(index, seed):
-    # a 14-bit closed-loop square on the other SEA pushing against a Coulomb friction of 0.35-0.39 N m creeps a
-    # count every few tens of milliseconds: below the speed resolution (one step per derivative window) the
-    # friction's direction was taken as unresolved, 25 % of the samples and 91 % of one log's, while the friction
-    # slid at its full level; coulomb could not explain it (F_c fitted at 0) and the verdicts were
-    # environment_mismatch and a weak delay. Where the angle resolves the creep over a longer window between two
-    # samples moving the same way, the direction is that way -- the truth's in 88-93 % of those samples
-    from forecast_design.gap.residuals import gap_log_scales, motion_direction
-
-    log = ind.make_independent_log("coulomb", index, seed)
-    assert log.case.closed_loop and log.case.encoder_counts == 2 ** 14
-    d = diagnose(log.experiment, joint=False)
-    direction, v = motion_direction(d.data), d.data.raw["v"]
-    creeping = (np.abs(v) < gap_log_scales(d.data).speed_resolution) & (direction != 0.0)
-    assert creeping.mean() > 0.05
-    assert np.mean(np.sign(np.asarray(log.truth.omega)[creeping]) == direction[creeping]) > 0.85
-    assert d.effect is Effect.COULOMB
-
-
-@pytest.mark.slow
 def test_a_fit_the_half_band_exposes_as_quantisation_never_joins_a_pair():
     # a 14-bit stiction sweep whose output J the full band shrinks to 0.12 (0.72 in half the band): rejected alone,
     # the environment mismatch came back as the first of a pair with a 1 % delay and was the verdict

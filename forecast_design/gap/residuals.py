@@ -52,7 +52,7 @@ from ..friction.derivatives import (FilterSettings, antialias, butterworth, deci
                                     default_filter_settings, settling_samples)
 
 __all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
-           "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "motion_direction", "near_rest", "rest_distance",
+           "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "near_rest", "rest_distance",
            "held_at_rest_rows", "held_level_factor"]
 
 #: Raw-rate samples (columns x log length) filtered in one pass by ``GapData.decimate_many`` [-]:
@@ -440,55 +440,12 @@ def gap_log_scales(data: GapData) -> LogScales:
     return data.cache["scales"]
 
 
-def motion_direction(data: GapData) -> np.ndarray:
-    """Direction of the motor's motion at the raw rate: +1, -1, or 0 at rest (cached on ``data``).
-
-    ``sign(theta')`` where the filtered speed resolves it (at or above the encoder's speed resolution,
-    :func:`gap_log_scales`: one step per derivative-filter window). Below it the motor is at rest, or it
-    creeps: a closed loop pushing against a large friction turns a coarse encoder by a count every few
-    tens of milliseconds, and 57-91 % of such a log's samples lay below the resolution while the friction
-    slid at its full level (a Coulomb log of 0.40 N m was then fitted by a "torque gain" of 0.21). A
-    stretch below the resolution between two samples moving the same way creeps that way wherever the
-    angle, over a window that resolves ``GapOptions.stick_velocity`` by one encoder step, moves that way
-    at least that fast; the rest of it, and every stretch between opposite directions (a reversal), is
-    at rest.
-
-    Parameters
-    ----------
-    data : GapData
-        Prepared equation errors.
-
-    Returns
-    -------
-    ndarray of float, shape (n_raw,)
-        +1, -1 or 0 per raw sample.
-    """
-    if "direction" not in data.cache:
-        v = np.asarray(data.raw["v"], dtype=float)
-        scales = gap_log_scales(data)
-        d = np.sign(v)
-        slow = np.abs(v) < scales.speed_resolution
-        d[slow] = 0.0
-        th = np.asarray(data.raw["theta"], dtype=float)
-        rate, stick = float(data.experiment.rate_hz), float(data.options.stick_velocity)
-        w = int(math.ceil(scales.encoder_step / (2.0 * stick) * rate))     # half-window [raw samples]
-        if w > 0 and np.any(slow) and np.any(~slow):
-            n = v.size
-            idx = np.arange(n)
-            creep = (th[np.minimum(idx + w, n - 1)] - th[np.maximum(idx - w, 0)]) * rate / (2.0 * w)
-            moving = np.flatnonzero(~slow)
-            k = np.searchsorted(moving, idx)
-            left = np.where(k > 0, d[moving[np.maximum(k - 1, 0)]], 0.0)
-            right = np.where(k < moving.size, d[moving[np.minimum(k, moving.size - 1)]], 0.0)
-            fill = slow & (left == right) & (left * creep >= stick)
-            d[fill] = left[fill]
-        data.cache["direction"] = d
-    return data.cache["direction"]
-
-
 def _raw_rest(data: GapData) -> np.ndarray:
-    """Raw samples at rest: no direction of motion resolved (:func:`motion_direction`)."""
-    return motion_direction(data) == 0.0
+    """Raw samples at rest: filtered speed below the encoder's speed resolution (cached on ``data``)."""
+    if "raw_rest" not in data.cache:
+        v = np.asarray(data.raw["v"], dtype=float)
+        data.cache["raw_rest"] = np.abs(v) < gap_log_scales(data).speed_resolution
+    return data.cache["raw_rest"]
 
 
 def near_rest(data: GapData) -> np.ndarray:
