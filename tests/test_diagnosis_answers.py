@@ -454,7 +454,7 @@ def test_friction_that_differs_by_direction_keeps_a_level_per_direction():
 
 def _held_at_rest(diag):
     """|torque| the Coulomb fit says the static friction held on the rows at rest at the raw rate, and those rows."""
-    from forecast_design.gap.residuals import rest_distance
+    from forecast_design.gap.motion import rest_distance
 
     data, fit = diag.data, diag.fits["coulomb"]
     m = data.t.size

@@ -205,7 +205,8 @@ def test_held_level_lift_bounds_a_filtered_jump_through_scipys_decimate(rate_hz,
     from scipy import signal as sps
 
     from forecast_design.friction.derivatives import default_filter_settings
-    from forecast_design.gap.residuals import _step_overshoot, lowpass
+    from forecast_design.gap.motion import _step_overshoot
+    from forecast_design.gap.residuals import lowpass
 
     settings = default_filter_settings(rate_hz, position_cutoff_hz=cutoff * rate_hz, decimation_factor=R)
     n = 40 * R + 1200

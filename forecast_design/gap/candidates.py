@@ -22,7 +22,7 @@ explain the samples where the motor is at rest: a static friction holds any
 net torque up to its breakaway level, so there the residual left is
 ``soft_threshold(r, level)``, but never less than the encoders' quantisation
 floor of the row, which no friction explains. The level is read through the filters,
-which lift it by their ringing next to motion (:func:`.residuals.held_level_factor`),
+which lift it by their ringing next to motion (:func:`.motion.held_level_factor`),
 and stiction's breakaway above its Coulomb level is chosen on those rows too: a
 breakaway shows there, while the moving rows cross its Stribeck bump within a few
 milliseconds (:func:`_breakaway_at_rest`).
@@ -34,7 +34,7 @@ stiction. Two rules keep such torque out of the friction fit: the sign feature
 is zero only below the encoder's speed resolution, not in the whole ``stuck``
 band (a motor moving at 1-2 mrad/s still feels the full ``F_c``; see
 :func:`.structures._sign`), and the friction laws are fitted on the rows that no sample at
-rest reaches through the derivative filter (:func:`.residuals.near_rest`: at
+rest reaches through the derivative filter (:func:`.motion.near_rest`: at
 rest the friction is set-valued, whatever torque holds the motor).
 """
 
@@ -48,7 +48,8 @@ from scipy.optimize import lsq_linear
 
 from ..effects import Effect
 from ..plausibility import effect_bound, levels_are_friction
-from .residuals import GapData, gap_log_scales, held_at_rest_rows, held_level_factor, near_rest
+from .motion import held_at_rest_rows, held_level_factor, near_rest
+from .residuals import GapData, gap_log_scales
 from .structures import _FRICTION, _Coef, _coef, _design_matrix, _j_held, _Structure, _structures
 
 __all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_constant_torque", "fit_all", "fit_pair",
@@ -200,7 +201,7 @@ def _fit_rows(data: GapData, structure: _Structure | None) -> np.ndarray:
     """Stacked rows a candidate is fitted on: the fit blocks; for a friction law, none near rest.
 
     Static friction at rest is set-valued, and the derivative filter smears it into the
-    rows next to a rest (:func:`.residuals.near_rest`): a friction law is fitted on the
+    rows next to a rest (:func:`.motion.near_rest`): a friction law is fitted on the
     other rows of the fit blocks. Should fewer rows than coefficients be left (a log at
     rest almost throughout), only the ``stuck`` rows are left out.
     """
@@ -229,7 +230,7 @@ def _breakaway_at_rest(data: GapData, coefs: Sequence[_Coef], p: np.ndarray, n_c
     torques 50 % above the Coulomb level. Here ``dF`` (only upwards from the moving rows' value;
     the other coefficients kept) minimises the fit blocks' squared residual, the rows at rest taken
     as :func:`.grading.held_at_rest` leaves them (the level lifted by the filters' ringing next to
-    motion, :func:`.residuals.held_level_factor`, as wherever a level holds a row). The objective is
+    motion, :func:`.motion.held_level_factor`, as wherever a level holds a row). The objective is
     convex (a quadratic plus squared soft thresholds): a bounded scalar search finds its minimum.
     """
     names = [c.name for c in coefs]

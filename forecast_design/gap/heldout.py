@@ -25,7 +25,8 @@ from scipy import stats
 from .candidates import CandidateFit
 from .grading import noise_floor
 from .identifiability import terms_wald_p
-from .residuals import GapData, held_at_rest_rows, held_level_factor
+from .motion import held_at_rest_rows, held_level_factor
+from .residuals import GapData
 
 __all__ = ["held_out_test", "units_test", "correlation_length", "test_units", "nested_law_test", "richer_law_justified",
            "breakaway_resolved_at_rest",
@@ -221,9 +222,9 @@ def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: Can
     """Whether the rows at rest show a breakaway above the Coulomb level, beyond the filters and the noise.
 
     On a row at rest at the raw rate (a ``stuck`` row whose own raw sample does not move,
-    :func:`.residuals.held_at_rest_rows`) the Coulomb law's residual is the torque the static friction
+    :func:`.motion.held_at_rest_rows`) the Coulomb law's residual is the torque the static friction
     holds. A Coulomb friction holds at most its level ``F_c``, read through the filters up to
-    ``F_c`` times :func:`.residuals.held_level_factor` next to motion, plus quantisation noise of RMS
+    ``F_c`` times :func:`.motion.held_level_factor` next to motion, plus quantisation noise of RMS
     ``floor`` (:func:`.grading.noise_floor`) whose largest of ``n`` rows reaches about
     ``floor sqrt(2 ln n)``. Stiction holds up to ``F_s``. The breakaway is resolved at rest when rows
     of at least two separate stays at rest hold more than that and the stiction fit puts its

@@ -291,8 +291,8 @@ def method_shift(data: GapData, fit: CandidateFit) -> dict[str, float]:
 def refit_prepared_again(data: GapData, fit: CandidateFit, options: GapOptions) -> tuple[GapData, CandidateFit] | None:
     """The log prepared again with other settings, and the same candidate refitted on it.
 
-    The ``tau_s`` reading, the choice of one or two friction levels and an environment's held ``J`` are those of
-    the first analysis.
+    The ``tau_s`` reading, the creeping reading, the choice of one or two friction levels and an environment's
+    held ``J`` are those of the first analysis.
 
     Parameters
     ----------
@@ -310,7 +310,7 @@ def refit_prepared_again(data: GapData, fit: CandidateFit, options: GapOptions) 
     """
     try:
         # prepared for this one repeat and dropped after it: kept, its raw-rate columns would stay in memory
-        other = prepare_gap_data(data.experiment, options, tau_s_source=data.tau_s_source)
+        other = prepare_gap_data(data.experiment, options, tau_s_source=data.tau_s_source, creep=data.creep)
     except ForecastError:
         return None
     structures = _structures(fit.effect, other)

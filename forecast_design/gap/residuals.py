@@ -36,7 +36,6 @@ import dataclasses
 import itertools
 import math
 from dataclasses import dataclass, field
-from functools import lru_cache
 from typing import Iterable, Mapping
 
 import numpy as np
@@ -48,12 +47,10 @@ from ..plausibility import DATASHEET_TOLERANCE, LogScales, encoder_step_of, log_
 from ..limits import SIGNAL_LIMITS, first_beyond
 from scipy import signal
 
-from ..friction.derivatives import (FilterSettings, antialias, butterworth, decimate_columns,
-                                    default_filter_settings, settling_samples)
+from ..friction.derivatives import FilterSettings, butterworth, decimate_columns, default_filter_settings
 
 __all__ = ["GapOptions", "GapData", "TauSSource", "prepare_gap_data", "classify_tau_s", "significant_digits",
-           "zoh_input", "delayed_input", "lowpass", "gap_log_scales", "near_rest", "rest_distance",
-           "held_at_rest_rows", "held_level_factor"]
+           "zoh_input", "delayed_input", "lowpass", "gap_log_scales"]
 
 #: Raw-rate samples (columns x log length) filtered in one pass by ``GapData.decimate_many`` [-]:
 #: 2 MB per filter copy, a fixed size rather than one per sample.
@@ -312,6 +309,9 @@ class GapData:
         True for samples of held-out (odd) blocks.
     stuck : ndarray of bool, shape (m,)
         True where the motor speed is below ``options.stick_velocity``.
+    creep : bool
+        Whether motion below the encoder's speed resolution is read as creeping where the recorded angle
+        moves (:func:`.motion.motion_direction`); False: at rest.
     """
 
     experiment: Experiment
@@ -326,6 +326,7 @@ class GapData:
     stuck: np.ndarray
     equations: tuple[str, ...] = field(default=())
     tau_s_source: TauSSource = field(default_factory=lambda: TauSSource(source="absent"))
+    creep: bool = False
     cache: dict = field(default_factory=dict, repr=False)
 
 
@@ -440,137 +441,6 @@ def gap_log_scales(data: GapData) -> LogScales:
     return data.cache["scales"]
 
 
-def _raw_rest(data: GapData) -> np.ndarray:
-    """Raw samples at rest: filtered speed below the encoder's speed resolution (cached on ``data``)."""
-    if "raw_rest" not in data.cache:
-        v = np.asarray(data.raw["v"], dtype=float)
-        data.cache["raw_rest"] = np.abs(v) < gap_log_scales(data).speed_resolution
-    return data.cache["raw_rest"]
-
-
-def near_rest(data: GapData) -> np.ndarray:
-    """Decimated rows that a motor at rest reaches through the derivative filter (cached on ``data``).
-
-    A raw sample is *at rest* when its filtered speed is below the encoder's speed resolution
-    (:func:`gap_log_scales`); there a static friction holds whatever net torque acts, anywhere
-    in ``[-F_s, F_s]``, so no friction law predicts it. The zero-phase position filter and the
-    two differences smear that torque ``settling_samples(...)[0]`` raw samples to either side
-    (:func:`forecast_design.friction.derivatives.settling_samples`; 20 at the default cut-off),
-    into rows whose motor moves. A row is near rest when it is ``stuck`` or a raw sample at
-    rest lies within that smear of it (the IDIM rule of :mod:`forecast_design.friction.selection`).
-
-    Parameters
-    ----------
-    data : GapData
-        Prepared equation errors.
-
-    Returns
-    -------
-    ndarray of bool, shape (m,)
-        True for the rows a static friction law is not fitted on.
-    """
-    if "near_rest" not in data.cache:
-        rest = _raw_rest(data)
-        n = rest.size
-        w = settling_samples(data.settings)[0]
-        c = np.concatenate([[0], np.cumsum(rest, dtype=np.int64)])
-        idx = np.arange(n)
-        near = (c[np.minimum(idx + w + 1, n)] - c[np.maximum(idx - w, 0)]) > 0
-        e, R = data.settings.edge_samples, data.settings.decimation_factor
-        near = near[e:n - e][::R][:data.t.size]
-        data.cache["near_rest"] = near | data.stuck
-    return data.cache["near_rest"]
-
-
-@lru_cache(maxsize=16)
-def _step_overshoot(settings: FilterSettings) -> np.ndarray:
-    """``o[d]``: how far the filters' output exceeds a unit level ``d`` or more raw samples from a jump [-].
-
-    A step from -1 to +1 through the gap's filters (the zero-phase low-pass, then the decimation's
-    Chebyshev anti-alias filter) rings: ``|y| - 1`` reaches 0.15 next to the jump and a few
-    percent one or two decimated rows away. ``o[d]`` is its largest value at distance ``d`` or more,
-    non-increasing, 0 once settled (the array ends there).
-    """
-    der, dec = settling_samples(settings)
-    n = 4 * (der + dec) + 64
-    x = np.where(np.arange(2 * n) < n, -1.0, 1.0)
-    y = antialias(lowpass(x, settings), settings)
-    over = np.maximum(np.abs(y) - 1.0, 0.0)
-    d = np.abs(np.arange(2 * n) - n + 0.5).astype(int)      # raw samples from the jump (between n-1 and n)
-    o = np.zeros(n + 1)
-    np.maximum.at(o, np.minimum(d, n), over)
-    return np.maximum.accumulate(o[::-1])[::-1]
-
-
-def rest_distance(data: GapData) -> np.ndarray:
-    """Per decimated row, the raw samples from its own sample to the nearest moving one (cached on ``data``).
-
-    A raw sample moves when its filtered speed is at or above the encoder's speed resolution
-    (:func:`gap_log_scales`, the rest rule of :func:`near_rest`). A ``stuck`` row (its *decimated*
-    speed below ``GapOptions.stick_velocity``) may still move at the raw rate (a motor creeping or
-    oscillating faster than the decimated band); a row at distance 0 does.
-
-    Parameters
-    ----------
-    data : GapData
-        Prepared equation errors.
-
-    Returns
-    -------
-    ndarray of int, shape (m,)
-        Distance [raw samples]; the log's length when no sample moves.
-    """
-    if "rest_distance" not in data.cache:
-        rest = _raw_rest(data)
-        moving = np.flatnonzero(~rest)
-        e, R = data.settings.edge_samples, data.settings.decimation_factor
-        pos = e + np.arange(data.t.size) * R
-        if moving.size:
-            i = np.searchsorted(moving, pos)
-            left = moving[np.clip(i - 1, 0, moving.size - 1)]
-            right = moving[np.clip(i, 0, moving.size - 1)]
-            dist = np.minimum(np.abs(pos - left), np.abs(right - pos))
-        else:
-            dist = np.full(data.t.size, rest.size)
-        data.cache["rest_distance"] = dist
-    return data.cache["rest_distance"]
-
-
-def held_at_rest_rows(data: GapData) -> np.ndarray:
-    """Decimated rows at rest at the raw rate too: ``stuck``, their own raw sample not moving (:func:`rest_distance`).
-
-    There the friction holds whatever net torque acts: the rows that show a breakaway level.
-    """
-    return data.stuck & (rest_distance(data) > 0)
-
-
-def held_level_factor(data: GapData) -> np.ndarray:
-    """Per decimated row, the factor by which the filters can lift a held friction level there [-].
-
-    A friction torque that never exceeds ``F`` at the raw rate (a static friction holding up to
-    its breakaway level, a Coulomb level sliding) is seen through the zero-phase filters: next to a
-    reversal, where it jumps from ``-F`` to ``+F``, the filtered torque rings up to 15 % above
-    ``F`` (:func:`_step_overshoot`). On a row ``d`` raw samples from the nearest moving sample
-    (:func:`rest_distance`) the held torque may read up to ``F (1 + o[d])``: a Coulomb log's rows
-    at rest next to reversals read 8-40 % above ``F_c``, which a breakaway level fitted on them
-    took for stiction.
-
-    Parameters
-    ----------
-    data : GapData
-        Prepared equation errors.
-
-    Returns
-    -------
-    ndarray, shape (m,)
-        ``1 + o[d]`` for every row.
-    """
-    if "held_level_factor" not in data.cache:
-        o = _step_overshoot(data.settings)
-        data.cache["held_level_factor"] = 1.0 + o[np.minimum(rest_distance(data), o.size - 1)]
-    return data.cache["held_level_factor"]
-
-
 def command_rms(experiment: Experiment) -> float:
     """RMS of a log's motor command ``tau_m`` [N m]: the scale of torque-accuracy and resolution tests."""
     return float(np.sqrt(np.mean(np.square(np.asarray(experiment.signals.tau_m, dtype=float)))))
@@ -624,7 +494,7 @@ def equation_band(experiment: Experiment, options: GapOptions) -> tuple[float, f
 
 
 def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None, *,
-                     tau_s_source: TauSSource | None = None) -> GapData:
+                     tau_s_source: TauSSource | None = None, creep: bool = False) -> GapData:
     """Filter, differentiate and decimate a log into nominal equation errors.
 
     Parameters
@@ -636,6 +506,9 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None, 
     tau_s_source : TauSSource, optional
         The ``tau_s`` column's classification already made on this log (a repeat of the analysis with
         other settings); default: classified here (:func:`~forecast_design.tau_s_source.classify_tau_s`).
+    creep : bool
+        Read motion below the encoder's speed resolution as creeping where the recorded angle moves
+        (:func:`.motion.creeping`); default: at rest.
 
     Returns
     -------
@@ -728,4 +601,4 @@ def prepare_gap_data(experiment: Experiment, options: GapOptions | None = None, 
     raw = {"theta": thf, "v": th_v, "x": x, "tau_m": tau_m}
     return GapData(experiment=experiment, options=options, settings=settings, t=t, targets=targets,
                    columns=cols, raw=raw, block=block, held_out=held_out, stuck=stuck,
-                   equations=tuple(equations), tau_s_source=tau_s_source)
+                   equations=tuple(equations), tau_s_source=tau_s_source, creep=bool(creep))

@@ -13,6 +13,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from ..effects import Effect
+from .motion import motion_direction
 from .residuals import GapData, delayed_input, gap_log_scales
 
 _FRICTION = (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION)
@@ -65,7 +66,7 @@ def _dahl(v: np.ndarray, dt: float, x_p: float, chunk: int = 1 << 16) -> np.ndar
 
 
 def _sign(data: GapData) -> np.ndarray:
-    """Direction of the kinetic friction at the raw rate: ``sign(theta')``, 0 where the sign is not resolved.
+    """Direction of the kinetic friction at the raw rate (:func:`.motion.motion_direction`), 0 where unresolved.
 
     The dead band is the encoder's speed resolution (one step per derivative-filter window,
     :attr:`forecast_design.plausibility.LogScales.speed_resolution`, 0.6 mrad/s on the
@@ -79,12 +80,10 @@ def _sign(data: GapData) -> np.ndarray:
     at every reversal; the anti-alias filters smear that hole into the neighbouring
     *moving* rows, where a Stribeck bump ``sign(v) exp(-(v/v_s)^2)`` with ``v_s`` just
     above the band (non-zero exactly next to the hole) fills it in. Coulomb logs in closed
-    loop (slow sine reversals) were then named ``stiction`` with ``F_s ~ 3 F_c``.
+    loop (slow sine reversals) were then named ``stiction`` with ``F_s ~ 3 F_c``. A motor creeping below
+    the resolution in one direction between two samples that resolve it moves that way and is not at rest.
     """
-    v = data.raw["v"]
-    s = np.sign(v)
-    s[np.abs(v) < gap_log_scales(data).speed_resolution] = 0.0
-    return s
+    return motion_direction(data)
 
 
 @dataclass(frozen=True, slots=True)

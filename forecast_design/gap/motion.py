@@ -1,0 +1,224 @@
+"""Where the motor moves and where it rests: the direction of its motion at the raw rate, the rows a static
+friction may hold, and how far the filters carry a breakaway into the rows next to a rest.
+
+Below the encoder's speed resolution (one step per derivative-filter window) the filtered speed does not
+resolve the motion; a log is read either with the motor at rest there or, where the recorded angle moves,
+creeping (:func:`creeping`, ``GapData.creep``).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from ..friction.derivatives import FilterSettings, antialias, settling_samples
+from .residuals import GapData, gap_log_scales, lowpass
+
+__all__ = ["creeping", "motion_direction", "near_rest", "rest_distance", "held_at_rest_rows", "held_level_factor"]
+
+
+def creeping(data: GapData) -> np.ndarray:
+    """Raw samples below the speed resolution that may creep, and their direction (cached on ``data``).
+
+    A closed loop pushing against a large friction turns a coarse encoder by a count every few tens of
+    milliseconds: 57-91 % of such a log's samples lay below the speed resolution (one step per
+    derivative-filter window, :func:`.residuals.gap_log_scales`) while the friction slid at its full level. A sample
+    there may creep when it lies between two samples that resolve the same direction and the *recorded*
+    angle moves that way on both sides of it (a motor that has just stopped moved on one side only), at
+    least at ``GapOptions.stick_velocity`` over a window that resolves that speed by one encoder step.
+    The encoder cannot tell such a creep from stays at rest of a few tens of milliseconds between two
+    motions the same way: 0-11 % of those samples were at rest on Coulomb logs, 35-65 % on stiction logs.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    ndarray of float, shape (n_raw,)
+        +1 or -1 where a sample may creep that way, 0 elsewhere.
+    """
+    if "creeping" not in data.cache:
+        v = np.asarray(data.raw["v"], dtype=float)
+        scales = gap_log_scales(data)
+        d = np.sign(v)
+        slow = np.abs(v) < scales.speed_resolution
+        d[slow] = 0.0
+        out = np.zeros(v.size)
+        th = np.asarray(data.experiment.signals.theta, dtype=float)     # as recorded: still where it rests
+        rate, stick = float(data.experiment.rate_hz), float(data.options.stick_velocity)
+        w = int(math.ceil(scales.encoder_step / (2.0 * stick) * rate))     # half-window [raw samples]
+        if w > 0 and np.any(slow) and np.any(~slow):
+            n = v.size
+            idx = np.arange(n)
+            back = th - th[np.maximum(idx - w, 0)]
+            fwd = th[np.minimum(idx + w, n - 1)] - th
+            creep = np.where(back * fwd > 0.0, (back + fwd) * rate / (2.0 * w), 0.0)
+            moving = np.flatnonzero(~slow)
+            k = np.searchsorted(moving, idx)
+            left = np.where(k > 0, d[moving[np.maximum(k - 1, 0)]], 0.0)
+            right = np.where(k < moving.size, d[moving[np.minimum(k, moving.size - 1)]], 0.0)
+            fill = slow & (left == right) & (left * creep >= stick)
+            out[fill] = left[fill]
+        data.cache["creeping"] = out
+    return data.cache["creeping"]
+
+
+def motion_direction(data: GapData) -> np.ndarray:
+    """Direction of the motor's motion at the raw rate: +1, -1, or 0 at rest (cached on ``data``).
+
+    ``sign(theta')`` where the filtered speed resolves it (at or above the encoder's speed resolution,
+    :func:`.residuals.gap_log_scales`); below it the motor is at rest, or, when the log is read as creeping
+    (``data.creep``), it creeps where :func:`creeping` says so. The diagnosis reads a log with creeping
+    samples both ways and keeps the reading whose friction fits predict the held-out data better.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    ndarray of float, shape (n_raw,)
+        +1, -1 or 0 per raw sample.
+    """
+    if "direction" not in data.cache:
+        v = np.asarray(data.raw["v"], dtype=float)
+        d = np.sign(v)
+        d[np.abs(v) < gap_log_scales(data).speed_resolution] = 0.0
+        if data.creep:
+            fill = creeping(data)
+            d = np.where(fill != 0.0, fill, d)
+        data.cache["direction"] = d
+    return data.cache["direction"]
+
+
+def _raw_rest(data: GapData) -> np.ndarray:
+    """Raw samples at rest: no direction of motion resolved (:func:`motion_direction`)."""
+    return motion_direction(data) == 0.0
+
+
+def near_rest(data: GapData) -> np.ndarray:
+    """Decimated rows that a motor at rest reaches through the derivative filter (cached on ``data``).
+
+    A raw sample is *at rest* when its filtered speed is below the encoder's speed resolution
+    (:func:`.residuals.gap_log_scales`); there a static friction holds whatever net torque acts, anywhere
+    in ``[-F_s, F_s]``, so no friction law predicts it. The zero-phase position filter and the
+    two differences smear that torque ``settling_samples(...)[0]`` raw samples to either side
+    (:func:`forecast_design.friction.derivatives.settling_samples`; 20 at the default cut-off),
+    into rows whose motor moves. A row is near rest when it is ``stuck`` or a raw sample at
+    rest lies within that smear of it (the IDIM rule of :mod:`forecast_design.friction.selection`).
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    ndarray of bool, shape (m,)
+        True for the rows a static friction law is not fitted on.
+    """
+    if "near_rest" not in data.cache:
+        rest = _raw_rest(data)
+        n = rest.size
+        w = settling_samples(data.settings)[0]
+        c = np.concatenate([[0], np.cumsum(rest, dtype=np.int64)])
+        idx = np.arange(n)
+        near = (c[np.minimum(idx + w + 1, n)] - c[np.maximum(idx - w, 0)]) > 0
+        e, R = data.settings.edge_samples, data.settings.decimation_factor
+        near = near[e:n - e][::R][:data.t.size]
+        data.cache["near_rest"] = near | data.stuck
+    return data.cache["near_rest"]
+
+
+@lru_cache(maxsize=16)
+def _step_overshoot(settings: FilterSettings) -> np.ndarray:
+    """``o[d]``: how far the filters' output exceeds a unit level ``d`` or more raw samples from a jump [-].
+
+    A step from -1 to +1 through the gap's filters (the zero-phase low-pass, then the decimation's
+    Chebyshev anti-alias filter) rings: ``|y| - 1`` reaches 0.15 next to the jump and a few
+    percent one or two decimated rows away. ``o[d]`` is its largest value at distance ``d`` or more,
+    non-increasing, 0 once settled (the array ends there).
+    """
+    der, dec = settling_samples(settings)
+    n = 4 * (der + dec) + 64
+    x = np.where(np.arange(2 * n) < n, -1.0, 1.0)
+    y = antialias(lowpass(x, settings), settings)
+    over = np.maximum(np.abs(y) - 1.0, 0.0)
+    d = np.abs(np.arange(2 * n) - n + 0.5).astype(int)      # raw samples from the jump (between n-1 and n)
+    o = np.zeros(n + 1)
+    np.maximum.at(o, np.minimum(d, n), over)
+    return np.maximum.accumulate(o[::-1])[::-1]
+
+
+def rest_distance(data: GapData) -> np.ndarray:
+    """Per decimated row, the raw samples from its own sample to the nearest moving one (cached on ``data``).
+
+    A raw sample moves when its filtered speed is at or above the encoder's speed resolution
+    (:func:`.residuals.gap_log_scales`, the rest rule of :func:`near_rest`). A ``stuck`` row (its *decimated*
+    speed below ``GapOptions.stick_velocity``) may still move at the raw rate (a motor creeping or
+    oscillating faster than the decimated band); a row at distance 0 does.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    ndarray of int, shape (m,)
+        Distance [raw samples]; the log's length when no sample moves.
+    """
+    if "rest_distance" not in data.cache:
+        rest = _raw_rest(data)
+        moving = np.flatnonzero(~rest)
+        e, R = data.settings.edge_samples, data.settings.decimation_factor
+        pos = e + np.arange(data.t.size) * R
+        if moving.size:
+            i = np.searchsorted(moving, pos)
+            left = moving[np.clip(i - 1, 0, moving.size - 1)]
+            right = moving[np.clip(i, 0, moving.size - 1)]
+            dist = np.minimum(np.abs(pos - left), np.abs(right - pos))
+        else:
+            dist = np.full(data.t.size, rest.size)
+        data.cache["rest_distance"] = dist
+    return data.cache["rest_distance"]
+
+
+def held_at_rest_rows(data: GapData) -> np.ndarray:
+    """Decimated rows at rest at the raw rate too: ``stuck``, their own raw sample not moving (:func:`rest_distance`).
+
+    There the friction holds whatever net torque acts: the rows that show a breakaway level.
+    """
+    return data.stuck & (rest_distance(data) > 0)
+
+
+def held_level_factor(data: GapData) -> np.ndarray:
+    """Per decimated row, the factor by which the filters can lift a held friction level there [-].
+
+    A friction torque that never exceeds ``F`` at the raw rate (a static friction holding up to
+    its breakaway level, a Coulomb level sliding) is seen through the zero-phase filters: next to a
+    reversal, where it jumps from ``-F`` to ``+F``, the filtered torque rings up to 15 % above
+    ``F`` (:func:`_step_overshoot`). On a row ``d`` raw samples from the nearest moving sample
+    (:func:`rest_distance`) the held torque may read up to ``F (1 + o[d])``: a Coulomb log's rows
+    at rest next to reversals read 8-40 % above ``F_c``, which a breakaway level fitted on them
+    took for stiction.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        ``1 + o[d]`` for every row.
+    """
+    if "held_level_factor" not in data.cache:
+        o = _step_overshoot(data.settings)
+        data.cache["held_level_factor"] = 1.0 + o[np.minimum(rest_distance(data), o.size - 1)]
+    return data.cache["held_level_factor"]
