@@ -58,6 +58,11 @@ probability or scales with the information in the log; none is tuned to one gene
    cannot tell from the verdict; candidates that would remove ``min_reduction`` of the
    gap but are not identified are listed with the reason; a re-calibration on its
    datasheet bound is reported.
+9. What the sensors leave open is read both ways and the data choose: a ``tau_s`` column between a
+   logger's rounding and a quiet sensor (the verdict that explains more of its gap), and motion below the
+   encoder's speed resolution, at rest or creeping where the recorded angle moves
+   (:func:`.motion.creeping`; the reading whose friction fits predict the held-out data better), each
+   stated in a caveat.
 
 A second view of the gap, the output-error replay (:mod:`.replay`), simulates the
 nominal and the augmented model from the recorded ``tau_m`` over short windows
