@@ -482,7 +482,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         if fit.effect in HALF_BAND_CHECKED and assessment.identified and p < alpha and lowers_total:
             assessment = persists_in_half_band(data, fit, assessment)     # a refit: only where it can decide
             # the encoders' quantisation, not an effect: in a pair too
-            in_band_only |= set() if assessment.identified else {fit.effect}
+            if not assessment.identified:
+                in_band_only.add(fit.effect)
         ranked.append(RankedCandidate(effect=fit.effect, gap_after=fit.gap_held_out,
                                       reduction=float(min(max(red, 0.0), 1.0)), params=fit.params,
                                       p_value=p, bic=bic, assessment=assessment, reduction_own=red_own,

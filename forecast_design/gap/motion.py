@@ -42,17 +42,15 @@ def creeping(data: GapData) -> np.ndarray:
         +1 or -1 where a sample may creep that way, 0 elsewhere.
     """
     if "creeping" not in data.cache:
-        v = np.asarray(data.raw["v"], dtype=float)
+        d = _resolved_direction(data)
+        slow = d == 0.0
         scales = gap_log_scales(data)
-        d = np.sign(v)
-        slow = np.abs(v) < scales.speed_resolution
-        d[slow] = 0.0
-        out = np.zeros(v.size)
+        out = np.zeros(d.size)
         th = np.asarray(data.experiment.signals.theta, dtype=float)     # as recorded: still where it rests
         rate, stick = float(data.experiment.rate_hz), float(data.options.stick_velocity)
         w = int(math.ceil(scales.encoder_step / (2.0 * stick) * rate))     # half-window [raw samples]
         if w > 0 and np.any(slow) and np.any(~slow):
-            n = v.size
+            n = d.size
             idx = np.arange(n)
             back = th - th[np.maximum(idx - w, 0)]
             fwd = th[np.minimum(idx + w, n - 1)] - th
@@ -86,14 +84,22 @@ def motion_direction(data: GapData) -> np.ndarray:
         +1, -1 or 0 per raw sample.
     """
     if "direction" not in data.cache:
-        v = np.asarray(data.raw["v"], dtype=float)
-        d = np.sign(v)
-        d[np.abs(v) < gap_log_scales(data).speed_resolution] = 0.0
+        d = _resolved_direction(data)
         if data.creep:
             fill = creeping(data)
             d = np.where(fill != 0.0, fill, d)
         data.cache["direction"] = d
     return data.cache["direction"]
+
+
+def _resolved_direction(data: GapData) -> np.ndarray:
+    """``sign(theta')`` where the filtered speed is at or above the speed resolution, 0 below (cached)."""
+    if "resolved_direction" not in data.cache:
+        v = np.asarray(data.raw["v"], dtype=float)
+        d = np.sign(v)
+        d[np.abs(v) < gap_log_scales(data).speed_resolution] = 0.0
+        data.cache["resolved_direction"] = d
+    return data.cache["resolved_direction"]
 
 
 def _raw_rest(data: GapData) -> np.ndarray:
