@@ -10,7 +10,7 @@ equation (:func:`noise_floor`):
 
 which is the plain reduction on a 2,000,000-count log (floor ~ 1e-5 N m) and lets a coarse log
 blame what it can. A candidate that passes every other test of the diagnosis (the held-out
-t-test at the Bonferroni level, identified, at least 0.1 % of the RMS command explained, the
+t-test at the candidate's level, identified, at least 0.1 % of the RMS command explained, the
 total gap lowered) but stays below ``min_reduction`` is a *weak* effect: the log resolves it,
 since the held-out test's power grows with the log's length and excitation, but it explains
 less than a clear verdict. It becomes the verdict with grade ``weak`` when no candidate is

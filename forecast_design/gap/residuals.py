@@ -89,7 +89,8 @@ class GapOptions:
         Harmonics of the motor angle used by the ``cogging`` and ``position_friction``
         candidates [-].
     alpha : float
-        Family-wise significance level of the held-out test (Bonferroni over candidates) [-].
+        Family-wise significance level of the held-out test, split over the candidates (weighted
+        Bonferroni, :func:`.diagnose.candidate_levels`) [-].
     min_reduction : float
         Smallest held-out gap reduction ``1 - gap_after / gap_before`` that counts [-].
     stick_velocity : float
