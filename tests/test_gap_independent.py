@@ -462,3 +462,36 @@ def test_hac_covariance_of_a_column_never_excited_has_infinite_not_zero_variance
     cov = res.covariance
     assert not np.any(np.isnan(cov)) and np.isinf(cov[1, 1])
     assert np.all(np.isfinite(np.delete(np.delete(cov, 1, 0), 1, 1)))
+
+
+# --- 5d. friction laws that name nothing coulomb would not, friction below the torque accuracy ------------------
+
+
+@pytest.mark.slow
+def test_a_friction_level_below_the_motors_torque_accuracy_is_not_friction():
+    # an effect-free 2,000,000-count closed-loop square (RMS command 0.14 N m): a LuGre law with a Coulomb level
+    # of 0.10 mN m and 3 mrad bristles removed the whole gap above the quantisation floor at p = 6e-17 and was the
+    # verdict (a false alarm). No motor resolves a friction level below 0.1 % of its RMS command
+    log = ind.make_independent_log("none", 4, 72, magnitude_scale=0.25)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.NONE
+    stiction = next(r for r in d.ranking if r.effect is Effect.STICTION)
+    assert any("torque accuracy" in reason for reason in stiction.assessment.reasons)
+
+
+@pytest.mark.slow
+def test_an_effect_free_closed_loop_square_with_a_torque_sensor_is_no_stiction():
+    # a sign(v)-like torque of 0.5 mN m (0.2 % of the RMS command, 0.35 of the gap above the floor) on an
+    # effect-free 2,000,000-count closed-loop square with a torque sensor: stiction with an unresolved bump
+    # (dF at Wald p = 0.8) was the clear verdict; it is not stiction
+    log = ind.make_independent_log("none", 5, 73)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is not Effect.STICTION
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open: the 0.5 mN m sign(v)-like torque persists in half the band and with "
+                                       "reference-driven instruments; its source in the log is not found (RESULTS)")
+def test_an_effect_free_closed_loop_square_with_a_torque_sensor_names_no_effect():
+    log = ind.make_independent_log("none", 5, 73)
+    assert diagnose(log.experiment, joint=False).effect is Effect.NONE

@@ -29,7 +29,7 @@ import numpy as np
 from .candidates import CandidateFit
 from .residuals import GapData
 
-__all__ = ["noise_floor", "floor_rms", "held_at_rest", "explainable_reduction", "GRADES"]
+__all__ = ["noise_floor", "floor_rms", "held_at_rest", "explainable_reduction", "explained_rms", "GRADES"]
 
 #: Grades of a verdict: an effect that removes ``min_reduction`` of the explainable gap, one the log
 #: resolves but that explains less, or no effect.
@@ -145,3 +145,25 @@ def explainable_reduction(reference: CandidateFit, candidate: CandidateFit, rows
     if a2 <= 0.0:
         return 0.0
     return float(min(max(1.0 - math.sqrt(max(b2, 0.0) / a2), 0.0), 1.0))
+
+
+def explained_rms(reference: CandidateFit, candidate: CandidateFit, rows: np.ndarray) -> float:
+    """RMS torque [N m] a candidate explains beyond the reference on the given rows, ``sqrt(a^2 - b^2)``.
+
+    Parameters
+    ----------
+    reference, candidate : CandidateFit
+        Two fits on the same data.
+    rows : ndarray of bool
+        Stacked rows compared.
+
+    Returns
+    -------
+    float
+        ``sqrt(max(mean(r_ref^2) - mean(r_cand^2), 0))`` over the rows; 0 for no row [N m].
+    """
+    if not np.any(rows):
+        return 0.0
+    a2 = float(np.mean(reference.residual[rows] ** 2))
+    b2 = float(np.mean(candidate.residual[rows] ** 2))
+    return math.sqrt(max(a2 - b2, 0.0))

@@ -529,6 +529,14 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         # torque (a driver's offset, cogging over part of a revolution), not friction
         reasons.append(f"friction levels {base['F_c']:.3g} / {base['F_c_neg']:.3g} N m (positive / negative motion) "
                        f"differ by more than a factor {ASYMMETRY_MAX_RATIO:g}: a constant torque, not friction")
+    if "F_c" in base:
+        level = max(float(base["F_c"]), float(base.get("F_c_neg", 0.0)))
+        accuracy = data.options.min_effect_fraction * data.command_rms
+        if level < accuracy:
+            # the threshold an effect's explained torque must pass (diagnose), on the friction level itself:
+            # a 0.1 mN m Coulomb level with 3 mrad bristles fitted an effect-free closed-loop square
+            reasons.append(f"friction level {level:.3g} N m is below the motor's torque accuracy ({accuracy:.3g} N m, "
+                           f"{100 * data.options.min_effect_fraction:g} % of the RMS command): not resolved as friction")
     if "gain" in base and abs(base["gain"] - 1.0) <= data.options.calibration_tolerance and not any(
             st_.status == "at_bound" for st_ in calibration_status(data, fit).values()):
         # a common rescaling of J_m, d_m and k within their datasheet tolerance, which the re-calibration

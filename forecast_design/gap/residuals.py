@@ -90,7 +90,7 @@ class GapOptions:
         candidates [-].
     alpha : float
         Family-wise significance level of the held-out test, split over the candidates (weighted
-        Bonferroni, :func:`.diagnose.candidate_levels`) [-].
+        Bonferroni, :func:`.heldout.candidate_levels`) [-].
     min_reduction : float
         Smallest held-out gap reduction ``1 - gap_after / gap_before`` that counts [-].
     stick_velocity : float
