@@ -495,3 +495,16 @@ def test_an_effect_free_closed_loop_square_with_a_torque_sensor_is_no_stiction()
 def test_an_effect_free_closed_loop_square_with_a_torque_sensor_names_no_effect():
     log = ind.make_independent_log("none", 5, 73)
     assert diagnose(log.experiment, joint=False).effect is Effect.NONE
+
+
+@pytest.mark.slow
+def test_a_dead_band_the_spring_leaves_only_at_the_extremes_of_the_motion_is_searched_for():
+    # a 2,000,000-count closed-loop chirp with a 3.34 mrad dead band: the spring deflects at most 2.38 mrad either
+    # way, and the search ended at 0.8 of the 99th percentile (a width of 3.68 mrad), where the fit sat: "a search
+    # that stops at its bound has not found the value", verdict environment_mismatch. It now runs to the largest
+    # deflection less one count
+    log = ind.make_independent_log("backlash", 6, 73)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.BACKLASH
+    status = d.to_mapping()["verdict"]["status"]["width_rad"]
+    assert abs(status["value"] - log.case.effect_params["width"]) <= 1.96 * status["std"]

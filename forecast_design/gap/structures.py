@@ -220,7 +220,9 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         if span <= 2.0 * step:
             return out
         # a dead band below an encoder count is not resolved: the search starts there
-        h_grid = np.geomspace(max(span * 1e-4, 1e-6, step), 0.8 * span, 30)
+        # up to the largest deflection less a count, where the spring still engages at all (0.8 of the 99th
+        # percentile stopped short of true dead bands the spring leaves only at the extremes of the motion)
+        h_grid = np.geomspace(max(span * 1e-4, 1e-6, step), max(float(np.max(np.abs(x))) - step, 0.8 * span), 30)
         clipped = data.decimate_many(np.clip(x, -half, half) for half in h_grid)
         for half, dec in zip(h_grid, clipped):
             clip = tb.k * dec
