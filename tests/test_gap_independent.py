@@ -480,6 +480,17 @@ def test_a_friction_level_below_the_motors_torque_accuracy_is_not_friction():
 
 
 @pytest.mark.slow
+def test_a_richer_friction_law_that_does_not_beat_coulomb_is_no_verdict_even_when_coulomb_is_weak():
+    # a 16-bit open-loop multisine with Coulomb friction of 0.152 N m: coulomb removed 37 % of the gap above the
+    # floor (weak), a LuGre law with one-count bristles 42 % (clear) without beating coulomb on the held-out data
+    # (nested p = 0.64): the verdict was stiction. The richer law must beat coulomb whenever coulomb is resolved
+    log = ind.make_independent_log("coulomb", 6, 71)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.COULOMB and d.grade == "weak"
+    assert max(d.params["F_c"], d.params["F_c_neg"]) == pytest.approx(log.case.effect_params["F_c"], rel=0.05)
+
+
+@pytest.mark.slow
 def test_an_effect_free_closed_loop_square_with_a_torque_sensor_is_no_stiction():
     # a sign(v)-like torque of 0.5 mN m (0.2 % of the RMS command, 0.35 of the gap above the floor) on an
     # effect-free 2,000,000-count closed-loop square with a torque sensor: stiction with an unresolved bump

@@ -45,8 +45,8 @@ probability or scales with the information in the log; none is tuned to one gene
    both at rest and in a Stribeck coefficient distinguishable from zero; a friction law keeps a level per direction of motion only where that lowers the
    held-out gap and the two levels are within a factor 3 (else one level for both, stated in a caveat);
    the same rule applies to the two-effect path and to the second effect. Where ``coulomb`` does not
-   count, a richer law still names only what it resolves (:func:`.heldout.richer_law_resolved`); else the
-   next candidate that counts, or none.
+   count, a richer law must still beat it if it is resolved but weak, and name only what it resolves
+   (:func:`.heldout.richer_law_resolved`); else the next candidate that counts, or the weak grade.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
    reduction, graded ``weak`` (:mod:`.grading`), or ``none`` when there is none.
 7. A second effect (forward selection, one step): every other candidate is fitted
@@ -510,10 +510,12 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             winner = coul
             ranked.remove(coul)
             ranked.insert(0, coul)
-        elif simpler is not None and not richer_law_resolved(data, richer, simpler):
-            # the richer law counts and coulomb does not, but what the richer law adds is not resolved: it
-            # names nothing coulomb would not (an effect-free closed-loop square fitted a 1.8 mN m "stiction"
-            # with dF at Wald p = 0.8): the next candidate that counts, if any
+        elif (coul is not None and coul.weak and not richer_law_justified(data, richer, simpler)) or (
+                simpler is not None and not richer_law_resolved(data, richer, simpler)):
+            # the richer law counts and coulomb does not: its margin over a weak coulomb that it does not beat on
+            # the held-out data is no evidence (a coulomb log: coulomb 37 %, LuGre 42 % with one-count bristles,
+            # nested p = 0.64), nor are terms it does not resolve (an effect-free closed-loop square: a 1.8 mN m
+            # "stiction", dF at Wald p = 0.8). The next candidate that counts, else the weak grade
             ranked[ranked.index(winner)] = dataclasses.replace(winner, significant=False)
             ranked.sort(key=lambda r: (not r.significant, r.bic))
             winner = ranked[0] if ranked[0].significant else None
