@@ -463,7 +463,6 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     gap0 = base.gap_held_out
     ranked = []
     held_rows = data.stacked(data.held_out)
-    tau_rms = data.command_rms
     floor = noise_floor(data)
     in_band_only: set[Effect] = set()
     for fit, alpha_fit in zip(fits, alphas):
@@ -473,7 +472,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         # part of it above the encoders' quantisation, which no effect explains (grading.noise_floor)
         own = effect_rows(data, fit)
         red_own = explainable_reduction(base, fit, held_rows & own, floor)
-        if explained_rms(base, fit, held_rows & own) < opts.min_effect_fraction * tau_rms:
+        if explained_rms(base, fit, held_rows & own) < data.torque_accuracy:
             red_own = 0.0   # below the motor's torque accuracy: not an effect
         all_units = test_units(data, fit)
         units = np.where(own, all_units, -1)
@@ -506,16 +505,20 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     if winner is not None and winner.effect in (Effect.STICTION, Effect.POSITION_FRICTION):
         coul = next((r for r in ranked if r.effect is Effect.COULOMB), None)
         richer, simpler = by_effect[str(winner.effect)], by_effect.get(str(Effect.COULOMB))
-        if coul is not None and coul.significant and not richer_law_justified(data, richer, simpler):
+        # where coulomb is resolved (clear or weak) the richer law must beat it on the held-out data: its margin
+        # over a weak coulomb is no evidence (a coulomb log: coulomb 37 %, LuGre 42 % with one-count bristles,
+        # nested p = 0.64); where coulomb is not, it must still resolve its extra terms (an effect-free
+        # closed-loop square: a 1.8 mN m "stiction", dF at Wald p = 0.8)
+        if coul is not None and (coul.significant or coul.weak):
+            keep = richer_law_justified(data, richer, simpler)
+        else:
+            keep = simpler is None or richer_law_resolved(data, richer, simpler)
+        if not keep and coul is not None and coul.significant:
             winner = coul
             ranked.remove(coul)
             ranked.insert(0, coul)
-        elif (coul is not None and coul.weak and not richer_law_justified(data, richer, simpler)) or (
-                simpler is not None and not richer_law_resolved(data, richer, simpler)):
-            # the richer law counts and coulomb does not: its margin over a weak coulomb that it does not beat on
-            # the held-out data is no evidence (a coulomb log: coulomb 37 %, LuGre 42 % with one-count bristles,
-            # nested p = 0.64), nor are terms it does not resolve (an effect-free closed-loop square: a 1.8 mN m
-            # "stiction", dF at Wald p = 0.8). The next candidate that counts, else the weak grade
+        elif not keep:
+            # the next candidate that counts, else the weak grade
             ranked[ranked.index(winner)] = dataclasses.replace(winner, significant=False)
             ranked.sort(key=lambda r: (not r.significant, r.bic))
             winner = ranked[0] if ranked[0].significant else None
@@ -754,7 +757,6 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
     best: RankedCandidate | None = None
     passing: dict[str, tuple[RankedCandidate, CandidateFit]] = {}
     held_rows = data.stacked(data.held_out)
-    tau_rms = data.command_rms
     for fit in fits:
         pair = fit_pair(data, first, fit.effect)
         if pair is None:
@@ -768,7 +770,7 @@ def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit],
         # with no single winner, the pair must also beat the nominal model by the test
         p_base = held_out_test(base, pair, held_blocks, units=units) if base is not None else 0.0
         # with no single winner, the pair must also explain the motor's torque accuracy on its own
-        explains = base is None or explained_rms(base, pair, held_rows) >= opts.min_effect_fraction * tau_rms
+        explains = base is None or explained_rms(base, pair, held_rows) >= data.torque_accuracy
         if extra >= need and p < alpha and p_base < alpha and explains and (best is None or bic < best.bic):
             assessment = assess_fit(data, pair)
             if not assessment.identified:

@@ -531,7 +531,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                        f"differ by more than a factor {ASYMMETRY_MAX_RATIO:g}: a constant torque, not friction")
     if "F_c" in base:
         level = max(float(base["F_c"]), float(base.get("F_c_neg", 0.0)))
-        accuracy = data.options.min_effect_fraction * data.command_rms
+        accuracy = data.torque_accuracy
         if level < accuracy:
             # the threshold an effect's explained torque must pass (diagnose), on the friction level itself:
             # a 0.1 mN m Coulomb level with 3 mrad bristles fitted an effect-free closed-loop square

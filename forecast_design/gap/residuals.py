@@ -337,6 +337,11 @@ class GapData:
         return command_rms(self.experiment)
 
     @property
+    def torque_accuracy(self) -> float:
+        """Smallest RMS torque an effect must explain, ``options.min_effect_fraction`` x :attr:`command_rms` [N m]."""
+        return self.options.min_effect_fraction * self.command_rms
+
+    @property
     def locked(self) -> bool:
         """True when the output is locked (no environment equation)."""
         return "environment" not in self.equations
