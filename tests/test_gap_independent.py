@@ -294,10 +294,16 @@ def test_friction_levels_that_would_be_a_constant_torque_are_fitted_as_one_level
     ("none", 4, 54, 0.25, Effect.NONE, Effect.ENVIRONMENT_MISMATCH),   # stiff, 16-bit: J at 0.69
     ("none", 7, 54, 0.25, Effect.NONE, Effect.DELAY),      # 14-bit closed-loop chirp, locked: a "delay" of 11.6 ms
     ("none", 5, 53, 0.25, Effect.NONE, Effect.COULOMB),    # 16-bit open-loop sweep: a Coulomb level of 1.7 mN m
+    # 16-bit open-loop multisine, k = 145: a torque gain of 0.987 (J_m on its bound), 0.999 in half the band
+    ("none", 4, 83, 1.0, Effect.NONE, Effect.TORQUE_GAIN),
     ("environment_mismatch", 6, 54, 1.0, Effect.ENVIRONMENT_MISMATCH, None),   # stiff, 16-bit, d x 2.55: kept
     # link-only, 16-bit, d x 0.921: 0.894 in the full band, 0.949 in half of it (48 % of the deviation), held to
     # a quarter of the band: kept (named torque_gain when only the full and half bands were compared)
     ("environment_mismatch", 1, 0, 0.125, Effect.ENVIRONMENT_MISMATCH, None),
+    # true gains of 0.969 and 0.967 at a quarter of their size: 0.930 / 0.922 in the full band (traded with the
+    # re-calibration), 0.969 / 0.966 in half of it, beyond the re-calibration's tolerance: kept
+    ("torque_gain", 2, 83, 0.25, Effect.TORQUE_GAIN, None),
+    ("torque_gain", 9, 71, 0.25, Effect.TORQUE_GAIN, None),
 ])
 def test_a_fit_that_explains_the_encoders_quantisation_does_not_persist_in_half_the_band(word, index, seed, scale,
                                                                                            want, checked):
@@ -316,7 +322,7 @@ def test_a_fit_that_explains_the_encoders_quantisation_does_not_persist_in_half_
         # is checked first)
         alone = dataclasses.replace(fit.assessment, identified=True, reasons=())
         assert not persists_in_half_band(d.data, d.fits[str(checked)], alone).identified
-    else:
+    elif want is Effect.ENVIRONMENT_MISMATCH:
         assert d.params["d_scale"] == pytest.approx(log.case.effect_params["d_factor"], rel=0.05)
 
 
@@ -505,8 +511,9 @@ def test_an_effect_free_closed_loop_square_with_a_torque_sensor_is_no_stiction()
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open: the 0.5 mN m sign(v)-like torque persists in half the band and with "
-                                       "reference-driven instruments; its source in the log is not found (RESULTS)")
+@pytest.mark.xfail(strict=True, reason="open: the 0.5 mN m sign(v)-like torque is the torque sensor's noise fed back "
+                                       "by the controller, which the zero-phase filtered regressors see (it grows "
+                                       "with the noise's variance: 0.19 -> 1.7 mN m at 3x the noise; RESULTS)")
 def test_an_effect_free_closed_loop_square_with_a_torque_sensor_names_no_effect():
     log = ind.make_independent_log("none", 5, 73)
     assert diagnose(log.experiment, joint=False).effect is Effect.NONE
@@ -523,3 +530,60 @@ def test_a_dead_band_the_spring_leaves_only_at_the_extremes_of_the_motion_is_sea
     assert d.effect is Effect.BACKLASH
     status = d.to_mapping()["verdict"]["status"]["width_rad"]
     assert abs(status["value"] - log.case.effect_params["width"]) <= 1.96 * status["std"]
+
+
+# --- 5e. a verdict a re-calibration or another effect explains as well, a dead band on its ridge ------------
+
+
+@pytest.mark.slow
+def test_a_verdict_that_a_re_calibration_within_the_tolerance_explains_as_well_is_not_named():
+    # a torque gain at a quarter of its size fitted at 1.016, inside the +-3 % a re-calibration stands for (so not
+    # named as a gain), explains 73 % of the gap; a stiction law, through its share of the command, 20 %: stiction
+    # was the verdict (weak). The log cannot tell it from the re-calibration
+    log = ind.make_independent_log("torque_gain", 5, 3, magnitude_scale=0.25)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.NONE
+    gain = next(r for r in d.ranking if r.effect is Effect.TORQUE_GAIN)
+    assert gain.assessment.rescaling and not gain.identified
+    assert abs(gain.params["gain"] - 1.0) <= d.data.options.calibration_tolerance
+    stiction = next(r for r in d.ranking if r.effect is Effect.STICTION)
+    assert stiction.weak and gain.gap_after <= stiction.gap_after
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("word, index, seed, scale", [
+    ("coulomb", 8, 25, 1.0),          # 0.034 rad: harmonics of up to 102 N m, cogging at 62 % of the gap, gain 79 %
+    ("torque_gain", 2, 25, 0.125),    # 0.68 rad: cogging at 88 % of the gap, environment_mismatch 88 %
+])
+def test_a_periodic_torque_over_less_than_a_period_is_named_only_where_nothing_else_explains_as_much(word, index, seed,
+                                                                                                       scale):
+    # over less than a period of the highest harmonic the angle harmonics are a polynomial in the angle (an offset,
+    # a spring, a curvature): they fit whatever smooth torque the log carries as the angle follows it, with large
+    # coefficients that cancel. Each was named cogging (clear). A true cogging there is still named where nothing
+    # explains as much (tests/test_gap.py). The second log is one the generator calls not identifiable
+    case = ind.draw_independent_case(word, index, seed, magnitude_scale=scale)
+    d = diagnose(ind.simulate_independent(case)[0], joint=False)
+    assert d.effect is not Effect.COGGING
+    assert any(c.startswith("Not distinguished: the motor turns through") for c in d.caveats)
+    cog = next(r for r in d.ranking if r.effect is Effect.COGGING)
+    assert any(r.effect is not Effect.COGGING and r.gap_after <= cog.gap_after for r in d.ranking)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index, seed, scale", [
+    (2, 81, 1.0),    # 16-bit closed-loop square, 3.00 mrad: c on its bound 2 at 1.41 mrad, verdict environment_mismatch
+    (7, 83, 0.25),   # open-loop square, locked, 0.45 mrad: c on 2 at 0.21 mrad, verdict torque_gain
+    (7, 53, 0.25),   # 16-bit closed-loop square, 1.00 mrad: c 0.29 at the search's widest 3.10 mrad, verdict cogging
+    (3, 71, 1.0),    # closed-loop square, 3.06 mrad, the spring engaged only 0.07 mrad beyond: on the search's end
+])
+def test_a_dead_band_the_motion_crosses_quickly_is_read_where_it_is_physical(index, seed, scale):
+    # the spring is inside its dead band for a few samples per reversal: the log resolves the torque the band takes
+    # off outside it, c k h, and the fit is flat along c x h; the width is read at c nearest 1 (the physical dead
+    # band), and the search is finer in its last step. Each was "not identified" before
+    log = ind.make_independent_log("backlash", index, seed, magnitude_scale=scale)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.BACKLASH
+    status = d.to_mapping()["verdict"]["status"]["width_rad"]
+    assert abs(status["value"] - log.case.effect_params["width"]) <= 1.96 * status["std"]
+    c = float(d.fits["backlash"].coef[-1])
+    assert 0.5 <= c <= 1.5

@@ -50,7 +50,7 @@ from ..effects import Effect
 from ..plausibility import effect_bound, levels_are_friction
 from .motion import held_at_rest_rows, held_level_factor, near_rest
 from .residuals import GapData, gap_log_scales
-from .structures import _FRICTION, _Coef, _coef, _design_matrix, _j_held, _Structure, _structures
+from .structures import _FRICTION, _Coef, _coef, _design_matrix, _j_held, _Structure, _structures, dead_band_structures
 
 __all__ = ["CandidateFit", "effect_rows", "fit_baseline", "fit_candidate", "fit_constant_torque", "fit_all", "fit_pair",
            "levels_shared", "CANDIDATE_EFFECTS"]
@@ -406,10 +406,31 @@ def _best_on_grid(data: GapData, effect: Effect, structures: Sequence[_Structure
         if merged is None:
             continue
         fit = _fit(data, effect, merged)
-        ridge += [fit] if effect is Effect.DELAY else []      # grid ordered by delay; c is the last coefficient
+        # grid ordered by delay (dead band); c is the last coefficient
+        ridge += [fit] if effect in (Effect.DELAY, Effect.BACKLASH) else []
         if best is None or fit.gap_fit < best.gap_fit:
             best = fit
     on_bound = [f.coef[-1] >= f.structure.coefs[-1].hi * (1.0 - 1e-9) for f in ridge]
+    if effect is Effect.BACKLASH:
+        # a motion that rarely stays inside the dead band resolves only the torque the band takes off outside it,
+        # c k h: the fit is flat along c x h and its minimum lands on c's bound 2 at half the width, or on the
+        # grid's widest point at c ~ 0.3 (true 3.0 and 1.0 mrad read as 1.4 and 3.1, "not identified"). The
+        # physical dead band (c = 1) is read on that ridge: the grid point whose c is nearest 1
+        k = next((i for i, f in enumerate(ridge) if f is best), None)
+        if k is not None and (on_bound[k] or k == len(ridge) - 1) and best.coef[-1] > 0.0:
+            best = min(ridge, key=lambda f: abs(float(f.coef[-1]) - 1.0))
+        if len(ridge) > 1 and best is ridge[-1] and abs(float(best.coef[-1]) - 1.0) <= 0.5:
+            # a physical dead band (c ~ 1) at the search's end, where the spring engages only at the extremes of
+            # the motion: the last step (24 %) is searched finer (true 3.06 mrad sat on the end, 3.19)
+            _, w_hi, lo, hi = next(g for g in best.structure.grid if g[0] == "width_rad")
+            w_lo = next(g[1] for g in ridge[-2].structure.grid if g[0] == "width_rad")
+            fine = dead_band_structures(data, np.linspace(w_lo, w_hi, 6)[1:-1] / 2.0, (lo, hi))
+            cached = data.cache.get(("structures", effect))
+            if cached and cached[-1] is best.structure:    # alone (not in a pair): the neighbours' search sees them
+                cached[-1:-1] = fine
+            fits = [_fit(data, effect, m) for m in map(wrap, fine) if m is not None]
+            best = min([best, *fits], key=lambda f: f.gap_fit)
+        return best
     k = next((i for i, f in enumerate(ridge) if f is best), None)
     if k is not None and on_bound[k]:
         best = next((f for f, b in zip(ridge[k + 1:], on_bound[k + 1:]) if not b), best)

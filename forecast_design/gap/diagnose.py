@@ -28,14 +28,17 @@ probability or scales with the information in the log; none is tuned to one gene
    coefficients pass a joint Wald test with the residual's autocorrelation accounted
    for, and no parameter is outside the plausible range of :mod:`forecast_design.plausibility` (a
    friction level also reaches the torque accuracy of (b)); an
-   environment mismatch, a delay and a Coulomb level also persist in half the equation band
+   environment mismatch, a delay, a Coulomb level and a torque gain also persist in half the equation band
    (:func:`.halfband.persists_in_half_band`: the encoders' quantisation shrinks a fitted J, a closed
-   loop's answer to it looks like a delay, and it can fit a level of a few mN m). What a log resolves
-   only together is fitted that way: a delay short against the band, which shows only as coefficient x
-   delay, is read where that ridge leaves the coefficient's bound; an output J shrunk below a tenth of the
+   loop's answer to it looks like a delay, and it can fit a level of a few mN m or a gain). What a log
+   resolves only together is fitted that way: a delay short against the band, which shows only as
+   coefficient x delay, is read where that ridge leaves the coefficient's bound; a dead band crossed
+   quickly, which shows only as c x width, at c nearest 1; an output J shrunk below a tenth of the
    declared one is held at it (stated in a caveat) while d and k_e are fitted (:mod:`.candidates`).
 4. Among the candidates that count, the winner minimises a held-out BIC,
-   ``n log(SSE / n) + p log(n)`` (p = number of effect parameters).
+   ``n log(SSE / n) + p log(n)`` (p = number of effect parameters). A winner (clear or weak) that a torque gain within
+   the datasheet tolerance (a re-calibration) explains as well is no verdict, nor a periodic one over less than a
+   period that another candidate explains as well (:func:`.heldout.verdict_ties`).
 5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
    ``stiction`` or ``position_friction`` wins over ``coulomb`` only if it resolves what it adds
    (stiction: ``F_s > F_c`` or bristles wider than one count; position_friction: its harmonics) and beats ``coulomb`` by the
@@ -90,16 +93,8 @@ from ..effects import Effect
 from ..errors import ParameterError
 from ..experiment import Experiment
 from .joint import JointAttribution, fit_joint
-from .candidates import (
-    CANDIDATE_EFFECTS,
-    effect_rows,
-    CandidateFit,
-    fit_all,
-    fit_baseline,
-    fit_constant_torque,
-    fit_pair,
-    levels_shared,
-)
+from .candidates import (CANDIDATE_EFFECTS, CandidateFit, effect_rows, fit_all, fit_baseline, fit_constant_torque,
+                         fit_pair, levels_shared)
 from .identifiability import (CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, isolability,
                               method_shift, with_method_error)
 from .halfband import HALF_BAND_CHECKED, persists_in_half_band
@@ -108,8 +103,8 @@ from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
 from .grading import explainable_reduction, explained_rms, noise_floor
 from .structures import _FRICTION, j_held
-from .heldout import (NESTED_ALPHA, candidate_levels, correlation_length, held_out_test, richer_law_justified,
-                      richer_law_resolved, test_units)
+from .heldout import (NESTED_ALPHA, candidate_levels, correlation_length, held_out_test, verdict_ties,
+                      richer_law_justified, richer_law_resolved, test_units)
 from .motion import creeping
 from .residuals import GapData, GapOptions, TauSSource, gap_log_scales, prepare_gap_data
 
@@ -534,6 +529,10 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             winner = simpler
             ranked.remove(winner)
             ranked.insert(0, winner)
+    tie = verdict_ties(data, ranked, winner)
+    if tie:
+        caveats.append(tie)
+        winner = None
     location = locate_gap(data, base.residual)
     iso = isolability(data, fits)
     jt = fit_joint(data, fits) if joint and fits else None
@@ -578,7 +577,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     if winner is None:
         # an effect the log resolves (held-out test, identified, the torque accuracy, the total gap lowered)
         # but that explains less than min_reduction: the verdict, graded weak
-        weak = sorted((r for r in ranked if r.weak and _weak_is_distinct(data, r, by_effect[str(r.effect)], base, iso)),
+        weak = sorted((r for r in ranked if r.weak and _weak_is_distinct(data, r, by_effect[str(r.effect)], base, iso)
+                       and not verdict_ties(data, ranked, r)),
                       key=lambda r: r.bic)
         if weak and weak[0].effect in (Effect.STICTION, Effect.POSITION_FRICTION):
             coul = next((r for r in weak if r.effect is Effect.COULOMB), None)
@@ -654,7 +654,6 @@ def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[Rank
         if extra < data.options.min_reduction:
             return r, float(extra)
     return winner, float("nan")
-
 
 
 def _weak_is_distinct(data: GapData, weak: RankedCandidate, fit: CandidateFit, base: CandidateFit,

@@ -3,8 +3,9 @@
 The equation errors are kept up to a band chosen for the motor equation's quantisation
 (:func:`.residuals.equation_band`); twice-differentiated quantisation grows with the band as ``f^2.5``, and some
 candidates can fit it: an environment's inertia shrunk by the output encoder's noise in ``q''``, a closed loop's
-delayed answer to the encoders' noise, a friction level of a few millinewton metres. A physical effect keeps its
-size when the analysis is repeated in half the band; those do not (:func:`persists_in_half_band`).
+delayed answer to the encoders' noise, a friction level of a few millinewton metres, a torque gain taking up a
+shrunk ``J_m``. A physical effect keeps its size when the analysis is repeated in half the band; those do not
+(:func:`persists_in_half_band`).
 """
 
 from __future__ import annotations
@@ -20,11 +21,11 @@ __all__ = ["persists_in_half_band", "HALF_BAND_CHECKED"]
 
 
 #: Effects whose fit can explain the encoders' quantisation at the top of the band, checked in half of it.
-HALF_BAND_CHECKED = (Effect.ENVIRONMENT_MISMATCH, Effect.DELAY, Effect.COULOMB)
+HALF_BAND_CHECKED = (Effect.ENVIRONMENT_MISMATCH, Effect.DELAY, Effect.COULOMB, Effect.TORQUE_GAIN)
 
 
 def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAssessment) -> EffectAssessment:
-    """An environment mismatch, a delay or a Coulomb level that does not persist in half the band is not identified.
+    """An environment mismatch, a delay, a Coulomb level or a torque gain that does not persist in half the band is not identified.
 
     Quantisation, differentiated twice, grows with the band as ``f^2.5``, and three fits can "explain" it:
 
@@ -40,7 +41,10 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
       20 ms, the search's end, at 0.04). The delay's effective size, coefficient times delay, persists when in
       half the band it is within a factor 2 (true delays of four seeds: within 1.5, most within 1 %);
     * a friction level of a few millinewton metres on an effect-free 16-bit log (1.7 mN m; in half the band
-      0.1 mN m, while true levels of 0.04-0.12 N m moved by at most 5 %) must keep at least half its size.
+      0.1 mN m, while true levels of 0.04-0.12 N m moved by at most 5 %) must keep at least half its size;
+    * a torque gain whose fit takes up what the quantisation does to ``J_m theta''`` (an effect-free 16-bit log,
+      k = 145: 0.987 with J_m on its datasheet bound, 0.999 in half the band) must keep the sign of its
+      deviation from 1 and at least half its size, or stay beyond the re-calibration's tolerance.
 
     The candidate is refitted on the log prepared with half the decimated rate.
 
@@ -49,7 +53,7 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
     data : GapData
         The prepared log.
     fit : CandidateFit
-        Its environment_mismatch, delay or coulomb fit.
+        Its environment_mismatch, delay, coulomb or torque_gain fit.
     assessment : EffectAssessment
         That fit's assessment.
 
@@ -71,6 +75,15 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
             return assessment
         why = (f"the friction level does not persist in half the equation band ({a:.3g} -> {b:.3g} N m): the "
                "encoders' quantisation, not friction")
+    elif fit.effect is Effect.TORQUE_GAIN:
+        # the gain trades with the re-calibration of J_m, d_m and k, more so where quantisation biases them: true
+        # gains of 0.969 and 0.967 fitted 0.930 and 0.922 in the full band, 0.969 and 0.966 in half of it. Beyond
+        # the re-calibration's tolerance there, the gain is one
+        a, b = (1.0 - f.params["gain"] for f in (fit, refit))
+        if a * b > 0.0 and (abs(b) >= 0.5 * abs(a) or abs(b) > data.options.calibration_tolerance):
+            return assessment
+        why = (f"the torque gain does not persist in half the equation band ({1.0 - a:.4g} -> {1.0 - b:.4g}): "
+               "the encoders' quantisation, not a gain")
     elif fit.effect is Effect.DELAY:
         a, b = (float(f.coef[f.n_cal]) * f.params["delay_s"] for f in (fit, refit))
         if a > 0.0 and 0.5 * a <= b <= 2.0 * a:

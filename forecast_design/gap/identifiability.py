@@ -138,11 +138,15 @@ class EffectAssessment:
         Status of every effect parameter (flattened names: ``a1``, ``b1`` ...).
     reasons : tuple of str
         Why not identified (empty when identified).
+    rescaling : bool
+        True when the fit is a torque gain the re-calibration of ``J_m``, ``d_m`` and ``k`` stands for
+        (within the datasheet tolerance): a re-calibration, not an effect.
     """
 
     identified: bool
     status: Mapping[str, ParameterStatus]
     reasons: tuple[str, ...] = ()
+    rescaling: bool = False
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready mapping: ``identified``, ``not_identified`` (names), ``status`` per parameter, ``reasons``."""
@@ -537,6 +541,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
             # a 0.1 mN m Coulomb level with 3 mrad bristles fitted an effect-free closed-loop square
             reasons.append(f"friction level {level:.3g} N m is below the motor's torque accuracy ({accuracy:.3g} N m, "
                            f"{100 * data.options.min_effect_fraction:g} % of the RMS command): not resolved as friction")
+    n_before = len(reasons)
     if "gain" in base and abs(base["gain"] - 1.0) <= data.options.calibration_tolerance and not any(
             st_.status == "at_bound" for st_ in calibration_status(data, fit).values()):
         # a common rescaling of J_m, d_m and k within their datasheet tolerance, which the re-calibration
@@ -557,7 +562,8 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                            f"({fit.calibration['spring_scale']:.4g}): the whole motor equation rescaled, a gain of "
                            f"{relative:.4g} relative to the spring torque, within the datasheet tolerance "
                            f"(+-{100 * data.options.calibration_tolerance:g} %): not an effect")
-    out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons))
+    out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons),
+                           rescaling=len(reasons) > n_before)
     data.cache[key] = (fit, out)
     return out
 

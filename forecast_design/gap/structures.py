@@ -223,16 +223,7 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
         # up to the largest deflection less a count, where the spring still engages at all (0.8 of the 99th
         # percentile stopped short of true dead bands the spring leaves only at the extremes of the motion)
         h_grid = np.geomspace(max(span * 1e-4, 1e-6, step), max(float(np.max(np.abs(x))) - step, 0.8 * span), 30)
-        clipped = data.decimate_many(np.clip(x, -half, half) for half in h_grid)
-        for half, dec in zip(h_grid, clipped):
-            clip = tb.k * dec
-            if data.tau_s_measured:
-                cols = {"coupling": -clip}
-            else:
-                cols = {"motor": -clip, "environment": clip}
-            out.append(_Structure([_coef(data, "c", cols, 0.0, 2.0)],
-                                  lambda p, h=half: {"width_rad": float(2.0 * h)}, n_params=2,
-                                  grid=(("width_rad", float(2 * half), float(2 * h_grid[0]), float(2 * h_grid[-1])),)))
+        out += dead_band_structures(data, h_grid, (2.0 * h_grid[0], 2.0 * h_grid[-1]))
     elif effect is Effect.ENVIRONMENT_MISMATCH:
         if data.locked:
             return out
@@ -250,6 +241,33 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
             return out_p
 
         out.append(_Structure(coefs, to_params, n_params=3, tests=((0, 1, 2),)))
+    return out
+
+
+def dead_band_structures(data: GapData, halves: Sequence[float], search: tuple[float, float]) -> list[_Structure]:
+    """Backlash at given half-widths: the spring torque loses ``c k clip(x, +-h)`` (``c = 1``: a dead band).
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    halves : sequence of float
+        Half-widths ``h`` of the dead band [rad].
+    search : (float, float)
+        The search's first and last full width [rad] (the grid's ends, for the bound checks).
+
+    Returns
+    -------
+    list of _Structure
+        One structure per half-width, in the given order.
+    """
+    k = data.experiment.design.testbed.k
+    out = []
+    for half, dec in zip(halves, data.decimate_many(np.clip(data.raw["x"], -h, h) for h in halves)):
+        clip = k * dec
+        cols = {"coupling": -clip} if data.tau_s_measured else {"motor": -clip, "environment": clip}
+        out.append(_Structure([_coef(data, "c", cols, 0.0, 2.0)], lambda p, h=half: {"width_rad": float(2.0 * h)},
+                              n_params=2, grid=(("width_rad", float(2 * half), float(search[0]), float(search[1])),)))
     return out
 
 
