@@ -296,6 +296,9 @@ def test_friction_levels_that_would_be_a_constant_torque_are_fitted_as_one_level
     ("none", 5, 53, 0.25, Effect.NONE, Effect.COULOMB),    # 16-bit open-loop sweep: a Coulomb level of 1.7 mN m
     # 16-bit open-loop multisine, k = 145: a torque gain of 0.987 (J_m on its bound), 0.999 in half the band
     ("none", 4, 83, 1.0, Effect.NONE, Effect.TORQUE_GAIN),
+    # 16-bit open-loop sweep, k = 145: a delay of 1.29 ms at coefficient 1.50; in half the band 20 ms, the search's
+    # end, at 0.17 (coefficient x delay "within a factor 2"), in a quarter of it none (named delay, clear, before)
+    ("none", 2, 85, 0.25, Effect.NONE, Effect.DELAY),
     ("environment_mismatch", 6, 54, 1.0, Effect.ENVIRONMENT_MISMATCH, None),   # stiff, 16-bit, d x 2.55: kept
     # link-only, 16-bit, d x 0.921: 0.894 in the full band, 0.949 in half of it (48 % of the deviation), held to
     # a quarter of the band: kept (named torque_gain when only the full and half bands were compared)
