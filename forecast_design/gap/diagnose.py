@@ -529,11 +529,12 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             winner = simpler
             ranked.remove(winner)
             ranked.insert(0, winner)
-    tie = verdict_ties(data, ranked, winner)
+    location = locate_gap(data, base.residual)
+    span = dict(angle_span_rad=location.angle_span_rad, n_harmonics=opts.n_harmonics)
+    tie = verdict_ties(ranked, winner, **span)
     if tie:
         caveats.append(tie)
         winner = None
-    location = locate_gap(data, base.residual)
     iso = isolability(data, fits)
     jt = fit_joint(data, fits) if joint and fits else None
     secondary = None
@@ -578,7 +579,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         # an effect the log resolves (held-out test, identified, the torque accuracy, the total gap lowered)
         # but that explains less than min_reduction: the verdict, graded weak
         weak = sorted((r for r in ranked if r.weak and _weak_is_distinct(data, r, by_effect[str(r.effect)], base, iso)
-                       and not verdict_ties(data, ranked, r)),
+                       and not verdict_ties(ranked, r, **span)),
                       key=lambda r: r.bic)
         if weak and weak[0].effect in (Effect.STICTION, Effect.POSITION_FRICTION):
             coul = next((r for r in weak if r.effect is Effect.COULOMB), None)

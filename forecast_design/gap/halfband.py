@@ -27,7 +27,7 @@ HALF_BAND_CHECKED = (Effect.ENVIRONMENT_MISMATCH, Effect.DELAY, Effect.COULOMB, 
 def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAssessment) -> EffectAssessment:
     """An environment mismatch, a delay, a Coulomb level or a torque gain that does not persist in half the band is not identified.
 
-    Quantisation, differentiated twice, grows with the band as ``f^2.5``, and three fits can "explain" it:
+    Quantisation, differentiated twice, grows with the band as ``f^2.5``, and these fits can "explain" it:
 
     * the environment equation reads the output's acceleration ``q''``: on a coarse output encoder least squares
       shrinks ``J`` (errors in variables: effect-free 14- and 16-bit logs in a stiff environment fitted ``J`` at

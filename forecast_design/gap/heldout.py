@@ -4,8 +4,8 @@ The diagnosis scores every model on held-out blocks (:mod:`.diagnose`). This mod
 paired comparison of two fits on those blocks (:func:`held_out_test`, over test units sized by the
 residual's correlation length, :func:`test_units`), the rule that decides between nested
 friction laws (:func:`richer_law_justified`: ``stiction`` or ``position_friction`` over ``coulomb``) and
-whether a verdict is told from a re-calibration that explains the held-out data as well
-(:func:`rescaling_ties`).
+whether a verdict is told from another reading that explains the held-out data as well (:func:`verdict_ties`:
+a re-calibration, or any candidate where a periodic verdict covers less than a period).
 
 The nested rule is measured against the encoders' quantisation floor (:mod:`.grading`). Two laws
 that share their Coulomb part predict the same torque wherever the richer law's extra terms are
@@ -34,8 +34,7 @@ from .motion import held_at_rest_rows, held_level_factor
 from .residuals import GapData
 
 __all__ = ["held_out_test", "units_test", "correlation_length", "test_units", "nested_law_test", "richer_law_justified",
-           "breakaway_resolved_at_rest", "richer_law_resolved", "candidate_levels", "rescaling_ties", "periodic_ties", "verdict_ties",
-           "NESTED_ALPHA"]
+           "breakaway_resolved_at_rest", "richer_law_resolved", "candidate_levels", "verdict_ties", "NESTED_ALPHA"]
 
 
 def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks: np.ndarray, *,
@@ -396,28 +395,45 @@ def candidate_levels(data: GapData, fits: Sequence[CandidateFit], alpha: float) 
     return [alpha / 2.0 if i == leader else alpha / (2.0 * (n - 1)) for i in range(n)]
 
 
-def rescaling_ties(ranked: Sequence[Any], winner: Any | None) -> str:
-    """Why a verdict is not told from a re-calibration, or ``""`` when it is.
+def verdict_ties(ranked: Sequence[Any], winner: Any | None, *, angle_span_rad: float, n_harmonics: int) -> str:
+    """Why a verdict is not told from another reading of the log, or ``""`` when it is.
 
-    A torque gain within the datasheet tolerance of ``J_m``, ``d_m`` and ``k`` is a re-calibration, not an effect
-    (:func:`.identifiability.assess_fit`). When that fit explains the held-out data at least as well as the
-    verdict, the log does not tell the verdict from the re-calibration: a true gain of 0.97 at an eighth of its
-    size (inside the tolerance, so not named) was named ``cogging`` through the harmonics' share of the command.
+    * A torque gain within the datasheet tolerance of ``J_m``, ``d_m`` and ``k`` is a re-calibration, not an effect
+      (:func:`.identifiability.assess_fit`). When that fit explains the held-out data at least as well as the
+      verdict, the log does not tell the verdict from the re-calibration (a gain fitted at 1.016 explaining 73 % of
+      the gap was named stiction, weak, at 20 %).
+    * Over less than one period of the highest harmonic (``2 pi / n_harmonics`` of motor angle) the harmonics of
+      cogging and position friction are a polynomial in the angle (an offset, a spring, a curvature): they still
+      resolve a true cogging there, but they also fit whatever smooth torque the log carries as the angle follows
+      it (gain, Coulomb and dead-band logs turning 0.003-0.7 rad were named cogging, with harmonics of up to
+      100 N m). Such a verdict stands only when no other candidate (identified or not; a nested friction law
+      excepted for position friction) explains the held-out data as well.
 
     Parameters
     ----------
     ranked : sequence of RankedCandidate
         The ranked candidates of one log (:class:`.diagnose.RankedCandidate`).
     winner : RankedCandidate or None
-        The verdict so far.
+        The verdict so far (clear or weak).
+    angle_span_rad : float
+        The motor angle's span over the log [rad] (:attr:`.locate.Location.angle_span_rad`).
+    n_harmonics : int
+        Harmonics of the periodic candidates [-].
 
     Returns
     -------
     str
         The caveat to state when the verdict must be dropped, else an empty string.
     """
+    if winner is None:
+        return ""
+    return _rescaling_tie(ranked, winner) or _periodic_tie(ranked, winner, angle_span_rad, n_harmonics)
+
+
+def _rescaling_tie(ranked: Sequence[Any], winner: Any) -> str:
+    """The re-calibration part of :func:`verdict_ties`."""
     gain = next((r for r in ranked if r.effect is Effect.TORQUE_GAIN), None)
-    if winner is None or gain is None or gain is winner or gain.assessment is None \
+    if gain is None or gain is winner or gain.assessment is None \
             or not gain.assessment.rescaling or gain.gap_after > winner.gap_after:
         return ""
     return (f"Not distinguished: '{winner.effect}' removes {100 * winner.reduction:.0f} % of the gap and a "
@@ -425,45 +441,17 @@ def rescaling_ties(ranked: Sequence[Any], winner: Any | None) -> str:
             f"{100 * gain.reduction:.0f} %: no effect is named.")
 
 
-def periodic_ties(data: GapData, ranked: Sequence[Any], winner: Any | None) -> str:
-    """Why a periodic verdict over less than one period is not told from another effect, or ``""``.
-
-    Over less than one period of the highest harmonic (``2 pi / n_harmonics`` of motor angle) the harmonics of
-    cogging and position friction are a polynomial in the angle (an offset, a spring, a curvature): they still
-    resolve a true cogging there, but they also fit whatever smooth torque the log carries as the angle follows it
-    (gain, Coulomb and dead-band logs turning 0.003-0.7 rad were named cogging, with harmonics of up to 100 N m).
-    Such a verdict is named only when no other candidate (identified or not; a nested friction law excepted for
-    position friction) explains the held-out data as well.
-
-    Parameters
-    ----------
-    data : GapData
-        Prepared equation errors.
-    ranked : sequence of RankedCandidate
-        The ranked candidates of one log.
-    winner : RankedCandidate or None
-        The verdict so far.
-
-    Returns
-    -------
-    str
-        The caveat to state when the verdict must be dropped, else an empty string.
-    """
-    if winner is None or winner.effect not in (Effect.COGGING, Effect.POSITION_FRICTION):
+def _periodic_tie(ranked: Sequence[Any], winner: Any, span: float, n_harmonics: int) -> str:
+    """The periodic part of :func:`verdict_ties`."""
+    period = 2.0 * math.pi / n_harmonics
+    if winner.effect not in (Effect.COGGING, Effect.POSITION_FRICTION) or span >= period:
         return ""
-    th = data.columns["theta_sub"]
-    span, period = float(np.max(th) - np.min(th)), 2.0 * math.pi / data.options.n_harmonics
     nested = (Effect.COULOMB, Effect.STICTION) if winner.effect is Effect.POSITION_FRICTION else ()
     rivals = [r for r in ranked if r is not winner and r.effect not in nested and r.gap_after <= winner.gap_after]
-    if span >= period or not rivals:
+    if not rivals:
         return ""
     best = min(rivals, key=lambda r: r.gap_after)
     return (f"Not distinguished: the motor turns through {span:.3g} rad, less than one period ({period:.3g} rad) of "
             f"the highest harmonic, where '{winner.effect}' ({100 * winner.reduction:.0f} % of the gap) is a smooth "
             f"torque in the angle and '{best.effect}' explains as much ({100 * best.reduction:.0f} %): no effect is "
             "named.")
-
-
-def verdict_ties(data: GapData, ranked: Sequence[Any], winner: Any | None) -> str:
-    """:func:`rescaling_ties` or :func:`periodic_ties`: why the verdict is not told from another reading, or ``""``."""
-    return rescaling_ties(ranked, winner) or periodic_ties(data, ranked, winner)
