@@ -22,7 +22,7 @@ __all__ = ["persists_in_half_band", "HALF_BAND_CHECKED"]
 
 
 #: Effects whose fit can explain the encoders' quantisation at the top of the band, checked in half of it.
-HALF_BAND_CHECKED = (Effect.ENVIRONMENT_MISMATCH, Effect.DELAY, Effect.COULOMB, Effect.TORQUE_GAIN)
+HALF_BAND_CHECKED = (Effect.ENVIRONMENT_MISMATCH, Effect.DELAY, Effect.COULOMB, Effect.STICTION, Effect.TORQUE_GAIN)
 
 
 def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAssessment) -> EffectAssessment:
@@ -68,13 +68,13 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
     """
     if fit.effect not in HALF_BAND_CHECKED:
         return assessment
-    if fit.effect is Effect.COULOMB and _beyond_quantisation(data, fit):
+    if fit.effect in (Effect.COULOMB, Effect.STICTION) and _beyond_quantisation(data, fit):
         return assessment
     half = _refit_in_band(data, fit, 0.5)
     if half is None:
         return assessment
     refit = half[1]
-    if fit.effect is Effect.COULOMB:
+    if fit.effect in (Effect.COULOMB, Effect.STICTION):
         a, b = (max(f.params["F_c"], f.params.get("F_c_neg", 0.0)) for f in (fit, refit))
         if b >= 0.5 * a:
             return assessment
