@@ -26,7 +26,7 @@ HALF_BAND_CHECKED = (Effect.ENVIRONMENT_MISMATCH, Effect.DELAY, Effect.COULOMB, 
 
 
 def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAssessment) -> EffectAssessment:
-    """An environment mismatch, a delay, a Coulomb level or a torque gain that does not persist in half the band is not identified.
+    """An environment mismatch, a delay, a friction level or a torque gain that does not persist in half the band is not identified.
 
     Quantisation, differentiated twice, grows with the band as ``f^2.5``, and these fits can "explain" it:
 
@@ -44,7 +44,10 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
       half the band it is within a factor 2 and the refit there stops short of the search's end (true delays of
       four seeds: within 1.5, most within 1 %);
     * a friction level of a few millinewton metres on an effect-free 16-bit log (1.7 mN m; in half the band
-      0.1 mN m, while true levels of 0.04-0.12 N m moved by at most 5 %) must keep at least half its size;
+      0.1 mN m, while true levels of 0.04-0.12 N m moved by at most 5 %) must keep at least half its size: the
+      Coulomb level of a coulomb or a stiction fit (an effect-free 2^21-count closed-loop square: a "stiction" of
+      F_s 4.7 mN m over F_c 0.9 mN m, F_c gone in half the band), unless it is beyond three times the
+      quantisation floor, which no projection of the floor onto a sign feature reaches;
     * a torque gain whose fit takes up what the quantisation does to ``J_m theta''`` (an effect-free 16-bit log,
       k = 145: 0.987 with J_m on its datasheet bound, 0.999 in half the band) must keep the sign of its
       deviation from 1 and at least half its size, or stay beyond the re-calibration's tolerance.
@@ -56,7 +59,7 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
     data : GapData
         The prepared log.
     fit : CandidateFit
-        Its environment_mismatch, delay, coulomb or torque_gain fit.
+        Its environment_mismatch, delay, coulomb, stiction or torque_gain fit.
     assessment : EffectAssessment
         That fit's assessment.
 
