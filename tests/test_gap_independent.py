@@ -606,6 +606,16 @@ def test_a_periodic_torque_over_less_than_a_period_is_named_only_where_nothing_e
 
 
 @pytest.mark.slow
+def test_a_periodic_torque_another_reading_explains_as_well_joins_no_pair():
+    # a 16-bit closed-loop square turning 6.5 mrad: cogging (39 % of the gap) tied with stiction (54 %) and was
+    # dropped, then came back with a torque gain as a pair, and was the verdict (clear, harmonics of 1.3-4.0 N m)
+    log = ind.make_independent_log("coulomb", 0, 0, magnitude_scale=0.5)
+    d = diagnose(log.experiment, joint=False)
+    assert any(c.startswith("Not distinguished: the motor turns through") for c in d.caveats)
+    assert Effect.COGGING not in {d.effect, getattr(d.secondary, "effect", None)}
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("index, seed, scale", [
     (2, 81, 1.0),    # 16-bit closed-loop square, 3.00 mrad: c on its bound 2 at 1.41 mrad, verdict environment_mismatch
     (7, 83, 0.25),   # open-loop square, locked, 0.45 mrad: c on 2 at 0.21 mrad, verdict torque_gain

@@ -45,7 +45,7 @@ probability or scales with the information in the log; none is tuned to one gene
    held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison between two laws that
    both count) on the held-out units where the two laws' predictions differ by more than the
    floor and on all of them (Simes' combination of the two), or, for stiction, shows its breakaway
-   both at rest and in a Stribeck coefficient distinguishable from zero; a friction law keeps a level per direction of motion only where that lowers the
+   at rest, above the Coulomb level; a friction law keeps a level per direction of motion only where that lowers the
    held-out gap and the two levels are within a factor 3 (else one level for both, stated in a caveat);
    the same rule applies to the two-effect path and to the second effect. Where ``coulomb`` does not
    count, a richer law must still beat it if it is resolved but weak, and name only what it resolves
@@ -348,12 +348,12 @@ def _metric_text(data: GapData) -> str:
             f"length (all units, and those where the candidate differs from the nominal model by more than the floor, "
             f"Simes' combination) gives p < {o.alpha:g}/2 for the candidate that explains the fit blocks best and {o.alpha:g}/(2 (n_candidates - 1)) for each other (weighted Bonferroni), and it is identified (defining coefficients "
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
-            f"within its plausible range; an environment mismatch, a delay or a Coulomb level also persists in half the band; a delay "
+            f"within its plausible range; an environment mismatch, a delay, a torque gain or a Coulomb level near the quantisation also persists in half the band; a delay "
             f"short against the band is read where coefficient x delay leaves the coefficient's bound, an output J "
             f"shrunk below a tenth of the declared one is held at it); the winner minimises the held-out BIC; stiction/position_friction must "
             f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
-            f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway both at rest and in a "
-            f"Stribeck coefficient distinguishable from zero; a second effect fitted together with the winner is reported when it passes the test against "
+            f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway at rest, above the "
+            f"Coulomb level on rows of two stays; a second effect fitted together with the winner is reported when it passes the test against "
             f"the winner alone.")
 
 
@@ -538,16 +538,17 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     iso = isolability(data, fits)
     jt = fit_joint(data, fits) if joint and fits else None
     secondary = None
-    pairable = [f for f in fits if f.effect not in in_band_only]
+    # an effect another reading explains as well joins no pair (a cogging over 6.5 mrad, tied, came back in one)
+    pairable_effects = {r.effect for r in ranked
+                        if r.effect not in in_band_only and not verdict_ties(ranked, r, **span)}
+    pairable = [f for f in fits if f.effect in pairable_effects]
     if winner is not None:
         secondary = _second_effect(data, by_effect[str(winner.effect)], pairable, gap0, n_held, held_blocks, alpha)
     else:
-        # Two effects of similar size: neither alone may remove min_reduction of the gap. Try the
-        # best candidates as a first step; the pair counts only if it removes min_reduction of the
-        # gap in total, the second step passes the test as well, and both effects are identified.
+        # Two effects of similar size: neither alone may remove min_reduction of the gap. The best candidates as a first
+        # step; the pair counts if it removes min_reduction in total, the second step passes the test, both identified.
         best_pair = None
-        for first in [r for r in ranked if r.reduction > 0.0 and r.assessment is not None
-                      and r.effect not in in_band_only
+        for first in [r for r in ranked if r.reduction > 0.0 and r.effect in pairable_effects and r.assessment
                       and not any(st.status == "implausible" for st in r.assessment.status.values())][:3]:
             pair = _second_effect(data, by_effect[str(first.effect)], pairable, gap0, n_held, held_blocks, alpha,
                                   min_extra=0.5 * opts.min_reduction, base=base)
