@@ -29,7 +29,7 @@ from scipy import stats
 from ..effects import Effect
 from .candidates import CandidateFit
 from .grading import noise_floor
-from .identifiability import terms_wald_p
+from .identifiability import method_shift, terms_wald_p
 from .motion import held_at_rest_rows, held_level_factor
 from .residuals import GapData
 
@@ -230,7 +230,9 @@ def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: Can
     holds. A Coulomb friction holds at most its level ``F_c``, read through the filters up to
     ``F_c`` times :func:`.motion.held_level_factor` next to motion, plus quantisation noise of RMS
     ``floor`` (:func:`.grading.noise_floor`) whose largest of ``n`` rows reaches about
-    ``floor sqrt(2 ln n)``. Stiction holds up to ``F_s``. The breakaway is resolved at rest when rows
+    ``floor sqrt(2 ln n)``; the level itself carries the analysis' own error, its shift when the filter's cut-off
+    is halved (:func:`.identifiability.method_shift`), added to it. Stiction holds up to ``F_s``. The breakaway is
+    resolved at rest when rows
     of at least two separate stays at rest hold more than that and the stiction fit puts its
     breakaway ``dF`` above the same noise allowance.
 
@@ -263,6 +265,11 @@ def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: Can
     if not d_f > z * float(np.sqrt(np.mean(floor ** 2))):
         return False
     level = c.level(simpler.coef[simpler.n_cal:])
+    # the Coulomb level carries the analysis' own error (the filters smear every reversal: 0.2-5 %), which a
+    # torque held at the true level exceeds as often as not: a breakaway must stand beyond it too (a coulomb fit
+    # alone; a pair's level would be refitted without its second effect)
+    shift = method_shift(data, simpler) if set(simpler.params) <= {"F_c", "F_c_neg"} else {}
+    level = level + max(shift.get("F_c", 0.0), shift.get("F_c_neg", 0.0))
     level = (level[rest] if np.ndim(level) else level) * held_level_factor(data)[rest]
     # the Coulomb law's torque at rows at rest (its sign feature is zero there): what the motor held
     held = np.abs(simpler.residual[:m][rest] + simpler.prediction[:m][rest])
