@@ -539,17 +539,17 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     jt = fit_joint(data, fits) if joint and fits else None
     secondary = None
     # an effect another reading explains as well joins no pair (a cogging over 6.5 mrad, tied, came back in one)
-    pairable_effects = {r.effect for r in ranked
-                        if r.effect not in in_band_only and not verdict_ties(ranked, r, **span)}
-    pairable = [f for f in fits if f.effect in pairable_effects]
+    joinable = {r.effect for r in ranked if r.effect not in in_band_only and not verdict_ties(ranked, r, **span)}
+    pairable = [f for f in fits if f.effect in joinable]
     if winner is not None:
         secondary = _second_effect(data, by_effect[str(winner.effect)], pairable, gap0, n_held, held_blocks, alpha)
     else:
-        # Two effects of similar size: neither alone may remove min_reduction of the gap. The best candidates as a first
-        # step; the pair counts if it removes min_reduction in total, the second step passes the test, both identified.
+        # Two effects of similar size (none counts alone): the three best as a first step; a pair counts (_second_effect)
         best_pair = None
-        for first in [r for r in ranked if r.reduction > 0.0 and r.effect in pairable_effects and r.assessment
+        for first in [r for r in ranked if r.reduction > 0.0 and r.effect not in in_band_only and r.assessment
                       and not any(st.status == "implausible" for st in r.assessment.status.values())][:3]:
+            if first.effect not in joinable:   # tied: not tried, its place among the three not given to another
+                continue
             pair = _second_effect(data, by_effect[str(first.effect)], pairable, gap0, n_held, held_blocks, alpha,
                                   min_extra=0.5 * opts.min_reduction, base=base)
             if pair is not None and pair.reduction >= opts.min_reduction and \
