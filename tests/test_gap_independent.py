@@ -615,7 +615,9 @@ def test_a_periodic_torque_over_less_than_a_period_is_named_only_where_nothing_e
     # explains as much (tests/test_gap.py). The second log is one the generator calls not identifiable
     case = ind.draw_independent_case(word, index, seed, magnitude_scale=scale)
     d = diagnose(ind.simulate_independent(case)[0], joint=False)
-    assert d.effect is not Effect.COGGING
+    # nor is any other effect named in its place (the tie's candidate keeps its place among a pair's first steps:
+    # given to the fourth, an unidentified stiction paired with a delay on the coulomb log)
+    assert d.effect in (Effect.NONE, Effect(word))
     assert any(c.startswith("Not distinguished: the motor turns through") for c in d.caveats)
     cog = next(r for r in d.ranking if r.effect is Effect.COGGING)
     assert any(r.effect is not Effect.COGGING and r.gap_after <= cog.gap_after for r in d.ranking)
