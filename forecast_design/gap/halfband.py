@@ -78,7 +78,7 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
         return assessment
     refit = half[1]
     if fit.effect in (Effect.COULOMB, Effect.STICTION):
-        a, b = (max(f.params["F_c"], f.params.get("F_c_neg", 0.0)) for f in (fit, refit))
+        a, b = _friction_level(fit), _friction_level(refit)
         if b >= 0.5 * a:
             return assessment
         why = (f"the friction level does not persist in half the equation band ({a:.3g} -> {b:.3g} N m): the "
@@ -145,9 +145,13 @@ def _beyond_quantisation(data: GapData, fit: CandidateFit) -> bool:
     and on a log whose motor is stuck most of the time the half band's refit loses the short slides themselves
     (true levels of 0.18-0.40 N m, 700-1,300 floors, fell to zero in half the band of 2^21-count squares).
     """
-    level = max(fit.params["F_c"], fit.params.get("F_c_neg", 0.0))
     motor = data.equations.index("motor") * data.t.size
-    return level > 3.0 * float(floor_rms(data)[motor])
+    return _friction_level(fit) > 3.0 * float(floor_rms(data)[motor])
+
+
+def _friction_level(fit: CandidateFit) -> float:
+    """A coulomb or stiction fit's Coulomb level, the larger of the two directions' [N m]."""
+    return max(fit.params["F_c"], fit.params.get("F_c_neg", 0.0))
 
 
 def _refit_in_band(data: GapData, fit: CandidateFit, factor: float) -> tuple[GapData, CandidateFit] | None:

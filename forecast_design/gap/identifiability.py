@@ -284,12 +284,15 @@ def method_shift(data: GapData, fit: CandidateFit) -> dict[str, float]:
         Absolute shift per (flattened) parameter, in its unit; empty when the repeated analysis is not
         possible (a log too short for the narrower filter).
     """
+    key = ("method_shift", id(fit))
+    if key in data.cache and data.cache[key][0] is fit:   # asked for a breakaway at rest and for the verdict
+        return data.cache[key][1]
     again = refit_prepared_again(data, fit, dataclasses.replace(
         data.options, position_cutoff_hz=0.5 * data.settings.position_cutoff_hz))
-    if again is None:
-        return {}
-    a, b = _flatten(fit.params), _flatten(again[1].params)
-    return {k: abs(b[k] - a[k]) for k in a if k in b and math.isfinite(a[k]) and math.isfinite(b[k])}
+    a, b = (_flatten(fit.params), _flatten(again[1].params)) if again is not None else ({}, {})
+    out = {k: abs(b[k] - a[k]) for k in a if k in b and math.isfinite(a[k]) and math.isfinite(b[k])}
+    data.cache[key] = (fit, out)
+    return out
 
 
 def refit_prepared_again(data: GapData, fit: CandidateFit, options: GapOptions) -> tuple[GapData, CandidateFit] | None:
