@@ -15,7 +15,7 @@ probability or scales with the information in the log; none is tuned to one gene
    (:func:`~.candidates.effect_rows`), (a) its held-out reduction is at least
    ``min_reduction`` of the gap above the encoders' quantisation floor (:mod:`.grading`), (b) the torque it explains, ``sqrt(gap_before^2 - gap_after^2)``,
    is at least ``min_effect_fraction`` (0.1 %) of the RMS command (the motor's torque
-   accuracy), (c) a one-sided paired t-test of the log ratio of squared errors over
+   accuracy; a backlash's also the RMS quantisation of the spring torque it acts on), (c) a one-sided paired t-test of the log ratio of squared errors over
    held-out *test units* gives p below the candidate's level (a weighted Bonferroni split of ``alpha``
    fixed on the fit blocks: ``alpha / 2`` for the candidate that explains them best, ``alpha / (2 (n - 1))``
    for each other, :func:`.heldout.candidate_levels`) -- units are
@@ -38,20 +38,25 @@ probability or scales with the information in the log; none is tuned to one gene
 4. Among the candidates that count, the winner minimises a held-out BIC,
    ``n log(SSE / n) + p log(n)`` (p = number of effect parameters). A winner (clear or weak) that a torque gain within
    the datasheet tolerance (a re-calibration) explains as well is no verdict, nor a periodic one over less than a
-   period that another candidate explains as well (:func:`.heldout.verdict_ties`).
+   period that another candidate explains as well (:func:`.heldout.verdict_ties`). An environment mismatch, which
+   acts in the environment equation alone, counts only where no motor-equation candidate that passes the held-out
+   test removes more of the total gap.
 5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
    ``stiction`` or ``position_friction`` wins over ``coulomb`` only if it resolves what it adds
    (stiction: ``F_s > F_c`` or bristles wider than one count; position_friction: its harmonics) and beats ``coulomb`` by the
    held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison between two laws that
    both count) on the held-out units where the two laws' predictions differ by more than the
    floor and on all of them (Simes' combination of the two), or, for stiction, shows its breakaway
-   at rest, above the Coulomb level; a friction law keeps a level per direction of motion only where that lowers the
+   at rest, above the Coulomb level; a breakaway the encoder proves at the raw rate
+   (:func:`.heldout.breakaway_proven_at_rest`) makes a stiction that counts the verdict over a coulomb the BIC
+   prefers; a friction law keeps a level per direction of motion only where that lowers the
    held-out gap and the two levels are within a factor 3 (else one level for both, stated in a caveat);
    the same rule applies to the two-effect path and to the second effect. Where ``coulomb`` does not
    count, a richer law must still beat it if it is resolved but weak, and name only what it resolves
    (:func:`.heldout.richer_law_resolved`); else the next candidate that counts, or the weak grade.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
-   reduction, graded ``weak`` (:mod:`.grading`), or ``none`` when there is none.
+   reduction, graded ``weak`` (:mod:`.grading`; it must be told from the re-calibration and have a parameter on
+   a direction the log resolves, :func:`.grading.weak_is_distinct`), or ``none`` when there is none.
 7. A second effect (forward selection, one step): every other candidate is fitted
    *together with* the winner; the best one by held-out BIC is reported as a
    secondary effect when it passes the same test against the winner alone, is
@@ -101,10 +106,10 @@ from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
-from .grading import explainable_reduction, explained_rms, noise_floor
+from .grading import CONSTANT_TORQUE_SHARE, explainable_reduction, explained_rms, noise_floor, weak_is_distinct
 from .structures import _FRICTION, j_held
-from .heldout import (NESTED_ALPHA, candidate_levels, correlation_length, held_out_test, verdict_ties,
-                      richer_law_justified, richer_law_resolved, test_units)
+from .heldout import (NESTED_ALPHA, breakaway_proven_at_rest, candidate_levels, correlation_length, held_out_test,
+                      verdict_ties, richer_law_justified, richer_law_resolved, test_units)
 from .motion import creeping
 from .residuals import GapData, GapOptions, TauSSource, gap_log_scales, prepare_gap_data
 
@@ -467,8 +472,11 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         # part of it above the encoders' quantisation, which no effect explains (grading.noise_floor)
         own = effect_rows(data, fit)
         red_own = explainable_reduction(base, fit, held_rows & own, floor)
-        if explained_rms(base, fit, held_rows & own) < data.torque_accuracy:
-            red_own = 0.0   # below the motor's torque accuracy: not an effect
+        # below the motor's torque accuracy: not an effect; nor a dead band explaining less than the quantisation of
+        # the spring torque it acts on (an effect-free 16-bit square: 0.7 of it, true dead bands 1.5-300)
+        accuracy = max(data.torque_accuracy, data.spring_torque_quantisation if fit.effect is Effect.BACKLASH else 0.0)
+        if explained_rms(base, fit, held_rows & own) < accuracy:
+            red_own = 0.0
         all_units = test_units(data, fit)
         units = np.where(own, all_units, -1)
         p = held_out_test(base, fit, held_blocks, units=units, floor=floor)
@@ -494,10 +502,24 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                                                        and assessment.identified and lowers_total),
                                       weak=bool(0.0 < red_own < opts.min_reduction and p < alpha_fit
                                                 and assessment.identified and lowers_total)))
+    # an environment mismatch acts in the environment equation alone: where a motor-equation candidate the held-out
+    # test passes removes more of the total gap, that gap lies in the motor equation (six verdicts explaining 47-95 %
+    # of a quiet environment equation, 0.3-10 % of the total, beside a friction, gain or cogging removing 11-37 %)
+    motor = max((r.reduction for r in ranked if r.p_value < alpha and "environment" not in r.equations), default=0.0)
+    ranked = [dataclasses.replace(r, significant=False) if r.effect is Effect.ENVIRONMENT_MISMATCH and r.significant
+              and r.reduction < motor else r for r in ranked]
     ranked.sort(key=lambda r: (not r.significant, r.bic))
     by_effect = {str(f.effect): f for f in fits}
     winner = ranked[0] if ranked and ranked[0].significant else None
-    if winner is not None and winner.effect in (Effect.STICTION, Effect.POSITION_FRICTION):
+    stiction = next((r for r in ranked if r.effect is Effect.STICTION and r.significant), None)
+    if winner is not None and winner.effect is Effect.COULOMB and stiction is not None \
+            and breakaway_proven_at_rest(data, by_effect[str(Effect.COULOMB)]):
+        # the BIC over every row cannot weigh a breakaway held for milliseconds of a few stays (coulomb 30 %,
+        # stiction 29 % of the gap): a torque held at rest beyond any Coulomb level decides between the laws
+        winner = stiction
+        ranked.remove(winner)
+        ranked.insert(0, winner)
+    elif winner is not None and winner.effect in (Effect.STICTION, Effect.POSITION_FRICTION):
         coul = next((r for r in ranked if r.effect is Effect.COULOMB), None)
         richer, simpler = by_effect[str(winner.effect)], by_effect.get(str(Effect.COULOMB))
         # where coulomb is resolved (clear or weak) the richer law must beat it on the held-out data: its margin
@@ -579,7 +601,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     if winner is None:
         # an effect the log resolves (held-out test, identified, the torque accuracy, the total gap lowered)
         # but that explains less than min_reduction: the verdict, graded weak
-        weak = sorted((r for r in ranked if r.weak and _weak_is_distinct(data, r, by_effect[str(r.effect)], base, iso)
+        weak = sorted((r for r in ranked if r.weak and weak_is_distinct(data, r, by_effect[str(r.effect)], base, iso)
                        and not verdict_ties(ranked, r, **span)),
                       key=lambda r: r.bic)
         if weak and weak[0].effect in (Effect.STICTION, Effect.POSITION_FRICTION):
@@ -657,34 +679,6 @@ def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[Rank
             return r, float(extra)
     return winner, float("nan")
 
-
-def _weak_is_distinct(data: GapData, weak: RankedCandidate, fit: CandidateFit, base: CandidateFit,
-                      iso: Isolability) -> bool:
-    """A weak effect is named only when nothing the nominal model already has looks the same.
-
-    It must be isolable from the re-calibration of J_m, d_m and k (:func:`.identifiability.isolability`;
-    a torque gain, which never is, only when the re-calibration sits on its datasheet bound), and a
-    cogging must remove more than a constant motor torque does (over part of a revolution the
-    harmonics make a constant: a driver's offset, a sensor's zero left over).
-    """
-    if weak.effect is Effect.TORQUE_GAIN:
-        # a gain lies in the span of the re-calibration by construction; only the calibration's datasheet
-        # bound tells them apart, so a weak gain counts when the re-calibration sits on that bound
-        return any(st.status == "at_bound" for st in calibration_status(data, base).values())
-    if CALIBRATION in iso.confusable_with(str(weak.effect)):
-        return False
-    if weak.effect is Effect.COGGING and base.gap_held_out > 0:
-        const = fit_constant_torque(data)
-        r_cog = 1.0 - fit.gap_held_out / base.gap_held_out
-        r_const = 1.0 - const.gap_held_out / base.gap_held_out
-        if r_const >= CONSTANT_TORQUE_SHARE * r_cog:
-            return False
-    return True
-
-
-#: Share of the cogging verdict's held-out gap reduction that a constant motor torque must reach for
-#: the verdict to say a constant would look the same [-].
-CONSTANT_TORQUE_SHARE = 0.9
 
 #: Spring-torque resolution ``k x encoder step``, as a fraction of the RMS command, above which a
 #: diagnosis warns that the log is coarser than its validation [-] (2,000,000 counts: ~2e-4).

@@ -14,7 +14,8 @@ t-test at the candidate's level, identified, at least 0.1 % of the RMS command e
 total gap lowered) but stays below ``min_reduction`` is a *weak* effect: the log resolves it,
 since the held-out test's power grows with the log's length and excitation, but it explains
 less than a clear verdict. It becomes the verdict with grade ``weak`` when no candidate is
-clear (JSON ``verdict.grade``: ``clear``, ``weak`` or ``none``).
+clear (JSON ``verdict.grade``: ``clear``, ``weak`` or ``none``), and only where nothing the nominal model already
+has looks the same and one of its parameters lies on a direction the log resolves (:func:`weak_is_distinct`).
 
 The same floor bounds what a friction law explains where the motor is at rest
 (:func:`held_at_rest`): its breakaway level holds the residual there, but not below the floor.
@@ -23,13 +24,17 @@ The same floor bounds what a friction law explains where the motor is at rest
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
-from .candidates import CandidateFit
+from ..effects import Effect
+from .candidates import CandidateFit, fit_constant_torque
+from .identifiability import CALIBRATION, Isolability, calibration_status
 from .residuals import GapData
 
-__all__ = ["noise_floor", "floor_rms", "held_at_rest", "explainable_reduction", "explained_rms", "GRADES"]
+__all__ = ["noise_floor", "floor_rms", "held_at_rest", "explainable_reduction", "explained_rms", "GRADES", "weak_is_distinct",
+           "CONSTANT_TORQUE_SHARE"]
 
 #: Grades of a verdict: an effect that removes ``min_reduction`` of the explainable gap, one the log
 #: resolves but that explains less, or no effect.
@@ -167,3 +172,37 @@ def explained_rms(reference: CandidateFit, candidate: CandidateFit, rows: np.nda
     a2 = float(np.mean(reference.residual[rows] ** 2))
     b2 = float(np.mean(candidate.residual[rows] ** 2))
     return math.sqrt(max(a2 - b2, 0.0))
+
+
+def weak_is_distinct(data: GapData, weak: Any, fit: CandidateFit, base: CandidateFit,
+                     iso: Isolability) -> bool:
+    """A weak effect is named only when nothing the nominal model already has looks the same.
+
+    It must be isolable from the re-calibration of J_m, d_m and k (:func:`.identifiability.isolability`;
+    a torque gain, which never is, only when the re-calibration sits on its datasheet bound), and a
+    cogging must remove more than a constant motor torque does (over part of a revolution the
+    harmonics make a constant: a driver's offset, a sensor's zero left over). And at least one of its
+    parameters must lie on a direction the log resolves: harmonics that are all unresolved (collinear over the
+    angles the log turns through, amplitudes up to 110 N m) only name a slow torque the weak grade cannot place.
+    """
+    status = weak.assessment.status if weak.assessment is not None else {}
+    if status and all(st.status == "not_identifiable" for st in status.values()):
+        return False
+    if weak.effect is Effect.TORQUE_GAIN:
+        # a gain lies in the span of the re-calibration by construction; only the calibration's datasheet
+        # bound tells them apart, so a weak gain counts when the re-calibration sits on that bound
+        return any(st.status == "at_bound" for st in calibration_status(data, base).values())
+    if CALIBRATION in iso.confusable_with(str(weak.effect)):
+        return False
+    if weak.effect is Effect.COGGING and base.gap_held_out > 0:
+        const = fit_constant_torque(data)
+        r_cog = 1.0 - fit.gap_held_out / base.gap_held_out
+        r_const = 1.0 - const.gap_held_out / base.gap_held_out
+        if r_const >= CONSTANT_TORQUE_SHARE * r_cog:
+            return False
+    return True
+
+
+#: Share of the cogging verdict's held-out gap reduction that a constant motor torque must reach for
+#: the verdict to say a constant would look the same [-].
+CONSTANT_TORQUE_SHARE = 0.9

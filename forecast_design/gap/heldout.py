@@ -32,9 +32,10 @@ from .grading import noise_floor
 from .identifiability import method_shift, terms_wald_p
 from .motion import held_at_rest_rows, held_level_factor
 from .residuals import GapData
+from ..plausibility import encoder_step_of
 
 __all__ = ["held_out_test", "units_test", "correlation_length", "test_units", "nested_law_test", "richer_law_justified",
-           "breakaway_resolved_at_rest", "richer_law_resolved", "candidate_levels", "verdict_ties", "NESTED_ALPHA"]
+           "breakaway_resolved_at_rest", "breakaway_proven_at_rest", "richer_law_resolved", "candidate_levels", "verdict_ties", "NESTED_ALPHA"]
 
 
 def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks: np.ndarray, *,
@@ -279,12 +280,86 @@ def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: Can
     return len(np.unique(stays[over])) >= 2
 
 
+#: Share of the Coulomb level a torque held at rest must exceed it by, beyond the allowances of
+#: :func:`breakaway_proven_at_rest`, to prove a breakaway [-]: what is left of the level's own error
+#: (Coulomb logs of twenty-two seeds proved at most 1.024 of their fitted level, stiction logs up to F_s / F_c).
+BREAKAWAY_MARGIN = 0.05
+
+
+def breakaway_proven_at_rest(data: GapData, simpler: CandidateFit) -> bool:
+    """Whether the motor held, at rest, a torque no Coulomb level of ``simpler`` could hold: a breakaway.
+
+    At the raw rate, where the encoder reads one count throughout a stay, the motor's angle stays within one
+    encoder step ``delta``. Under a Coulomb law the friction never exceeds its level ``F`` (sliding or
+    sticking), so ``J theta'' >= f - F`` with ``f = tau_m - tau_s`` the net torque (re-calibrated as ``simpler``
+    reads it) and, for any three instants ``h`` samples apart inside the stay,
+    ``theta(t+h) - 2 theta(t) + theta(t-h) = sum_j (h - |j|) dt^2 theta''`` is at most ``2 delta``. A stay whose
+    hat-weighted mean net torque exceeds ``F`` by more than ``2 delta J / (h dt)^2`` plus ``z`` standard
+    deviations of that mean (the net torque's noise, ``z = sqrt(2 ln n)`` over the ``n`` windows tried, ``h`` =
+    2, 4, 8 ... samples) would have moved the motor by more than a count: the friction held more than ``F``. No
+    filter is involved (the decimated rows at rest ring after a torque step inside a stay: a closed-loop Coulomb
+    square held 1.13 ``F_c`` on them, 0.99 here). A breakaway is proven when stays of both directions together
+    hold beyond the level (plus its analysis error, :func:`.identifiability.method_shift`, and
+    :data:`BREAKAWAY_MARGIN`) at least twice.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    simpler : CandidateFit
+        The coulomb fit (its levels ``F_c``, ``F_c_neg`` and its re-calibration; a pair's: False).
+
+    Returns
+    -------
+    bool
+        True when two stays prove a held torque beyond the Coulomb level.
+    """
+    exp = data.experiment
+    sig, tb = exp.signals, exp.design.testbed
+    if not set(simpler.params) <= {"F_c", "F_c_neg"}:
+        return False    # a pair's second effect acts at rest too, which the net torque below leaves in
+    levels = (float(simpler.params["F_c"]), float(simpler.params.get("F_c_neg", simpler.params["F_c"])))
+    if min(levels) <= 0.0:
+        return False
+    cal = simpler.calibration
+    theta = np.asarray(sig.theta, dtype=float)
+    tau_s = np.asarray(sig.tau_s, dtype=float) if data.tau_s_measured else tb.k * (theta - np.asarray(sig.q, dtype=float))
+    f = np.asarray(sig.tau_m, dtype=float) - cal["spring_scale"] * tau_s - cal.get("tau_s_offset_N_m", 0.0)
+    dt, J = 1.0 / float(exp.rate_hz), float(cal["J_m"])
+    step = encoder_step_of(theta)
+    d = np.diff(f)
+    sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2.0)     # the net torque's white noise
+    edges = np.flatnonzero(np.diff(theta) != 0.0) + 1
+    stays = [(a, b) for a, b in zip(np.r_[0, edges], np.r_[edges, theta.size]) if b - a >= 5]
+    hats = [(a, b, h) for a, b in stays for h in (2 ** np.arange(1, 30)).tolist() if 2 * h < b - a]
+    if not hats:
+        return False
+    z = math.sqrt(2.0 * math.log(max(sum(max(1, (b - a - 2 * h) // h) for a, b, h in hats), 2)))
+    shift = method_shift(data, simpler)
+    bar = [(lv + shift.get(k, 0.0)) * (1.0 + BREAKAWAY_MARGIN) for lv, k in zip(levels, ("F_c", "F_c_neg"))]
+    proven = set()
+    for a, b, h in hats:
+        # the hat of half-width h is a box of h samples convolved with itself: weights h - |j|, summing to h^2;
+        # the first and last windows are dropped, whose ends t -+ h lie outside the stay
+        mean = _window_sums(_window_sums(f[a:b], h), h)[1:-1] / h ** 2
+        allow = (2.0 * step * J / dt ** 2 + z * sigma * math.sqrt((2 * h ** 3 + h) / 3.0)) / h ** 2
+        if mean.max() - allow > bar[0] or -mean.min() - allow > bar[1]:
+            proven.add(a)
+    return len(proven) >= 2
+
+
+def _window_sums(x: np.ndarray, h: int) -> np.ndarray:
+    """Sums of ``h`` consecutive samples of ``x`` (``np.convolve(x, ones(h), 'valid')`` in O(n))."""
+    c = np.concatenate([[0.0], np.cumsum(x)])
+    return c[h:] - c[:-h]
+
+
 def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateFit, *,
                         at_rest: Callable[[], bool] | None = None, stribeck: Callable[[], bool] | None = None) -> bool:
     """Whether a richer friction law resolves what it adds to coulomb (part (a) of :func:`richer_law_justified`).
 
     Stiction: a breakaway above the Coulomb level (its Stribeck coefficient ``dF`` by the Wald test at
-    :data:`NESTED_ALPHA`, or at rest, :func:`breakaway_resolved_at_rest`) or presliding bristles wider than
+    :data:`NESTED_ALPHA`, or at rest, :func:`breakaway_proven_at_rest`, :func:`breakaway_resolved_at_rest`) or presliding bristles wider than
     the search's first point (one encoder count); position_friction: its angle harmonics by the Wald test.
     A stiction law that resolves neither is a Coulomb law with a bump or presliding the log does not carry,
     whether or not the Coulomb law itself counts.
@@ -306,7 +381,8 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
     s = richer.structure
     names = [c.name for c in s.coefs] if s is not None else []
     if "dF" in names:
-        at_rest = at_rest or (lambda: breakaway_resolved_at_rest(data, richer, simpler))
+        at_rest = at_rest or (lambda: breakaway_proven_at_rest(data, simpler)
+                              or breakaway_resolved_at_rest(data, richer, simpler))
         stribeck = stribeck or (lambda: terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA)
         bristles = next(((value, lo) for nm, value, lo, _ in s.grid if nm == "x_p"), None)
         return (bristles is not None and bristles[0] > bristles[1] * (1.0 + 1e-9)) or at_rest() or stribeck()
@@ -320,7 +396,7 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     The richer law must (a) resolve what it adds to coulomb: for position_friction the angle
     harmonics of the level, for stiction either a breakaway above the Coulomb level (the Stribeck
     coefficient ``dF``: the vocabulary's stiction is ``F_s > F_c``; by its Wald test, or at rest above the
-    encoders' noise, :func:`breakaway_resolved_at_rest`) or presliding bristles wider
+    encoders' noise, :func:`breakaway_proven_at_rest` or :func:`breakaway_resolved_at_rest`) or presliding bristles wider
     than the log's resolution (the presliding displacement above the grid's first point, one
     encoder count: LuGre stiction is told from coulomb by its bristles when the Stribeck bump is not
     resolved, as on the bundled Fig. 7 scenario, ``dF`` at Wald p = 0.24, stiction removing 99 % of
@@ -329,7 +405,8 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     Coulomb law with a tiny bump or one-count presliding. And (b) it must beat the simpler law by
     :func:`nested_law_test` at :data:`NESTED_ALPHA` (one planned comparison), on the units where their
     predictions differ by more than the encoders' quantisation floor and on all units; or, for stiction,
-    show its breakaway at rest (:func:`breakaway_resolved_at_rest`: a breakaway lasts milliseconds of a stay
+    show its breakaway at rest (:func:`breakaway_proven_at_rest` at the raw rate, or
+    :func:`breakaway_resolved_at_rest` on the decimated rows: a breakaway lasts milliseconds of a stay
     at rest, and on a log that rarely stops no test over held-out units finds it). The tests gain power with the
     log's length and excitation; no fixed share of the gap is asked for (half of ``min_reduction``
     named coulomb on a 16-bit stiction log where stiction removed 14 % of what coulomb left, at
@@ -350,7 +427,8 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     """
     s = richer.structure
     names = [c.name for c in s.coefs] if s is not None else []
-    at_rest = functools.cache(lambda: breakaway_resolved_at_rest(data, richer, simpler))
+    at_rest = functools.cache(lambda: breakaway_proven_at_rest(data, simpler)
+                              or breakaway_resolved_at_rest(data, richer, simpler))
     stribeck = functools.cache(lambda: terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA)
     if not richer_law_resolved(data, richer, simpler, at_rest=at_rest, stribeck=stribeck):
         return False

@@ -342,6 +342,17 @@ class GapData:
         return self.options.min_effect_fraction * self.command_rms
 
     @property
+    def spring_torque_quantisation(self) -> float:
+        """RMS of the encoders' quantisation in the spring torque ``k (theta - q)`` [N m].
+
+        ``k`` x each encoder's step (:func:`forecast_design.plausibility.encoder_step_of`) / sqrt(12), the motor's
+        and the output's (unless locked) added in quadrature.
+        """
+        sig = self.experiment.signals
+        steps = [encoder_step_of(sig.theta)] + ([] if self.locked else [encoder_step_of(sig.q)])
+        return self.experiment.design.testbed.k * math.sqrt(sum(s ** 2 for s in steps) / 12.0)
+
+    @property
     def locked(self) -> bool:
         """True when the output is locked (no environment equation)."""
         return "environment" not in self.equations
