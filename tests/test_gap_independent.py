@@ -645,7 +645,7 @@ def test_a_weak_effect_none_of_whose_parameters_the_log_resolves_is_not_named():
 def test_a_dead_band_explaining_less_than_the_spring_torques_quantisation_is_not_named():
     # an effect-free 16-bit closed-loop square, stiff environment: a "dead band" of 4.6 mrad removed 1.5 % of the gap
     # at p = 3e-9 and was the weak verdict (a false alarm); the torque it explained, 1.6 mN m RMS, is 0.7 of the
-    # quantisation of the spring torque k (theta - q) it acts on (true dead bands of twenty-two seeds: 1.5-300)
+    # quantisation of the spring torque k (theta - q) it acts on (true dead bands of twenty-two seeds: at least 1.5)
     from forecast_design.gap.candidates import effect_rows
     from forecast_design.gap.grading import explained_rms
 

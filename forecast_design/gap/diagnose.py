@@ -473,7 +473,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         own = effect_rows(data, fit)
         red_own = explainable_reduction(base, fit, held_rows & own, floor)
         # below the motor's torque accuracy: not an effect; nor a dead band explaining less than the quantisation of
-        # the spring torque it acts on (an effect-free 16-bit square: 0.7 of it, true dead bands 1.5-300)
+        # the spring torque it acts on (an effect-free 16-bit square: 0.7 of it, true dead bands at least 1.5)
         accuracy = max(data.torque_accuracy, data.spring_torque_quantisation if fit.effect is Effect.BACKLASH else 0.0)
         if explained_rms(base, fit, held_rows & own) < accuracy:
             red_own = 0.0
