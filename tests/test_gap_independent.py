@@ -441,6 +441,7 @@ def test_an_environment_mismatch_removing_less_of_the_total_than_a_motor_candida
     gain = next(r for r in d.ranking if r.effect is Effect.TORQUE_GAIN)
     assert env.reduction < gain.reduction and not env.significant
     assert d.effect is Effect.TORQUE_GAIN
+    assert any(c.startswith("Not counted: 'environment_mismatch'") for c in d.to_mapping()["caveats"])
 
 
 @pytest.mark.slow
@@ -588,6 +589,7 @@ def test_a_breakaway_the_encoder_proves_at_rest_decides_between_the_laws_whateve
     d = diagnose(log.experiment, joint=False)
     assert breakaway_proven_at_rest(d.data, d.fits["coulomb"])
     assert d.effect is Effect.STICTION
+    assert any(c.startswith("Stiction over coulomb") for c in d.to_mapping()["caveats"])
 
 
 @pytest.mark.slow

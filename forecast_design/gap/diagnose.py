@@ -14,8 +14,8 @@ probability or scales with the information in the log; none is tuned to one gene
    when it removes ``min_reduction`` of the total) and, on the equations where its physics acts
    (:func:`~.candidates.effect_rows`), (a) its held-out reduction is at least
    ``min_reduction`` of the gap above the encoders' quantisation floor (:mod:`.grading`), (b) the torque it explains, ``sqrt(gap_before^2 - gap_after^2)``,
-   is at least ``min_effect_fraction`` (0.1 %) of the RMS command (the motor's torque
-   accuracy; a backlash's also the RMS quantisation of the spring torque it acts on), (c) a one-sided paired t-test of the log ratio of squared errors over
+   is at least ``min_effect_fraction`` (0.1 %) of the RMS command (the motor's torque accuracy; a backlash's
+   also the RMS quantisation of the spring torque), (c) a one-sided paired t-test of the log ratio of squared errors over
    held-out *test units* gives p below the candidate's level (a weighted Bonferroni split of ``alpha``
    fixed on the fit blocks: ``alpha / 2`` for the candidate that explains them best, ``alpha / (2 (n - 1))``
    for each other, :func:`.heldout.candidate_levels`) -- units are
@@ -355,10 +355,10 @@ def _metric_text(data: GapData) -> str:
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
             f"within its plausible range; an environment mismatch, a delay, a torque gain or a Coulomb level near the quantisation also persists in half the band; a delay "
             f"short against the band is read where coefficient x delay leaves the coefficient's bound, an output J "
-            f"shrunk below a tenth of the declared one is held at it); the winner minimises the held-out BIC; stiction/position_friction must "
+            f"shrunk below a tenth of the declared one is held at it); an environment mismatch counts only where no motor-equation candidate removes more of the total gap; the winner minimises the held-out BIC; stiction/position_friction must "
             f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
             f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway at rest, above the "
-            f"Coulomb level on rows of two stays; a second effect fitted together with the winner is reported when it passes the test against "
+            f"Coulomb level on rows of two stays (a breakaway proven at the raw rate, two stays held beyond any Coulomb level within one encoder count, also makes stiction the verdict over a coulomb the BIC prefers); a second effect fitted together with the winner is reported when it passes the test against "
             f"the winner alone.")
 
 
@@ -502,12 +502,15 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                                                        and assessment.identified and lowers_total),
                                       weak=bool(0.0 < red_own < opts.min_reduction and p < alpha_fit
                                                 and assessment.identified and lowers_total)))
-    # an environment mismatch acts in the environment equation alone: where a motor-equation candidate the held-out
-    # test passes removes more of the total gap, that gap lies in the motor equation (six verdicts explaining 47-95 %
-    # of a quiet environment equation, 0.3-10 % of the total, beside a friction, gain or cogging removing 11-37 %)
+    # an environment mismatch acts in the environment equation alone: where a motor-equation candidate passing the test
+    # removes more of the total gap, it lies in the motor equation (six verdicts: 47-95 % of a quiet equation, 0.3-10 %
+    # of the total, beside a friction, gain or cogging removing 11-37 %)
     motor = max((r.reduction for r in ranked if r.p_value < alpha and "environment" not in r.equations), default=0.0)
-    ranked = [dataclasses.replace(r, significant=False) if r.effect is Effect.ENVIRONMENT_MISMATCH and r.significant
-              and r.reduction < motor else r for r in ranked]
+    demoted = [r for r in ranked if r.effect is Effect.ENVIRONMENT_MISMATCH and r.significant and r.reduction < motor]
+    ranked = [dataclasses.replace(r, significant=False) if r in demoted else r for r in ranked]
+    caveats: list[str] = [f"Not counted: 'environment_mismatch' explains {100 * r.reduction_own:.0f} % of the environment "
+                          f"equation but {100 * r.reduction:.0f} % of the total gap, less than a motor-equation "
+                          f"candidate ({100 * motor:.0f} %): the gap lies in the motor equation." for r in demoted]
     ranked.sort(key=lambda r: (not r.significant, r.bic))
     by_effect = {str(f.effect): f for f in fits}
     winner = ranked[0] if ranked and ranked[0].significant else None
@@ -539,7 +542,6 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             ranked[ranked.index(winner)] = dataclasses.replace(winner, significant=False)
             ranked.sort(key=lambda r: (not r.significant, r.bic))
             winner = ranked[0] if ranked[0].significant else None
-    caveats: list[str] = []
     if winner is not None:
         simpler, extra = _simplest_tied(data, winner, [r for r in ranked if r.significant], by_effect)
         if simpler is not winner:
@@ -617,6 +619,10 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             caveats.append(f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above "
                            f"the encoders' noise floor, below the {100 * opts.min_reduction:g} % of a clear verdict, "
                            f"but passes the held-out test (p = {winner.p_value:.2g}) and is identified.")
+    if winner is not None and winner.effect is Effect.STICTION and str(Effect.COULOMB) in by_effect \
+            and breakaway_proven_at_rest(data, by_effect[str(Effect.COULOMB)]):
+        caveats.append("Stiction over coulomb: while the encoder read one count the motor held net torques that would "
+                       "have moved it by more under any Coulomb level (a breakaway proven at the raw rate).")
     shift: dict[str, float] = {}
     if winner is not None and winner.assessment is not None:
         # the verdict's intervals carry the analysis' own error (the filter's), as the friction fit's do
