@@ -41,6 +41,12 @@ def _draw_where(word, seed, **want):
     pytest.skip(f"no {word} draw with {want} in 400 draws")
 
 
+def _diagnosed(word, index, seed, effect):
+    """The diagnosis (``joint=False``) of an independent log at full size and its ranked candidate ``effect``."""
+    d = diagnose(ind.make_independent_log(word, index, seed).experiment, joint=False)
+    return d, next(r for r in d.ranking if r.effect is effect)
+
+
 def _first_identifiable(word, seed, scale=1.0, **want):
     """The first identifiable independent log (index 0, 1, ...) whose case has the wanted fields."""
     for index in range(40):
@@ -636,10 +642,8 @@ def test_a_weak_effect_none_of_whose_parameters_the_log_resolves_is_not_named():
     # an effect-free 2,000,000-count open-loop multisine into a locked output, with a torque sensor: eight cogging
     # harmonics (a1 = 1.8 N m), every one on a direction of the harmonics the log does not resolve, removed 12 % of
     # the gap at p = 8e-7 and were the weak verdict (a false alarm)
-    log = ind.make_independent_log("none", 2, 103)
-    d = diagnose(log.experiment, joint=False)
+    d, cogging = _diagnosed("none", 2, 103, Effect.COGGING)
     assert d.effect is Effect.NONE
-    cogging = next(r for r in d.ranking if r.effect is Effect.COGGING)
     assert cogging.weak and all(st.status == "not_identifiable" for st in cogging.assessment.status.values())
 
 
@@ -651,10 +655,8 @@ def test_a_dead_band_explaining_less_than_the_spring_torques_quantisation_is_not
     from forecast_design.gap.candidates import effect_rows
     from forecast_design.gap.grading import explained_rms
 
-    log = ind.make_independent_log("none", 3, 102)
-    d = diagnose(log.experiment, joint=False)
+    d, backlash = _diagnosed("none", 3, 102, Effect.BACKLASH)
     assert d.effect is Effect.NONE
-    backlash = next(r for r in d.ranking if r.effect is Effect.BACKLASH)
     assert backlash.reduction_own == 0.0 and not backlash.weak
     fit = d.fits["backlash"]
     rows = d.data.stacked(d.data.held_out) & effect_rows(d.data, fit)
