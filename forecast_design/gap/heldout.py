@@ -31,8 +31,7 @@ from .candidates import CandidateFit
 from .grading import noise_floor
 from .identifiability import method_shift, terms_wald_p
 from .motion import held_at_rest_rows, held_level_factor
-from .residuals import GapData
-from ..plausibility import encoder_step_of
+from .residuals import GapData, gap_log_scales
 
 __all__ = ["held_out_test", "units_test", "correlation_length", "test_units", "nested_law_test", "richer_law_justified",
            "breakaway_resolved_at_rest", "breakaway_proven_at_rest", "richer_law_resolved", "candidate_levels", "verdict_ties", "NESTED_ALPHA"]
@@ -314,6 +313,14 @@ def breakaway_proven_at_rest(data: GapData, simpler: CandidateFit) -> bool:
     bool
         True when two stays prove a held torque beyond the Coulomb level.
     """
+    key = ("breakaway_proven", id(simpler))
+    if key in data.cache and data.cache[key][0] is simpler:     # asked by the nested rule and for the caveat
+        return data.cache[key][1]
+    data.cache[key] = (simpler, _breakaway_proven(data, simpler))
+    return data.cache[key][1]
+
+
+def _breakaway_proven(data: GapData, simpler: CandidateFit) -> bool:
     exp = data.experiment
     sig, tb = exp.signals, exp.design.testbed
     if not set(simpler.params) <= {"F_c", "F_c_neg"}:
@@ -326,7 +333,7 @@ def breakaway_proven_at_rest(data: GapData, simpler: CandidateFit) -> bool:
     tau_s = np.asarray(sig.tau_s, dtype=float) if data.tau_s_measured else tb.k * (theta - np.asarray(sig.q, dtype=float))
     f = np.asarray(sig.tau_m, dtype=float) - cal["spring_scale"] * tau_s - cal.get("tau_s_offset_N_m", 0.0)
     dt, J = 1.0 / float(exp.rate_hz), float(cal["J_m"])
-    step = encoder_step_of(theta)
+    step = gap_log_scales(data).encoder_step
     d = np.diff(f)
     sigma = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2.0)     # the net torque's white noise
     edges = np.flatnonzero(np.diff(theta) != 0.0) + 1

@@ -348,8 +348,9 @@ class GapData:
         ``k`` x each encoder's step (:func:`forecast_design.plausibility.encoder_step_of`) / sqrt(12), the motor's
         and the output's (unless locked) added in quadrature.
         """
-        sig = self.experiment.signals
-        steps = [encoder_step_of(sig.theta)] + ([] if self.locked else [encoder_step_of(sig.q)])
+        steps = [gap_log_scales(self).encoder_step]
+        if not self.locked:
+            steps.append(encoder_step_of(self.experiment.signals.q))
         return self.experiment.design.testbed.k * math.sqrt(sum(s ** 2 for s in steps) / 12.0)
 
     @property
