@@ -300,6 +300,23 @@ def test_filter_settings_defaults_follow_emps_recipe():
         default_filter_settings(1000.0, position_cutoff_hz=600.0)
 
 
+@pytest.mark.parametrize("R", [63, 126, 250])
+def test_the_decimation_filters_smear_grows_with_the_decimation_factor(R):
+    # scipy's decimation low-pass (Chebyshev I, order 8, 0.8 / R of Nyquist) is one filter whose time scale is R:
+    # its zero-phase impulse response reaches 1 % of its peak 14.8 R samples out. In transfer-function form it
+    # went numerically unstable above R ~ 60 (R = 126: -3121 samples, and a diagnosis crashed on a long log)
+    from forecast_design.friction.derivatives import FilterSettings, settling_samples
+
+    def smear(r):
+        return settling_samples(FilterSettings(rate_hz=2000.0, position_cutoff_hz=1600.0 / r, filter_order=4,
+                                               decimation_factor=r, edge_samples=0, decimation="parallel"))
+
+    der, dec = smear(R)
+    der10, dec10 = smear(10)
+    assert dec / R == pytest.approx(dec10 / 10, rel=0.01)
+    assert der / R == pytest.approx(der10 / 10, rel=0.1)
+
+
 def test_identify_on_an_experiment_uses_nominal_inertia_and_spring_torque():
     from forecast_design.experiment import experiment_from_arrays
     from forecast_design.params import Design

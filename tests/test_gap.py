@@ -282,7 +282,8 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     assert words[-1] == "calibration" and len(m["isolability"]["separation"]) == len(words)
     for r in m["ranking"]:
         assert {"effect", "gap_after", "reduction", "params", "p_value", "counts", "weak", "identified",
-                "not_identified", "status", "reasons", "equations", "reduction_in_equations"} == set(r)
+                "not_identified", "status", "reasons", "equations", "reduction_in_equations", "explained_rms_N_m",
+                "below_accuracy"} == set(r)
         assert r["effect"] in VOCAB - {"none"} and 0.0 <= r["reduction"] <= 1.0
         assert r["counts"] <= r["identified"]
     # locked output: no environment equation, so environment_mismatch is not tried

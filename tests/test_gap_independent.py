@@ -657,7 +657,7 @@ def test_a_dead_band_explaining_less_than_the_spring_torques_quantisation_is_not
 
     d, backlash = _diagnosed("none", 3, 102, Effect.BACKLASH)
     assert d.effect is Effect.NONE
-    assert backlash.reduction_own == 0.0 and not backlash.weak
+    assert backlash.withheld_by_accuracy and not backlash.weak and not backlash.significant
     fit = d.fits["backlash"]
     rows = d.data.stacked(d.data.held_out) & effect_rows(d.data, fit)
     assert explained_rms(d.baseline, fit, rows) < d.data.spring_torque_quantisation
@@ -743,3 +743,93 @@ def test_a_dead_band_the_motion_crosses_quickly_is_read_where_it_is_physical(ind
     assert abs(status["value"] - log.case.effect_params["width"]) <= 1.96 * status["std"]
     c = float(d.fits["backlash"].coef[-1])
     assert 0.5 <= c <= 1.5
+
+
+@pytest.mark.slow
+def test_an_effect_withheld_by_the_torque_accuracy_is_reported_with_what_it_explains():
+    # an open-loop 0.25 Hz sweep into an environment whose inertia is 2.3 x the declared one: the mismatch removes
+    # 69 % of the gap at p = 1e-51, but the torque it explains, 2 mN m RMS, is below 0.1 % of the RMS command.
+    # The verdict none stays; the ranking and a caveat now say what was withheld and why (it said nothing)
+    log = ind.make_independent_log("environment_mismatch", 7, 71)
+    d = diagnose(log.experiment, joint=False)
+    env = next(r for r in d.ranking if r.effect is Effect.ENVIRONMENT_MISMATCH)
+    assert d.effect is Effect.NONE
+    assert env.withheld_by_accuracy and env.explained_rms < env.accuracy == d.data.torque_accuracy
+    assert env.reduction_own >= d.data.options.min_reduction and not env.significant and not env.weak
+    entry = next(r for r in d.to_mapping()["ranking"] if r["effect"] == "environment_mismatch")
+    assert entry["below_accuracy"] and entry["explained_rms_N_m"] == pytest.approx(env.explained_rms)
+    assert any(c.startswith("Below accuracy: 'environment_mismatch'") for c in d.caveats)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("word", ["coulomb", "none"])
+def test_the_recorded_angles_noise_is_read_in_encoder_steps(word):
+    # the generator adds encoder noise of n = 0.2-1 counts before quantisation to 30 % of its logs: the angle then
+    # departs from its low-pass by sqrt(n^2 + 1/12) steps RMS, which the factor reads (a low-pass keeps part of the
+    # noise: 0.8-1 of it); quantisation alone is a factor of 1
+    from forecast_design.gap.motion import angle_noise_factor
+    from forecast_design.gap.residuals import prepare_gap_data
+
+    for index in range(10):
+        log = ind.make_independent_log(word, index, 80)
+        factor = angle_noise_factor(prepare_gap_data(log.experiment))
+        n = log.case.encoder_noise_counts
+        assert 0.75 <= factor / math.sqrt(12.0 * n * n + 1.0) <= 1.05, (index, n, factor)
+
+
+@pytest.mark.slow
+def test_the_filters_ringing_before_a_start_is_no_motion_and_the_start_holds_the_coulomb_level():
+    # a 2^21-count closed-loop square with Coulomb friction: before every torque step the zero-phase filter rang
+    # (-2 ... +5 mrad/s on an encoder that did not move), read as motion both ways, and the rows of each start kept
+    # the torque the motor held in its stay: ten rows left 95 % of coulomb's squared residual, LuGre's bristles took
+    # them up, and the verdict was stiction
+    log = ind.make_independent_log("coulomb", 2, 102)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.COULOMB
+    truth = log.case.effect_params
+    status = d.to_mapping()["verdict"]["status"]
+    for name in ("F_c", "F_c_neg"):
+        assert abs(status[name]["value"] - truth[name]) <= 1.96 * status[name]["std"]
+    # the rows of the starts now hold what the stays held (coulomb left 5 % of the gap before)
+    assert d.fits["coulomb"].gap_held_out < 0.02 * d.gap_before
+
+
+@pytest.mark.slow
+def test_a_noisy_encoders_stays_hold_the_coulomb_level_where_its_reading_toggles():
+    # a 16-bit closed-loop square, stiff environment, encoder noise of 0.9 counts: between the steps the motor rests
+    # while its reading toggles over three counts, so no stay lasted more than a few samples and the rows there kept
+    # the torque the friction held (coulomb removed 18 % of the gap); a torque gain of 0.58 was the clear verdict
+    log = ind.make_independent_log("coulomb", 4, 80)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.COULOMB
+    # the level is within 8 % of the truth; its interval (+-0.2 %) does not cover it: the noise biases the level
+    # (open, RESULTS)
+    assert d.params["F_c"] == pytest.approx(log.case.effect_params["F_c"], rel=0.1)
+    rows = {r.effect: r for r in d.ranking}
+    assert rows[Effect.COULOMB].gap_after < rows[Effect.TORQUE_GAIN].gap_after
+
+
+@pytest.mark.slow
+def test_a_weak_stiction_where_coulomb_is_not_resolved_must_resolve_its_breakaway():
+    # an effect-free 14-bit closed-loop square: the Coulomb level does not persist in half the band (the encoders'
+    # quantisation), and a stiction with F_s 0.10 +- 0.14 N m and no breakaway the log resolves was the weak verdict
+    # (a false alarm). As for a clear one, a stiction whose coulomb is not resolved must resolve its extra terms
+    from forecast_design.gap.heldout import richer_law_resolved
+
+    log = ind.make_independent_log("none", 1, 110, magnitude_scale=0.25)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.NONE
+    rows = {r.effect: r for r in d.ranking}
+    assert not rows[Effect.COULOMB].weak and not rows[Effect.COULOMB].significant
+    assert not richer_law_resolved(d.data, d.fits["stiction"], d.fits["coulomb"])
+
+
+@pytest.mark.slow
+def test_a_log_decimated_by_more_than_a_hundred_is_diagnosed():
+    # a 14-bit closed-loop multisine with a torque sensor and a 4.7 ms delay, slow enough that half the equation band
+    # decimates by 126: the decimation filter's smear, computed in transfer-function form, came out at -3121 samples
+    # and the half-band refit of a friction level raised a traceback (the verdict itself is wrong, as before: RESULTS)
+    log = ind.make_independent_log("delay", 6, 54)
+    d = diagnose(log.experiment, joint=False)
+    assert d.data.settings.decimation_factor * 2 > 100
+    assert json.loads(json.dumps(d.to_mapping()))["verdict"]["effect"] in {e.value for e in Effect}

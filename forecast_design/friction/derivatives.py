@@ -340,16 +340,20 @@ def _decimation_sos(R: int) -> tuple[np.ndarray]:
 SETTLED = 0.01
 
 
-@lru_cache(maxsize=64)
-def _halfwidth(b: tuple[float, ...], a: tuple[float, ...]) -> int:
-    """Half-width in samples of the zero-phase (filtfilt) impulse response of b/a, at 1 % of its peak."""
-    n = 4096
+def _halfwidth(sos: np.ndarray, n: int = 4096) -> int:
+    """Half-width in samples of the zero-phase (sosfiltfilt) impulse response of ``sos``, at 1 % of its peak.
+
+    Second-order sections: the transfer-function form of scipy's decimation filter is numerically unstable for
+    decimation factors above about 60 (its half-width came out negative at R = 126, -3121 samples, and the
+    filters' step response could not be formed). ``n`` samples on either side must hold the response.
+    """
     x = np.zeros(2 * n + 1)
     x[n] = 1.0
-    h = np.abs(signal.filtfilt(np.asarray(b), np.asarray(a), x, padtype=None))
+    h = np.abs(signal.sosfiltfilt(np.asarray(sos, dtype=float), x, padtype=None))
     return int(np.flatnonzero(h > SETTLED * h.max()).max() - n)
 
 
+@lru_cache(maxsize=64)
 def settling_samples(settings: FilterSettings) -> tuple[int, int]:
     """How far (in raw samples) a jump in the log is smeared by the identification filters.
 
@@ -374,9 +378,10 @@ def settling_samples(settings: FilterSettings) -> tuple[int, int]:
         further.
     """
     wn = settings.position_cutoff_hz / (settings.rate_hz / 2.0)
-    b, a = butterworth(settings.filter_order, wn)
-    der = _halfwidth(tuple(b), tuple(a)) + 2
+    sos, = butterworth(settings.filter_order, wn, output="sos")
+    der = _halfwidth(sos, max(4096, int(np.ceil(40.0 / wn)))) + 2
     if not np.isfinite(settings.decimation_cutoff_hz):
         return der, 0
-    bd, ad = signal.cheby1(8, 0.05, 0.8 / settings.decimation_factor)
-    return der, _halfwidth(tuple(bd), tuple(ad))
+    R = int(settings.decimation_factor)
+    sos_dec, = _decimation_sos(R)
+    return der, _halfwidth(sos_dec, max(4096, 40 * R))

@@ -97,21 +97,21 @@ from threadpoolctl import threadpool_limits
 from ..effects import Effect
 from ..errors import ParameterError
 from ..experiment import Experiment
+from .caveats import computed_caveats
 from .joint import JointAttribution, fit_joint
-from .candidates import (CANDIDATE_EFFECTS, CandidateFit, effect_rows, fit_all, fit_baseline, fit_constant_torque,
-                         fit_pair, levels_shared)
-from .identifiability import (CALIBRATION, EffectAssessment, Isolability, assess_fit, calibration_status, isolability,
+from .candidates import CANDIDATE_EFFECTS, CandidateFit, effect_rows, fit_all, fit_baseline, fit_pair
+from .identifiability import (EffectAssessment, Isolability, assess_fit, calibration_status, isolability,
                               method_shift, with_method_error)
 from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
-from .grading import CONSTANT_TORQUE_SHARE, explainable_reduction, explained_rms, noise_floor, weak_is_distinct
-from .structures import _FRICTION, j_held
+from .grading import explainable_reduction, explained_rms, noise_floor, weak_is_distinct
+from .structures import _FRICTION
 from .heldout import (NESTED_ALPHA, breakaway_proven_at_rest, candidate_levels, correlation_length, held_out_test,
                       verdict_ties, richer_law_justified, richer_law_resolved, test_units)
 from .motion import creeping
-from .residuals import GapData, GapOptions, TauSSource, gap_log_scales, prepare_gap_data
+from .residuals import GapData, GapOptions, TauSSource, prepare_gap_data
 
 __all__ = ["Diagnosis", "RankedCandidate", "diagnose", "held_out_test", "test_units", "correlation_length"]
 
@@ -146,6 +146,14 @@ class RankedCandidate:
     weak : bool
         Passes every test but removes less than ``min_reduction`` of the explainable gap
         (:mod:`.grading`): a weak effect.
+    explained_rms : float
+        RMS torque the candidate explains on the held-out rows of its equations (:func:`.grading.explained_rms`)
+        [N m].
+    accuracy : float
+        The least it must explain to count: the motor's torque accuracy (``GapOptions.min_effect_fraction`` of
+        the RMS command), for a dead band the spring torque's quantisation where larger [N m].
+    withheld_by_accuracy : bool
+        Passes every other test of a clear or weak effect but explains less than ``accuracy``: not counted.
     """
 
     effect: Effect
@@ -159,6 +167,9 @@ class RankedCandidate:
     reduction_own: float = float("nan")
     equations: tuple[str, ...] = ()
     weak: bool = False
+    explained_rms: float = float("nan")
+    accuracy: float = 0.0
+    withheld_by_accuracy: bool = False
 
     @property
     def identified(self) -> bool:
@@ -172,14 +183,17 @@ class RankedCandidate:
         -------
         dict
             ``effect``, ``gap_after`` [N m], ``reduction``, ``params``, ``p_value``, ``counts``
-            (passes every test), and ``identified``, ``not_identified``, ``status``, ``reasons``
-            from the assessment.
+            (passes every test), ``weak``, ``equations``, ``reduction_in_equations``, ``explained_rms_N_m``,
+            ``below_accuracy`` (withheld by the accuracy alone), and ``identified``, ``not_identified``,
+            ``status``, ``reasons`` from the assessment.
         """
         out = {"effect": str(self.effect), "gap_after": float(self.gap_after),
                "reduction": float(self.reduction), "params": _jsonable(self.params),
                "p_value": float(self.p_value), "counts": bool(self.significant), "weak": bool(self.weak),
                "equations": list(self.equations),
-               "reduction_in_equations": None if math.isnan(self.reduction_own) else float(self.reduction_own)}
+               "reduction_in_equations": None if math.isnan(self.reduction_own) else float(self.reduction_own),
+               "explained_rms_N_m": None if math.isnan(self.explained_rms) else float(self.explained_rms),
+               "below_accuracy": bool(self.withheld_by_accuracy)}
         if self.assessment is not None:
             out.update(self.assessment.to_mapping())
         return out
@@ -475,8 +489,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         # below the motor's torque accuracy: not an effect; nor a dead band explaining less than the quantisation of
         # the spring torque it acts on (an effect-free 16-bit square: 0.7 of it, true dead bands at least 1.5)
         accuracy = max(data.torque_accuracy, data.spring_torque_quantisation if fit.effect is Effect.BACKLASH else 0.0)
-        if explained_rms(base, fit, held_rows & own) < accuracy:
-            red_own = 0.0
+        explained = explained_rms(base, fit, held_rows & own)
+        counted = red_own if explained >= accuracy else 0.0
         all_units = test_units(data, fit)
         units = np.where(own, all_units, -1)
         p = held_out_test(base, fit, held_blocks, units=units, floor=floor)
@@ -493,15 +507,16 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             # the encoders' quantisation, not an effect: in a pair too
             if not assessment.identified:
                 in_band_only.add(fit.effect)
+        passes = bool(p < alpha_fit and assessment.identified and lowers_total)
         ranked.append(RankedCandidate(effect=fit.effect, gap_after=fit.gap_held_out,
                                       reduction=float(min(max(red, 0.0), 1.0)), params=fit.params,
                                       p_value=p, bic=bic, assessment=assessment, reduction_own=red_own,
                                       equations=tuple(eq for k, eq in enumerate(data.equations)
                                                       if own[k * data.t.size]),
-                                      significant=bool(red_own >= opts.min_reduction and p < alpha_fit
-                                                       and assessment.identified and lowers_total),
-                                      weak=bool(0.0 < red_own < opts.min_reduction and p < alpha_fit
-                                                and assessment.identified and lowers_total)))
+                                      significant=passes and counted >= opts.min_reduction,
+                                      weak=passes and 0.0 < counted < opts.min_reduction,
+                                      explained_rms=explained, accuracy=accuracy,
+                                      withheld_by_accuracy=passes and red_own > 0.0 and counted == 0.0))
     # an environment mismatch acts in the environment equation alone: where a motor-equation candidate passing the test
     # removes more of the total gap, it lies in the motor equation (six verdicts: 47-95 % of a quiet equation, 0.3-10 %
     # of the total, beside a friction, gain or cogging removing 11-37 %)
@@ -608,10 +623,14 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                       key=lambda r: r.bic)
         if weak and weak[0].effect in (Effect.STICTION, Effect.POSITION_FRICTION):
             coul = next((r for r in weak if r.effect is Effect.COULOMB), None)
-            if coul is not None and not richer_law_justified(data, by_effect[str(weak[0].effect)],
-                                                             by_effect[str(Effect.COULOMB)]):
+            richer, simpler = by_effect[str(weak[0].effect)], by_effect[str(Effect.COULOMB)]
+            if coul is not None and not richer_law_justified(data, richer, simpler):
                 weak.remove(coul)
                 weak.insert(0, coul)
+            elif coul is None and not richer_law_resolved(data, richer, simpler):
+                # as a clear one: with coulomb not resolved, its extra terms must be (an effect-free 14-bit square:
+                # the Coulomb level the quantisation, F_s 0.10 +- 0.14 N m, a weak stiction)
+                weak.pop(0)
         if weak:
             winner, grade = weak[0], "weak"
             ranked.remove(winner)
@@ -634,7 +653,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         eff, gap_after, params = Effect.NONE, gap0, {}
     else:
         eff, gap_after, params = winner.effect, winner.gap_after, winner.params
-    caveats += _computed_caveats(data, eff, ranked, iso, base, opts, by_effect.get(str(eff), base))
+    caveats += computed_caveats(data, eff, ranked, iso, base, opts, by_effect.get(str(eff), base))
     if location.single_tone:
         caveats.append(f"Caution: the command is essentially one sine at {location.tone_hz:.2g} Hz; there a delay "
                        "looks like extra motor damping and a torque_gain like a J_m/k rescaling, so delay, "
@@ -684,70 +703,6 @@ def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[Rank
         if extra < data.options.min_reduction:
             return r, float(extra)
     return winner, float("nan")
-
-
-#: Spring-torque resolution ``k x encoder step``, as a fraction of the RMS command, above which a
-#: diagnosis warns that the log is coarser than its validation [-] (2,000,000 counts: ~2e-4).
-COARSE_ENCODER_FRACTION = 2e-3
-
-
-def _computed_caveats(data: GapData, verdict: Effect, ranked: list[RankedCandidate], iso: Isolability,
-                      base: CandidateFit, opts: GapOptions, chosen: CandidateFit | None = None) -> list[str]:
-    """Caveats computed from this log: isolability, unidentified candidates, a bounded re-calibration."""
-    out = []
-    if verdict is not Effect.NONE:
-        confused = iso.confusable_with(str(verdict))
-        words = [w for w in confused if w != CALIBRATION]
-        if words:
-            out.append(f"Caution: this log cannot tell '{verdict}' from {', '.join(repr(w) for w in words)} "
-                       f"(feature separation below {iso.threshold:g} on held-out data).")
-        if CALIBRATION in confused:
-            out.append(f"Caution: '{verdict}' acts in the same direction as a re-calibration of J_m, d_m and k; it "
-                       f"is named because that re-calibration is limited to the datasheet tolerance "
-                       f"(+-{100 * opts.calibration_tolerance:g} %): nominal values off by more would look the same.")
-    if chosen is not None and levels_shared(chosen):
-        out.append(f"Assumed: one {verdict} level for both directions of motion (F_c_neg = F_c); a level per "
-                   "direction predicted the held-out data worse (this log hardly moves one way).")
-    if chosen is not None and j_held(chosen.params):
-        out.append("Assumed: the environment's J at its declared value, not estimated: fitted, it came out below a "
-                   "tenth of it, the output encoder's quantisation in q'' (errors in variables), so only d and k_e "
-                   "are fitted.")
-    for r in ranked:
-        if r.effect is not verdict and r.assessment is not None and not r.assessment.identified \
-                and r.reduction >= opts.min_reduction:
-            out.append(f"Not identified: '{r.effect}' would remove {100 * r.reduction:.0f} % of the gap but "
-                       f"{'; '.join(r.assessment.reasons[:2])}.")
-    resolution = data.experiment.design.testbed.k * gap_log_scales(data).encoder_step
-    tau_rms = data.command_rms
-    if tau_rms > 0 and resolution > COARSE_ENCODER_FRACTION * tau_rms:
-        out.append(f"Caution: the encoders resolve the spring torque k (theta - q) in steps of {resolution:.2g} N m "
-                   f"({100 * resolution / tau_rms:.2g} % of the RMS command, above the "
-                   f"{100 * COARSE_ENCODER_FRACTION:g} % the diagnosis is validated at): on such logs it misses most "
-                   "delays and in a few percent of set-ups names a wrong effect (environment_mismatch, cogging).")
-    if verdict is Effect.COGGING and chosen is not None and chosen is not base and base.gap_held_out > 0:
-        # over a fraction of a revolution the harmonics make a constant: how much of what cogging
-        # removes does a constant motor torque remove?
-        const = fit_constant_torque(data)
-        r_cog = 1.0 - chosen.gap_held_out / base.gap_held_out
-        r_const = 1.0 - const.gap_held_out / base.gap_held_out
-        if r_cog > 0 and r_const >= CONSTANT_TORQUE_SHARE * r_cog:
-            span = float(np.ptp(data.columns["theta_sub"]))
-            encoders = "" if data.tau_s_measured else (", or zero offsets of the encoders (homed with the spring "
-                                                       "loaded, so that k (theta - q) is off by a constant)")
-            out.append(f"Caution: over this log's {span:.2g} rad of motor travel a constant motor torque of "
-                       f"{const.params['torque_N_m']:+.3g} N m removes {100 * r_const:.0f} % of the gap, against "
-                       f"{100 * r_cog:.0f} % for cogging: a current driver's offset{encoders} would look the same.")
-    offset = (chosen or base).calibration.get("tau_s_offset_N_m")     # the verdict's own calibration
-    peak = float(np.max(np.abs(data.columns["tau_s"])))
-    if offset is not None and abs(offset) > opts.calibration_tolerance * peak:
-        out.append(f"Note: the torque sensor's zero offset, {-offset:+.3g} N m ({100 * abs(offset) / peak:.2g} % "
-                   "of the peak |tau_s|), is calibrated out, not blamed on an effect.")
-    at_bound = [k for k, st in calibration_status(data, base).items() if st.status == "at_bound"]
-    if at_bound:
-        out.append(f"Caution: the nominal re-calibration of {', '.join(at_bound)} sits on its datasheet bound "
-                   f"(+-{100 * opts.calibration_tolerance:g} %): the nominal model is off by more than the tolerance, "
-                   "or an effect acting in the same direction (e.g. torque_gain) is being absorbed.")
-    return out
 
 
 def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit], gap0: float, n_held: int,

@@ -1,0 +1,113 @@
+"""Caveats a diagnosis computes from its log: what the verdict cannot tell apart, and what it did not count.
+
+Each caveat is one sentence of the diagnosis JSON's ``caveats``, starting with its kind (``Caution``,
+``Assumed``, ``Not identified``, ``Below accuracy``, ``Note``).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..effects import Effect
+from .candidates import CandidateFit, fit_constant_torque, levels_shared
+from .grading import CONSTANT_TORQUE_SHARE
+from .identifiability import CALIBRATION, Isolability, calibration_status
+from .residuals import GapData, GapOptions, gap_log_scales
+from .structures import j_held
+
+__all__ = ["computed_caveats", "COARSE_ENCODER_FRACTION"]
+
+
+#: Spring-torque resolution ``k x encoder step``, as a fraction of the RMS command, above which a
+#: diagnosis warns that the log is coarser than its validation [-] (2,000,000 counts: ~2e-4).
+COARSE_ENCODER_FRACTION = 2e-3
+
+
+def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso: Isolability,
+                      base: CandidateFit, opts: GapOptions, chosen: CandidateFit | None = None) -> list[str]:
+    """Caveats computed from this log: isolability, unidentified candidates, a bounded re-calibration.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    verdict : Effect
+        The verdict (``Effect.NONE`` for none).
+    ranked : sequence of RankedCandidate
+        The diagnosis' ranking.
+    iso : Isolability
+        Which candidates the log tells apart.
+    base : CandidateFit
+        The calibrated nominal model.
+    opts : GapOptions
+        The diagnosis' options.
+    chosen : CandidateFit, optional
+        The verdict's fit.
+
+    Returns
+    -------
+    list of str
+        One sentence per caveat.
+    """
+    out = []
+    if verdict is not Effect.NONE:
+        confused = iso.confusable_with(str(verdict))
+        words = [w for w in confused if w != CALIBRATION]
+        if words:
+            out.append(f"Caution: this log cannot tell '{verdict}' from {', '.join(repr(w) for w in words)} "
+                       f"(feature separation below {iso.threshold:g} on held-out data).")
+        if CALIBRATION in confused:
+            out.append(f"Caution: '{verdict}' acts in the same direction as a re-calibration of J_m, d_m and k; it "
+                       f"is named because that re-calibration is limited to the datasheet tolerance "
+                       f"(+-{100 * opts.calibration_tolerance:g} %): nominal values off by more would look the same.")
+    if chosen is not None and levels_shared(chosen):
+        out.append(f"Assumed: one {verdict} level for both directions of motion (F_c_neg = F_c); a level per "
+                   "direction predicted the held-out data worse (this log hardly moves one way).")
+    if chosen is not None and j_held(chosen.params):
+        out.append("Assumed: the environment's J at its declared value, not estimated: fitted, it came out below a "
+                   "tenth of it, the output encoder's quantisation in q'' (errors in variables), so only d and k_e "
+                   "are fitted.")
+    for r in ranked:
+        if r.effect is not verdict and r.assessment is not None and not r.assessment.identified \
+                and r.reduction >= opts.min_reduction:
+            out.append(f"Not identified: '{r.effect}' would remove {100 * r.reduction:.0f} % of the gap but "
+                       f"{'; '.join(r.assessment.reasons[:2])}.")
+        elif r.withheld_by_accuracy:
+            what = ("the quantisation of the spring torque it acts on" if r.accuracy > data.torque_accuracy else
+                    f"{100 * opts.min_effect_fraction:g} % of the RMS command, a motor's torque accuracy")
+            out.append(f"Below accuracy: '{r.effect}' passes the held-out test (p = {r.p_value:.2g}) and removes "
+                       f"{100 * r.reduction_own:.0f} % of the gap of its equations, but the torque it explains, "
+                       f"{r.explained_rms:.2g} N m RMS, is below {r.accuracy:.2g} N m ({what}): not counted.")
+    resolution = data.experiment.design.testbed.k * gap_log_scales(data).encoder_step
+    tau_rms = data.command_rms
+    if tau_rms > 0 and resolution > COARSE_ENCODER_FRACTION * tau_rms:
+        out.append(f"Caution: the encoders resolve the spring torque k (theta - q) in steps of {resolution:.2g} N m "
+                   f"({100 * resolution / tau_rms:.2g} % of the RMS command, above the "
+                   f"{100 * COARSE_ENCODER_FRACTION:g} % the diagnosis is validated at): on such logs it misses most "
+                   "delays and in a few percent of set-ups names a wrong effect (environment_mismatch, cogging).")
+    if verdict is Effect.COGGING and chosen is not None and chosen is not base and base.gap_held_out > 0:
+        # over a fraction of a revolution the harmonics make a constant: how much of what cogging
+        # removes does a constant motor torque remove?
+        const = fit_constant_torque(data)
+        r_cog = 1.0 - chosen.gap_held_out / base.gap_held_out
+        r_const = 1.0 - const.gap_held_out / base.gap_held_out
+        if r_cog > 0 and r_const >= CONSTANT_TORQUE_SHARE * r_cog:
+            span = float(np.ptp(data.columns["theta_sub"]))
+            encoders = "" if data.tau_s_measured else (", or zero offsets of the encoders (homed with the spring "
+                                                       "loaded, so that k (theta - q) is off by a constant)")
+            out.append(f"Caution: over this log's {span:.2g} rad of motor travel a constant motor torque of "
+                       f"{const.params['torque_N_m']:+.3g} N m removes {100 * r_const:.0f} % of the gap, against "
+                       f"{100 * r_cog:.0f} % for cogging: a current driver's offset{encoders} would look the same.")
+    offset = (chosen or base).calibration.get("tau_s_offset_N_m")     # the verdict's own calibration
+    peak = float(np.max(np.abs(data.columns["tau_s"])))
+    if offset is not None and abs(offset) > opts.calibration_tolerance * peak:
+        out.append(f"Note: the torque sensor's zero offset, {-offset:+.3g} N m ({100 * abs(offset) / peak:.2g} % "
+                   "of the peak |tau_s|), is calibrated out, not blamed on an effect.")
+    at_bound = [k for k, st in calibration_status(data, base).items() if st.status == "at_bound"]
+    if at_bound:
+        out.append(f"Caution: the nominal re-calibration of {', '.join(at_bound)} sits on its datasheet bound "
+                   f"(+-{100 * opts.calibration_tolerance:g} %): the nominal model is off by more than the tolerance, "
+                   "or an effect acting in the same direction (e.g. torque_gain) is being absorbed.")
+    return out
