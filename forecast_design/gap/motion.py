@@ -278,8 +278,9 @@ def rest_share(data: GapData) -> np.ndarray:
     A stay is a run of raw samples, at least as long as the derivative filter's settling
     (:func:`forecast_design.friction.derivatives.settling_samples`), over which the recorded angle does not
     change, or the motor is quiet: no direction resolved (:func:`motion_direction`) or a filtered speed below the
-    speed resolution times :func:`angle_noise_factor`. The motor stopped there (a reversal passing through a
-    count in a few samples is no stay). Its indicator goes through the equation errors' own filters and
+    speed resolution times :func:`angle_noise_factor`; where the log is read as creeping, not the samples that
+    creep (:func:`creeping`). The motor stopped there (a reversal passing through a count in a few samples is no
+    stay). Its indicator goes through the equation errors' own filters and
     decimation: 1 on a row deep in a stay, 0 on one far from any, in between on the rows of a start or a stop,
     whose filter windows mix samples at rest (where a static friction holds whatever net torque acts, up to its
     level) with moving ones.
@@ -301,6 +302,8 @@ def rest_share(data: GapData) -> np.ndarray:
         v = np.abs(np.asarray(data.raw["v"], dtype=float))
         quiet = (motion_direction(data) == 0.0) | (v < gap_log_scales(data).speed_resolution * angle_noise_factor(data))
         stay = _long_runs(np.asarray(data.experiment.signals.theta, dtype=float), w) | _long_runs(quiet, w, where=True)
+        if data.creep:
+            stay &= creeping(data) == 0.0       # read as creeping: those samples move
         data.cache["rest_share"] = np.clip(data.decimate(stay.astype(float)), 0.0, 1.0)
     return data.cache["rest_share"]
 
