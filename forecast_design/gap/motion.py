@@ -105,8 +105,7 @@ def angle_noise_factor(data: GapData) -> float:
     and 1 without noise.
     """
     if "angle_noise_factor" not in data.cache:
-        th = np.asarray(data.experiment.signals.theta, dtype=float)
-        dev = th - lowpass(th, data.settings)
+        dev = np.asarray(data.experiment.signals.theta, dtype=float) - data.raw["theta"]    # the low-passed angle
         # without the samples of fast motion the filter cannot follow (beyond five robust standard deviations)
         robust = 1.4826 * float(np.median(np.abs(dev - np.median(dev))))
         sigma = float(np.sqrt(np.mean(np.square(dev[np.abs(dev) <= 5.0 * robust])))) if robust > 0.0 else 0.0
@@ -132,12 +131,8 @@ def _resolved_direction(data: GapData) -> np.ndarray:
         # the two is the zero-phase filter's ringing next to a start or a stop (an encoder of 2^21 counts at rest
         # read -2 ... +5 mrad/s before a closed-loop square's step: a Coulomb level of alternating sign on a motor
         # at rest, which LuGre's bristles smoothed over)
-        th = np.asarray(data.experiment.signals.theta, dtype=float)
-        first = np.r_[True, np.diff(th) != 0.0]             # first sample of each stay
-        idx = np.arange(th.size)
-        start = np.maximum.accumulate(np.where(first, idx, 0))
-        nxt = np.r_[np.flatnonzero(first[1:]) + 1, th.size]
-        end = nxt[np.searchsorted(nxt, idx, side="right")] if nxt.size > 1 else np.full(th.size, th.size)
+        start, end = _runs(np.asarray(data.experiment.signals.theta, dtype=float))
+        idx = np.arange(start.size)
         k = np.minimum(idx - start, end - 1 - idx)
         d[np.abs(v) * k > 2.0 * scales.encoder_step * float(data.experiment.rate_hz)] = 0.0
         data.cache["resolved_direction"] = d
@@ -308,11 +303,15 @@ def rest_share(data: GapData) -> np.ndarray:
     return data.cache["rest_share"]
 
 
-def _long_runs(x: np.ndarray, w: int, where: bool | None = None) -> np.ndarray:
-    """Samples in runs of equal consecutive values of ``x`` at least ``w`` long (only runs of value ``where``)."""
+def _runs(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample, the first sample of its run of equal consecutive values of ``x`` and the one after the run."""
     edges = np.r_[0, np.flatnonzero(np.diff(x) != 0) + 1, x.size]
     lengths = np.diff(edges)
-    keep = lengths >= w
-    if where is not None:
-        keep &= x[edges[:-1]] == where
-    return np.repeat(keep, lengths)
+    return np.repeat(edges[:-1], lengths), np.repeat(edges[1:], lengths)
+
+
+def _long_runs(x: np.ndarray, w: int, where: bool | None = None) -> np.ndarray:
+    """Samples in runs of equal consecutive values of ``x`` at least ``w`` long (only runs of value ``where``)."""
+    start, end = _runs(x)
+    keep = end - start >= w
+    return keep & (x[start] == where) if where is not None else keep
