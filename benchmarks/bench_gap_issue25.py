@@ -75,6 +75,8 @@ def run(job: tuple) -> dict:
             "weak": doc["verdict"].get("weak"), "secondary": (doc["verdict"].get("secondary") or {}).get("effect"),
             "gap_before": doc["verdict"]["gap_before"], "gap_after": doc["verdict"]["gap_after"],
             "tau_s": doc.get("tau_s"), "ranking": ranking, "caveats": doc["caveats"],
+            "params": doc["verdict"]["params"], "status": doc["verdict"]["status"],
+            "std_method": doc["verdict"].get("std_method"), "std_calibration_bound": doc["verdict"].get("std_calibration_bound"),
             "case": case,
             "seconds": time.perf_counter() - t0}
 

@@ -267,7 +267,8 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     m = json.loads(json.dumps(d.to_mapping()))
     assert set(m) == {"verdict", "metric", "location", "ranking", "caveats", "isolability", "tau_s"}
     assert set(m["verdict"]) == {"effect", "grade", "gap_before", "gap_after", "reduction", "params", "status",
-                                 "secondary", "calibration", "std_method"}
+                                 "secondary", "calibration", "std_method",
+                                 "std_calibration_bound"}
     assert m["verdict"]["grade"] in ("clear", "weak", "none")
     assert set(m["location"]) == {"time_windows_s", "frequency_band_hz", "speed_band_rad_s", "summary"}
     assert m["verdict"]["effect"] in VOCAB and 0.0 <= m["verdict"]["reduction"] <= 1.0

@@ -13,7 +13,8 @@ import numpy as np
 from ..effects import Effect
 from .candidates import CandidateFit, fit_constant_torque, levels_shared
 from .grading import CONSTANT_TORQUE_SHARE
-from .identifiability import CALIBRATION, Isolability, calibration_status
+from .identifiability import calibration_status
+from .isolability import CALIBRATION, Isolability
 from .residuals import GapData, GapOptions, gap_log_scales
 from .structures import j_held
 

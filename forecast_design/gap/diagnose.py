@@ -100,8 +100,9 @@ from ..experiment import Experiment
 from .caveats import computed_caveats
 from .joint import JointAttribution, fit_joint
 from .candidates import CANDIDATE_EFFECTS, CandidateFit, effect_rows, fit_all, fit_baseline, fit_pair
-from .identifiability import (EffectAssessment, Isolability, assess_fit, calibration_status, isolability,
-                              method_shift, with_method_error)
+from .identifiability import (EffectAssessment, assess_fit, calibration_status, method_shift, calibration_freedom,
+                              calibration_on_bound, with_method_error)
+from .isolability import Isolability, isolability
 from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
@@ -262,6 +263,10 @@ class Diagnosis:
         How far the verdict's parameters move when the analysis is repeated with the position filter's
         cut-off halved (:func:`.identifiability.method_shift`), in their units; already in their
         standard deviations (JSON ``verdict.std_method``).
+    calibration_freedom : Mapping[str, float]
+        What the verdict's re-calibration, held on its bounds, hid of its standard deviations
+        (:func:`.identifiability.calibration_freedom`), in their units; already in them (JSON
+        ``verdict.std_calibration_bound``; empty when no calibrated value is on its bound).
     """
 
     effect: Effect
@@ -284,6 +289,7 @@ class Diagnosis:
     reading: Mapping[str, Any] | None = None
     grade: str = "clear"
     method_shift: Mapping[str, float] = field(default_factory=dict)
+    calibration_freedom: Mapping[str, float] = field(default_factory=dict)
 
     @property
     def identified(self) -> bool:
@@ -312,6 +318,7 @@ class Diagnosis:
             "isolability": {...}, "tau_s": {...}, "caveats": [...]}``. The verdict holds
             ``effect``, ``gap_before``/``gap_after`` [N m], ``reduction``, ``params``, their
             ``status`` (value, std, status), ``std_method`` (the analysis' own error per parameter),
+            ``std_calibration_bound`` (what a re-calibration held on its bounds hid, per parameter),
             ``secondary`` (``effect``, ``params`` and ``status`` of the pair fitted together,
             ``gap_after`` with both effects [N m], ``reduction`` of both relative to
             ``gap_before``; null when no second effect counts) and ``calibration`` (the
@@ -333,6 +340,7 @@ class Diagnosis:
             "status": ({k: v.to_mapping() for k, v in self.secondary.assessment.status.items()}
                        if self.secondary.assessment is not None else {})}
         verdict["std_method"] = {k: float(v) for k, v in self.method_shift.items()}
+        verdict["std_calibration_bound"] = {k: float(v) for k, v in self.calibration_freedom.items()}
         verdict["calibration"] = {k: {**v.to_mapping(), "at_bound": v.status == "at_bound"}
                                   for k, v in self.calibration.items()}
         out = {
@@ -643,12 +651,23 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         caveats.append("Stiction over coulomb: while the encoder read one count the motor held net torques that would "
                        "have moved it by more under any Coulomb level (a breakaway proven at the raw rate).")
     shift: dict[str, float] = {}
+    freed: dict[str, float] = {}
     if winner is not None and winner.assessment is not None:
         # the verdict's intervals carry the analysis' own error (the filter's), as the friction fit's do
         shift = method_shift(data, by_effect[str(winner.effect)])
-        widened = dataclasses.replace(winner, assessment=with_method_error(winner.assessment, shift))
+        # and what a re-calibration held on its bounds hid of them (a level traded with viscous friction)
+        freed = calibration_freedom(data, by_effect[str(winner.effect)])
+        both = {k: math.hypot(shift.get(k, 0.0), freed.get(k, 0.0)) for k in {*shift, *freed}}
+        widened = dataclasses.replace(winner, assessment=with_method_error(winner.assessment, both))
         ranked[ranked.index(winner)] = widened
         winner = widened
+        if freed:
+            held = calibration_on_bound(data, by_effect[str(winner.effect)])
+            caveats.append(f"Caution: the fit of '{winner.effect}' holds its re-calibrated {' and '.join(held)} on "
+                           f"{'a bound' if len(held) == 1 else 'their bounds'} "
+                           f"(d_m >= 0, J_m and the spring scale within +-{100 * opts.calibration_tolerance:g} %): its "
+                           "parameters' intervals are widened by what that freedom would move them "
+                           "(verdict.std_calibration_bound).")
     if winner is None:
         eff, gap_after, params = Effect.NONE, gap0, {}
     else:
@@ -665,7 +684,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
                      replay=replay, isolability=iso, calibration=calibration_status(data, base), grade=grade,
-                     method_shift=shift)
+                     method_shift=shift, calibration_freedom=freed)
 
 
 def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[RankedCandidate],

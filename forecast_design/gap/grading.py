@@ -30,7 +30,8 @@ import numpy as np
 
 from ..effects import Effect
 from .candidates import CandidateFit, fit_constant_torque
-from .identifiability import CALIBRATION, Isolability, calibration_status
+from .identifiability import calibration_status
+from .isolability import CALIBRATION, Isolability
 from .residuals import GapData
 
 __all__ = ["noise_floor", "floor_rms", "held_at_rest", "explainable_reduction", "explained_rms", "GRADES", "weak_is_distinct",
@@ -178,7 +179,7 @@ def weak_is_distinct(data: GapData, weak: Any, fit: CandidateFit, base: Candidat
                      iso: Isolability) -> bool:
     """A weak effect is named only when nothing the nominal model already has looks the same.
 
-    It must be isolable from the re-calibration of J_m, d_m and k (:func:`.identifiability.isolability`;
+    It must be isolable from the re-calibration of J_m, d_m and k (:func:`.isolability.isolability`;
     a torque gain, which never is, only when the re-calibration sits on its datasheet bound), and a
     cogging must remove more than a constant motor torque does (over part of a revolution the
     harmonics make a constant: a driver's offset, a sensor's zero left over). And at least one of its
