@@ -125,10 +125,12 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
         # usual size: 0.894 -> 0.949): a deviation that then holds from half to a quarter of the band is real
         quarter = _refit_in_band(data, fit, 0.25)
         if quarter is not None:
-            # there on a few samples: the value must also stand out of its own noise
-            status = assess_fit(*quarter).status
+            # there on a few samples: the value must also stand out of its own noise, beyond the tolerance
+            q_assessment = assess_fit(*quarter)
+            status = q_assessment.status
             if any(persists(b, quarter[1].params[k]) and status[k].std is not None
-                   and abs(quarter[1].params[k] - 1.0) > 1.96 * status[k].std
+                   and abs(quarter[1].params[k] - 1.0) > 1.96 * (status[k].std - q_assessment.bias.get(k, 0.0))
+                   + tol * abs(quarter[1].params[k])
                    for k, _, b in pairs if k in quarter[1].params and k in status):
                 return assessment
         moved = ", ".join(f"{k} {a:.3g} -> {b:.3g}" for k, a, b in pairs)

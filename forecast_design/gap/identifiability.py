@@ -204,12 +204,16 @@ class EffectAssessment:
     rescaling : bool
         True when the fit is a torque gain the re-calibration of ``J_m``, ``d_m`` and ``k`` stands for
         (within the datasheet tolerance): a re-calibration, not an effect.
+    bias : Mapping[str, float]
+        The part of a parameter's standard deviation that is a bounded bias, not noise (an environment's
+        scales read through the spring scale), in its unit; absent names have none.
     """
 
     identified: bool
     status: Mapping[str, ParameterStatus]
     reasons: tuple[str, ...] = ()
     rescaling: bool = False
+    bias: Mapping[str, float] = dataclasses.field(default_factory=dict)
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready mapping: ``identified``, ``not_identified`` (names), ``status`` per parameter, ``reasons``."""
@@ -624,6 +628,7 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                            f"{relative:.4g} relative to the spring torque, within the datasheet tolerance "
                            f"(+-{100 * data.options.calibration_tolerance:g} %): not an effect")
     out = EffectAssessment(identified=not reasons, status=status, reasons=tuple(reasons),
+                           bias={nm: float(b) for nm, b in zip(names, bias) if b > 0.0},
                            rescaling=len(reasons) > n_before)
     data.cache[key] = (fit, out)
     return out
