@@ -829,6 +829,24 @@ def test_a_noisy_encoders_stays_hold_the_coulomb_level_where_its_reading_toggles
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("index, seed", [(5, 91), (4, 84), (7, 101)])
+def test_a_delay_is_read_where_it_is_a_pure_delay(index, seed):
+    # the delay candidate is c (u - u(t - d)), c free in [0, 1.5]: off c = 1 it mixes in a gain ((1 - c) u + c d u'),
+    # and in closed loop the fit's minimum slid along that ridge to the same grid point, 4.64 ms at c 0.85 / 0.95 /
+    # 1.05, for true delays of 4.06 / 4.44 / 4.86 ms, with intervals of +-0.1 ms (up to 5 standard deviations off).
+    # Read where c = 1 (the word's physics), the delay is within a few percent and its interval covers it
+    log = ind.make_independent_log("delay", index, seed)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.DELAY
+    fit = d.fits["delay"]
+    assert fit.coef[-1] == pytest.approx(1.0, abs=0.02)
+    truth = log.case.effect_params["delay_s"]
+    status = d.to_mapping()["verdict"]["status"]["delay_s"]
+    assert status["value"] == pytest.approx(truth, rel=0.03)
+    assert abs(status["value"] - truth) <= 1.96 * status["std"]
+
+
+@pytest.mark.slow
 def test_an_environment_read_through_a_spring_scale_on_its_bound_carries_the_whole_tolerance():
     # an open-loop chirp with the output damping x 0.52: the spring scale sits on its +3 % bound and the scales
     # come out 3.5 % high (J 1.035 for 1, d 0.536 for 0.518) under +-3 % intervals. The true spring scale lies

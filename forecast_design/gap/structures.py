@@ -203,16 +203,8 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
             out.append(_Structure(coefs, lambda p: {"F_c": float(p[0]), **dict(zip(("a", "b"), harm(p, 1)))},
                                   level=level, n_params=2 * nh + 1, tests=((0,), tuple(range(1, 2 * nh + 1)))))
     elif effect is Effect.DELAY:
-        u = c["u"]
-        tau_m = data.raw["tau_m"]
-        rate = data.experiment.rate_hz
-        d_grid = np.geomspace(0.1e-3, opts.max_delay_s, 30)
-        delayed = data.decimate_many(delayed_input(tau_m, delay, rate) for delay in d_grid)
-        for delay, dec in zip(d_grid, delayed):
-            col = u - dec
-            out.append(_Structure([_coef(data, "c", {"motor": col}, 0.0, 1.5)],
-                                  lambda p, d=delay: {"delay_s": float(d)}, n_params=2,
-                                  grid=(("delay_s", float(delay), float(d_grid[0]), float(d_grid[-1])),)))
+        d_grid = np.geomspace(DELAY_GRID_START_S, opts.max_delay_s, DELAY_GRID_POINTS)
+        out += delay_structures(data, d_grid, (float(d_grid[0]), float(d_grid[-1])))
     elif effect is Effect.BACKLASH:
         x = data.raw["x"]
         span = float(np.percentile(np.abs(x), 99))
@@ -242,6 +234,37 @@ def _build_structures(effect: Effect, data: GapData) -> list[_Structure]:
 
         out.append(_Structure(coefs, to_params, n_params=3, tests=((0, 1, 2),)))
     return out
+
+
+#: The delay search: from this delay [s] to ``GapOptions.max_delay_s`` in this many log-spaced points (20 % steps at
+#: the default 20 ms; :func:`.candidates._best_on_grid` searches the steps next to the best point finer).
+DELAY_GRID_START_S, DELAY_GRID_POINTS = 0.1e-3, 30
+
+
+def delay_structures(data: GapData, delays: Sequence[float], search: tuple[float, float]) -> list[_Structure]:
+    """A delay at given values: the motor receives ``u(t - delay)``, ``c (u - u(t - delay))`` less than ``u``.
+
+    Parameters
+    ----------
+    data : GapData
+        Prepared equation errors.
+    delays : sequence of float
+        Delays [s], > 0.
+    search : (float, float)
+        Ends of the whole search [s] (a fit there is ``at_bound``).
+
+    Returns
+    -------
+    list of _Structure
+        One per delay; coefficient ``c`` in [0, 1.5] (``c = 1``: a pure delay).
+    """
+    u = data.columns["u"]
+    rate = data.experiment.rate_hz
+    delayed = data.decimate_many(delayed_input(data.raw["tau_m"], float(delay), rate) for delay in delays)
+    return [_Structure([_coef(data, "c", {"motor": u - dec}, 0.0, 1.5)],
+                       lambda p, d=float(delay): {"delay_s": d}, n_params=2,
+                       grid=(("delay_s", float(delay), float(search[0]), float(search[1])),))
+            for delay, dec in zip(delays, delayed)]
 
 
 def dead_band_structures(data: GapData, halves: Sequence[float], search: tuple[float, float]) -> list[_Structure]:
