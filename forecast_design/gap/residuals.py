@@ -354,6 +354,18 @@ class GapData:
         return self.experiment.design.testbed.k * math.sqrt(sum(s ** 2 for s in steps) / 12.0)
 
     @property
+    def spring_torque_resolution(self) -> float:
+        """Largest error of the spring torque ``k (theta - q)`` the encoders read: half a step of each [N m].
+
+        ``k`` x (the motor encoder's step + the output encoder's, unless locked) / 2. Where the deflection stays
+        within a count (a hold, a slow slide) that error does not average out.
+        """
+        steps = [gap_log_scales(self).encoder_step]
+        if not self.locked:
+            steps.append(encoder_step_of(self.experiment.signals.q))
+        return self.experiment.design.testbed.k * sum(steps) / 2.0
+
+    @property
     def locked(self) -> bool:
         """True when the output is locked (no environment equation)."""
         return "environment" not in self.equations
