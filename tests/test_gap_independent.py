@@ -847,6 +847,22 @@ def test_a_friction_level_is_known_no_better_than_the_spring_torque_the_encoders
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("index, seed", [(6, 92), (6, 0)])
+def test_a_dead_band_is_read_where_its_coefficient_is_one(index, seed):
+    # backlash takes c k clip(x, +-h) off the spring torque, c free in [0, 2]; its width was read at a grid point
+    # (24 % steps): 1.72 and 3.09 mrad for true 2.09 and 2.62, uncertain. Searched at thirds of a step next to the
+    # best point and read where c crosses 1, the physical dead band: within 3 %, identified, the interval covering
+    log = ind.make_independent_log("backlash", index, seed)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.BACKLASH
+    assert d.fits["backlash"].coef[-1] == pytest.approx(1.0, abs=0.02)
+    truth = log.case.effect_params["width"]
+    status = d.to_mapping()["verdict"]["status"]["width_rad"]
+    assert status["value"] == pytest.approx(truth, rel=0.03)
+    assert abs(status["value"] - truth) <= 1.96 * status["std"] and status["status"] == "identified"
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("index, seed", [(5, 91), (4, 84), (7, 101)])
 def test_a_delay_is_read_where_it_is_a_pure_delay(index, seed):
     # the delay candidate is c (u - u(t - d)), c free in [0, 1.5]: off c = 1 it mixes in a gain ((1 - c) u + c d u'),

@@ -449,33 +449,49 @@ def _best_on_grid(data: GapData, effect: Effect, structures: Sequence[_Structure
                 cached[-1:-1] = fine
             fits = [_fit(data, effect, m) for m in map(wrap, fine) if m is not None]
             best = min([best, *fits], key=lambda f: f.gap_fit)
+        k = next((i for i, f in enumerate(ridge) if f is best), None)
+        if k is not None and 0 < k < len(ridge) - 1:
+            best = _read_at_unit_coefficient(data, effect, best, ridge[k - 1], ridge[k + 1], wrap)
         return best
     k = next((i for i, f in enumerate(ridge) if f is best), None)
     if k is not None and on_bound[k]:
         best = next((f for f, b in zip(ridge[k + 1:], on_bound[k + 1:]) if not b), best)
     k = next((i for i, f in enumerate(ridge) if f is best), None)
-    if effect is Effect.DELAY and k is not None and 0 < k < len(ridge) - 1:
-        best = _finer_delay(data, effect, best, ridge[k - 1], ridge[k + 1], wrap)
+    if k is not None and 0 < k < len(ridge) - 1:
+        best = _read_at_unit_coefficient(data, effect, best, ridge[k - 1], ridge[k + 1], wrap)
     return best
 
 
-def _finer_delay(data: GapData, effect: Effect, best: CandidateFit, below: CandidateFit, above: CandidateFit,
-                 wrap: Callable[[_Structure], _Structure | None]) -> CandidateFit:
-    """The delay searched at thirds of the grid steps on either side of the best grid point.
+def _read_at_unit_coefficient(data: GapData, effect: Effect, best: CandidateFit, below: CandidateFit,
+                              above: CandidateFit, wrap: Callable[[_Structure], _Structure | None]) -> CandidateFit:
+    """A delay or a dead band searched at thirds of the grid steps next to the best point, read where ``c = 1``.
 
-    The grid's 20 % steps left delays a grid point's distance from the truth under intervals a fifth of that
-    (closed-loop delays 0.3-0.8 ms off at 3-5 standard deviations): the two steps next to the best point are
-    searched at a third of a step, and the finer points join the grid (:func:`.identifiability.grid_neighbours`
-    then steps a third as far). A point whose coefficient sits on its bound is not taken (the ridge rule above).
+    Both candidates scale their feature by a coefficient ``c`` whose physical value is 1: a pure delay
+    ``u(t - d)``, a dead band that takes ``k clip(x, +-h)`` off the spring torque. Off ``c = 1`` the fit slides along
+    a ridge (``c (u - u(t - d)) ~ (1 - c) u + c d u'`` mixes in a gain; ``c k h`` trades the coefficient with the
+    width): closed-loop delays of 4.06 / 4.44 / 4.86 ms all read 4.64 ms, the grid point, at ``c`` 0.85 / 0.95 /
+    1.05, under intervals of +-0.1 ms, and dead bands sat a grid step (24 %) from the truth. The two steps next to
+    the best point are searched at a third of a step (the finer points join the grid, so that
+    :func:`.identifiability.grid_neighbours` steps a third as far; a point whose ``c`` sits on its bound is not
+    taken), and where ``c`` crosses 1 there the parameter is read at the crossing (its logarithm interpolated in
+    ``c``, then fitted): 3.96 / 4.42 / 4.86 ms.
     """
-    here, lo, hi = (next(g for g in f.structure.grid if g[0] == "delay_s") for f in (best, below, above))
-    delays = np.concatenate([np.geomspace(lo[1], here[1], 4)[1:-1], np.geomspace(here[1], hi[1], 4)[1:-1]])
+    name = "delay_s" if effect is Effect.DELAY else "width_rad"
+    value_of = lambda f: next(g[1] for g in f.structure.grid if g[0] == name)   # noqa: E731
+    _, here, lo, hi = next(g for g in best.structure.grid if g[0] == name)
+
+    def build(values: np.ndarray) -> list[_Structure]:
+        if effect is Effect.DELAY:
+            return delay_structures(data, values, (lo, hi))
+        return dead_band_structures(data, np.asarray(values) / 2.0, (lo, hi))
+
+    values = np.concatenate([np.geomspace(value_of(below), here, 4)[1:-1], np.geomspace(here, value_of(above), 4)[1:-1]])
     cached = data.cache.get(("structures", effect))
     alone = bool(cached) and any(x is best.structure for x in cached)
     if alone:
-        delays = delays[~np.isin(delays, [x.grid[0][1] for x in cached])]    # searched already
-    fine = delay_structures(data, delays, (here[2], here[3]))
-    if alone:   # not in a pair: the grid stays ordered by delay, and the neighbours' search sees the finer points
+        values = values[~np.isin(values, [x.grid[0][1] for x in cached])]    # searched already
+    fine = build(values)
+    if alone:   # not in a pair: the grid stays ordered, and the neighbours' search sees the finer points
         cached[:] = sorted([*cached, *fine], key=lambda x: x.grid[0][1])
     near = [below, best, above]
     for m in map(wrap, fine):
@@ -485,24 +501,19 @@ def _finer_delay(data: GapData, effect: Effect, best: CandidateFit, below: Candi
         near.append(fit)
         if fit.gap_fit < best.gap_fit and fit.coef[-1] < fit.structure.coefs[-1].hi * (1.0 - 1e-9):
             best = fit
-    # the delay word is a pure delay, u(t - d): c = 1. Off it, c (u - u(t - d)) ~ (1 - c) u + c d u' mixes in a gain,
-    # and the fit's minimum slides along that ridge (closed-loop delays read 4.64 ms at c 0.85 / 0.95 / 1.05 for
-    # true 4.06 / 4.44 / 4.86 ms, where c = 1 reads 3.96 / 4.42 / 4.86). Where c crosses 1 within the search next
-    # to the best point, the delay is read there (log-delay interpolated in c, then fitted)
-    delay_of = lambda f: next(g[1] for g in f.structure.grid if g[0] == "delay_s")
-    near.sort(key=delay_of)
+    near.sort(key=value_of)
     cross = [(a, b) for a, b in zip(near, near[1:]) if (a.coef[-1] - 1.0) * (b.coef[-1] - 1.0) < 0.0]
     if cross:
-        a, b = min(cross, key=lambda ab: abs(math.log(delay_of(ab[0]) * delay_of(ab[1])) / 2 - math.log(delay_of(best))))
+        a, b = min(cross, key=lambda ab: abs(math.log(value_of(ab[0]) * value_of(ab[1])) / 2 - math.log(value_of(best))))
         w = (1.0 - a.coef[-1]) / (b.coef[-1] - a.coef[-1])
-        at = math.exp((1.0 - w) * math.log(delay_of(a)) + w * math.log(delay_of(b)))
-        m = wrap(delay_structures(data, [at], (here[2], here[3]))[0])
+        at = math.exp((1.0 - w) * math.log(value_of(a)) + w * math.log(value_of(b)))
+        m = wrap(build(np.array([at]))[0])
         if m is not None:
-            pure = _fit(data, effect, m)
-            if abs(pure.coef[-1] - 1.0) <= max(abs(a.coef[-1] - 1.0), abs(b.coef[-1] - 1.0)):
-                best = pure
+            unit = _fit(data, effect, m)
+            if abs(unit.coef[-1] - 1.0) <= max(abs(a.coef[-1] - 1.0), abs(b.coef[-1] - 1.0)):
+                best = unit
                 if alone:
-                    cached[:] = sorted([*cached, pure.structure], key=lambda x: x.grid[0][1])
+                    cached[:] = sorted([*cached, unit.structure], key=lambda x: x.grid[0][1])
     return best
 
 
