@@ -369,3 +369,26 @@ def test_identify_errors_about_the_data_name_the_file(tmp_path, capsys):
     dup.write_text("t,x,f\n0,0,1\n0.001,0.1,2\n0.001,0.2,3\n")
     assert main(["identify", "--csv", str(dup), *columns]) == 2
     assert "(0.001 after 0.001)" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_diagnose_prints_the_verdicts_numbers_with_their_intervals_and_statuses(tmp_path, capsys):
+    # a number that may be wrong says so where a person reads it too: the noisy 16-bit Coulomb square's level, 8 %
+    # high, is printed with its 95 % interval (which holds the truth) and `uncertain`, as in the JSON
+    from forecast_design import independent as ind
+    from forecast_design.experiment import save_experiment
+
+    log = ind.make_independent_log("coulomb", 4, 80)
+    path = tmp_path / "log.toml"
+    save_experiment(log.experiment, path)
+    capsys.readouterr()
+    assert main(["diagnose", str(path), "--json", str(tmp_path / "d.json")]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("parameters (95 % intervals): "))
+    status = json.loads((tmp_path / "d.json").read_text())["verdict"]["status"]
+    printed = dict(item.split(" = ") for item in line.split(": ", 1)[1].split(", "))
+    assert set(printed) == set(status)
+    value, rest = printed["F_c"].split(" +- ")
+    half, graded = rest.split(" ")
+    assert float(value) == pytest.approx(status["F_c"]["value"], rel=1e-3)
+    assert float(half) == pytest.approx(1.96 * status["F_c"]["std"], rel=0.05) and graded == "(uncertain)"
+    assert abs(float(value) - log.case.effect_params["F_c"]) <= float(half)

@@ -525,6 +525,11 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         v = mapping["verdict"]
         print(f"verdict: {v['effect']} (gap {v['gap_before']:.4g} -> {v['gap_after']:.4g}, "
               f"reduction {100 * v['reduction']:.1f} %)")
+        if v["status"]:
+            # the numbers with their 95 % intervals and statuses: an `uncertain` one is to be read by its interval
+            print("parameters (95 % intervals): " + ", ".join(
+                f"{k} = {st['value']:.4g}" + (f" +- {1.96 * st['std']:.2g}" if st.get("std") is not None else "")
+                + f" ({st['status']})" for k, st in v["status"].items()))
         if v["secondary"] is not None:
             print(f"second effect: {v['secondary']['effect']} (gap with both {v['secondary']['gap_after']:.4g}, "
                   f"reduction {100 * v['secondary']['reduction']:.1f} %)")

@@ -90,8 +90,9 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
         lines.append("- Fitted parameters: " + ", ".join(f"`{k}` = {_fmt(v)}" for k, v in d.params.items()))
     top = d.ranking[0] if d.ranking and str(d.effect) != "none" else None
     if top is not None and top.assessment is not None:
-        lines.append("- Parameter status (value, standard deviation from the residual's autocorrelation, "
-                     "status): " + ", ".join(
+        lines.append("- Parameter status (value, standard deviation: the residual's autocorrelation, the analysis' own "
+                     "error, a re-calibration held on a bound and the bounded biases of the datasheet tolerance and the "
+                     "encoders' resolution; status): " + ", ".join(
                          f"`{k}` = {_fmt(st.value)}" + (f" +- {st.std:.2g}" if st.std is not None else "")
                          + f" ({st.status})" for k, st in top.assessment.status.items()))
     cal = d.baseline.calibration
