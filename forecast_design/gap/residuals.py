@@ -348,10 +348,7 @@ class GapData:
         ``k`` x each encoder's step (:func:`forecast_design.plausibility.encoder_step_of`) / sqrt(12), the motor's
         and the output's (unless locked) added in quadrature.
         """
-        steps = [gap_log_scales(self).encoder_step]
-        if not self.locked:
-            steps.append(encoder_step_of(self.experiment.signals.q))
-        return self.experiment.design.testbed.k * math.sqrt(sum(s ** 2 for s in steps) / 12.0)
+        return self.experiment.design.testbed.k * math.sqrt(sum(s ** 2 for s in self.encoder_steps) / 12.0)
 
     @property
     def spring_torque_resolution(self) -> float:
@@ -360,10 +357,17 @@ class GapData:
         ``k`` x (the motor encoder's step + the output encoder's, unless locked) / 2. Where the deflection stays
         within a count (a hold, a slow slide) that error does not average out.
         """
-        steps = [gap_log_scales(self).encoder_step]
-        if not self.locked:
-            steps.append(encoder_step_of(self.experiment.signals.q))
-        return self.experiment.design.testbed.k * sum(steps) / 2.0
+        return self.experiment.design.testbed.k * sum(self.encoder_steps) / 2.0
+
+    @property
+    def encoder_steps(self) -> tuple[float, ...]:
+        """The motor encoder's step and, unless the output is locked, the output encoder's [rad] (cached)."""
+        if "encoder_steps" not in self.cache:
+            steps = [gap_log_scales(self).encoder_step]
+            if not self.locked:
+                steps.append(encoder_step_of(self.experiment.signals.q))
+            self.cache["encoder_steps"] = tuple(steps)
+        return self.cache["encoder_steps"]
 
     @property
     def locked(self) -> bool:
