@@ -305,6 +305,12 @@ def test_friction_levels_that_would_be_a_constant_torque_are_fitted_as_one_level
     # 16-bit open-loop sweep, k = 145: a delay of 1.29 ms at coefficient 1.50; in half the band 20 ms, the search's
     # end, at 0.17 (coefficient x delay "within a factor 2"), in a quarter of it none (named delay, clear, before)
     ("none", 2, 85, 0.25, Effect.NONE, Effect.DELAY),
+    # 16-bit closed-loop multisine, k = 145, locked: a delay of 4.47 ms removing 62 % of the gap; in half the band
+    # coefficient x delay 3.10 ms ("within a factor 2") while the refit raised the held-out gap (named delay, clear)
+    ("none", 3, 131, 1.0, Effect.NONE, Effect.DELAY),
+    # 14-bit closed-loop multisine, k = 145: 1.21 ms at coefficient 1.48; in half the band 12.3 ms at 0.08, coefficient
+    # x delay "within a factor 2", the held-out gap 2 % lower at p = 0.12: not significant there (named delay, clear)
+    ("none", 1, 131, 0.25, Effect.NONE, Effect.DELAY),
     ("environment_mismatch", 6, 54, 1.0, Effect.ENVIRONMENT_MISMATCH, None),   # stiff, 16-bit, d x 2.55: kept
     # link-only, 16-bit, d x 0.921: 0.894 in the full band, 0.949 in half of it (48 % of the deviation), held to
     # a quarter of the band: kept (named torque_gain when only the full and half bands were compared)
@@ -765,11 +771,60 @@ def test_an_effect_withheld_by_the_torque_accuracy_is_reported_with_what_it_expl
     d = diagnose(log.experiment, joint=False)
     env = next(r for r in d.ranking if r.effect is Effect.ENVIRONMENT_MISMATCH)
     assert d.effect is Effect.NONE
-    assert env.withheld_by_accuracy and env.explained_rms < env.accuracy == d.data.torque_accuracy
+    assert env.withheld_by_accuracy and env.explained_rms < env.accuracy == d.data.environment_torque_accuracy
     assert env.reduction_own >= d.data.options.min_reduction and not env.significant and not env.weak
     entry = next(r for r in d.to_mapping()["ranking"] if r["effect"] == "environment_mismatch")
     assert entry["below_accuracy"] and entry["explained_rms_N_m"] == pytest.approx(env.explained_rms)
     assert any(c.startswith("Below accuracy: 'environment_mismatch'") for c in d.caveats)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index, seed, scale", [(6, 133, 1.0), (3, 130, 0.25)])
+def test_an_environment_mismatch_is_judged_against_the_accuracy_of_the_spring_torque_not_the_motors(index, seed,
+                                                                                                   scale):
+    # light soft outputs whose inertia is 0.40 and 0.88 x the declared one, tau_s from the encoders: the mismatch
+    # removes 84 and 97 % of the environment equation at p < 1e-30, but explains 0.37 and 2.1 mN m RMS, below 0.1 %
+    # of the RMS motor command (0.55 and 2.5 mN m): named none. That equation holds the spring torque, whose
+    # accuracy is 0.1 % of its own RMS (0.29 and 1.3 mN m) and the encoders' quantisation of it
+    log = ind.make_independent_log("environment_mismatch", index, seed, magnitude_scale=scale)
+    assert not log.case.closed_loop and log.case.tau_s_logging == "omitted"
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.ENVIRONMENT_MISMATCH
+    env = next(r for r in d.ranking if r.effect is Effect.ENVIRONMENT_MISMATCH)
+    assert d.data.environment_torque_accuracy <= env.explained_rms < d.data.torque_accuracy
+    rms = float(np.sqrt(np.mean(np.square(d.data.columns["tau_s"]))))
+    assert env.accuracy == max(d.data.options.min_effect_fraction * rms, d.data.spring_torque_quantisation)
+    status = d.to_mapping()["verdict"]["status"]["J_scale"]
+    assert abs(status["value"] - log.case.effect_params["J_factor"]) <= 1.96 * status["std"]
+
+
+@pytest.mark.slow
+def test_an_output_without_a_spring_scaled_alike_through_a_spring_scale_on_its_bound_is_no_environment_mismatch():
+    # a true torque gain of 1.068 in closed loop, link-only output (k_e = 0: two scales): the spring scale on its
+    # bound leaves J and d both 1.042 x, 63 % of the environment equation, named environment_mismatch once that
+    # equation was judged against the spring torque's accuracy; the common-scale check asked for three scales and
+    # a common change within the tolerance at a nominal spring scale (3 %), where the bound allows 6.2 %
+    log = ind.make_independent_log("torque_gain", 6, 62)
+    assert log.case.environment.k_e == 0.0 and not log.case.environment.locked
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is not Effect.ENVIRONMENT_MISMATCH
+    env = next(r for r in d.ranking if r.effect is Effect.ENVIRONMENT_MISMATCH)
+    assert abs(env.params["J_scale"] - env.params["d_scale"]) < 0.01 and abs(env.params["J_scale"] - 1.0) > 0.03
+    assert not env.identified and any(r.startswith("J, d scaled alike") for r in env.assessment.reasons)
+
+
+@pytest.mark.slow
+def test_a_torque_sensors_environment_equation_is_judged_against_the_motors_torque_accuracy():
+    # an effect-free open-loop multisine whose sensor reads 0.924 x: the calibrated sensor scale leaves J and d
+    # both at 0.955 x, 7.6 % of the environment equation and 0.37 mN m RMS, above 0.1 % of the RMS spring torque
+    # (0.36 mN m). The sensor's scale is calibrated against the motor's command: its torque is known no better
+    # than the motor's, 0.96 mN m here (named environment_mismatch against the spring torque's accuracy)
+    log = ind.make_independent_log("none", 3, 133, magnitude_scale=0.25)
+    assert log.case.tau_s_logging == "sensor"
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.NONE
+    env = next(r for r in d.ranking if r.effect is Effect.ENVIRONMENT_MISMATCH)
+    assert env.accuracy == d.data.environment_torque_accuracy == d.data.torque_accuracy > env.explained_rms
 
 
 @pytest.mark.slow

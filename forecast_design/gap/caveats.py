@@ -76,7 +76,8 @@ def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso:
             out.append(f"Not identified: '{r.effect}' would remove {100 * r.reduction:.0f} % of the gap but "
                        f"{'; '.join(r.assessment.reasons[:2])}.")
         elif r.withheld_by_accuracy:
-            what = ("the quantisation of the spring torque it acts on" if r.accuracy > data.torque_accuracy else
+            what = ("the accuracy of the spring torque its equation holds" if r.effect is Effect.ENVIRONMENT_MISMATCH
+                    else "the quantisation of the spring torque it acts on" if r.accuracy > data.torque_accuracy else
                     f"{100 * opts.min_effect_fraction:g} % of the RMS command, a motor's torque accuracy")
             out.append(f"Below accuracy: '{r.effect}' passes the held-out test (p = {r.p_value:.2g}) and removes "
                        f"{100 * r.reduction_own:.0f} % of the gap of its equations, but the torque it explains, "

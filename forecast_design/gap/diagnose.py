@@ -15,7 +15,8 @@ probability or scales with the information in the log; none is tuned to one gene
    (:func:`~.candidates.effect_rows`), (a) its held-out reduction is at least
    ``min_reduction`` of the gap above the encoders' quantisation floor (:mod:`.grading`), (b) the torque it explains, ``sqrt(gap_before^2 - gap_after^2)``,
    is at least ``min_effect_fraction`` (0.1 %) of the RMS command (the motor's torque accuracy; a backlash's
-   also the RMS quantisation of the spring torque), (c) a one-sided paired t-test of the log ratio of squared errors over
+   also the RMS quantisation of the spring torque; an environment mismatch's, where the encoders derive the spring
+   torque its equation holds, 0.1 % of that torque's RMS and its quantisation instead), (c) a one-sided paired t-test of the log ratio of squared errors over
    held-out *test units* gives p below the candidate's level (a weighted Bonferroni split of ``alpha``
    fixed on the fit blocks: ``alpha / 2`` for the candidate that explains them best, ``alpha / (2 (n - 1))``
    for each other, :func:`.heldout.candidate_levels`) -- units are
@@ -28,7 +29,8 @@ probability or scales with the information in the log; none is tuned to one gene
    coefficients pass a joint Wald test with the residual's autocorrelation accounted
    for, and no parameter is outside the plausible range of :mod:`forecast_design.plausibility` (a
    friction level also reaches the torque accuracy of (b)); an
-   environment mismatch, a delay, a Coulomb level and a torque gain also persist in half the equation band
+   environment mismatch, a delay, a Coulomb level and a torque gain also persist in half the equation band, and
+   still lower the held-out gap there
    (:func:`.halfband.persists_in_half_band`: the encoders' quantisation shrinks a fitted J, a closed
    loop's answer to it looks like a delay, and it can fit a level of a few mN m or a gain). What a log
    resolves only together is fitted that way: a delay short against the band, which shows only as
@@ -496,7 +498,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         red_own = explainable_reduction(base, fit, held_rows & own, floor)
         # below the motor's torque accuracy: not an effect; nor a dead band explaining less than the quantisation of
         # the spring torque it acts on (an effect-free 16-bit square: 0.7 of it, true dead bands at least 1.5)
-        accuracy = max(data.torque_accuracy, data.spring_torque_quantisation if fit.effect is Effect.BACKLASH else 0.0)
+        accuracy = data.environment_torque_accuracy if fit.effect is Effect.ENVIRONMENT_MISMATCH else \
+            max(data.torque_accuracy, data.spring_torque_quantisation if fit.effect is Effect.BACKLASH else 0.0)
         explained = explained_rms(base, fit, held_rows & own)
         counted = red_own if explained >= accuracy else 0.0
         all_units = test_units(data, fit)
