@@ -18,7 +18,7 @@ from ..effects import Effect
 from .candidates import CandidateFit, effect_rows, fit_baseline
 from .grading import floor_rms, noise_floor
 from .heldout import held_out_test, test_units
-from .identifiability import EffectAssessment, assess_fit, refit_prepared_again
+from .identifiability import EffectAssessment, assess_fit, calibration_status, refit_prepared_again
 from .residuals import GapData
 
 __all__ = ["persists_in_half_band", "HALF_BAND_CHECKED", "HALF_BAND_ALPHA"]
@@ -58,7 +58,9 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
       quantisation floor, which no projection of the floor onto a sign feature reaches;
     * a torque gain whose fit takes up what the quantisation does to ``J_m theta''`` (an effect-free 16-bit log,
       k = 145: 0.987 with J_m on its datasheet bound, 0.999 in half the band) must keep the sign of its
-      deviation from 1 and at least half its size, or stay beyond the re-calibration's tolerance.
+      deviation from 1 and at least half its size, or stay beyond the re-calibration's tolerance; one within the
+      tolerance, told from a re-calibration only by the nominal model's re-calibration on its bound, must find it
+      on its bound there too (an effect-free 16-bit multisine: 0.9931 with J_m on its bound, 1.7 % inside it there).
 
     Before any of these, the refit must lower the held-out gap in half the band below the nominal model's there: an
     effect-free 16-bit closed-loop multisine (k = 145) kept a "delay" of 3.10 ms x coefficient there (4.47 in the
@@ -116,6 +118,17 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
         why = (f"the friction level does not persist in half the equation band ({a:.3g} -> {b:.3g} N m): the "
                "encoders' quantisation, not friction")
     elif fit.effect is Effect.TORQUE_GAIN:
+        tol = data.options.calibration_tolerance
+        if abs(1.0 - fit.params["gain"]) <= tol and not any(
+                st.status == "at_bound" for st in calibration_status(half[0], base_half).values()):
+            # a gain within the tolerance is told from a re-calibration only by the nominal model's re-calibration
+            # sitting on its bound; the encoders' quantisation shrinks J_m onto it (an effect-free 16-bit
+            # multisine, k = 145: 0.9931 with J_m on its -3 % bound, 1.7 % inside it in half the band): that bound
+            # must hold there too
+            why = (f"the torque gain {fit.params['gain']:.4g} is within the re-calibration's tolerance and the "
+                   "re-calibration leaves its datasheet bound in half the equation band: the encoders' quantisation, "
+                   "not a gain")
+            return dataclasses.replace(assessment, identified=False, reasons=tuple(assessment.reasons) + (why,))
         # the gain trades with the re-calibration of J_m, d_m and k, more so where quantisation biases them: true
         # gains of 0.969 and 0.967 fitted 0.930 and 0.922 in the full band, 0.969 and 0.966 in half of it. Beyond
         # the re-calibration's tolerance there, the gain is one
