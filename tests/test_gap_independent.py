@@ -298,6 +298,9 @@ def test_friction_levels_that_would_be_a_constant_torque_are_fitted_as_one_level
 @pytest.mark.parametrize("word, index, seed, scale, want, checked", [
     ("none", 0, 54, 0.25, Effect.NONE, Effect.ENVIRONMENT_MISMATCH),   # stiff, 16-bit: J fitted at 0.22 of the declared
     ("none", 4, 54, 0.25, Effect.NONE, Effect.ENVIRONMENT_MISMATCH),   # stiff, 16-bit: J at 0.69
+    # 16-bit open-loop sweep, custom output: J at 0.13 in the full band, 1.11 and 4.2 in half and a quarter of it;
+    # the quarter band confirmed a deviation on the other side of 1 (named environment_mismatch, weak)
+    ("none", 3, 121, 0.25, Effect.NONE, Effect.ENVIRONMENT_MISMATCH),
     ("none", 7, 54, 0.25, Effect.NONE, Effect.DELAY),      # 14-bit closed-loop chirp, locked: a "delay" of 11.6 ms
     ("none", 5, 53, 0.25, Effect.NONE, Effect.COULOMB),    # 16-bit open-loop sweep: a Coulomb level of 1.7 mN m
     # 16-bit open-loop multisine, k = 145: a torque gain of 0.987 (J_m on its bound), 0.999 in half the band
