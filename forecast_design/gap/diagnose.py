@@ -111,8 +111,8 @@ from .replay import ReplayCheck, replay_check
 from ..plausibility import ParameterStatus
 from .grading import explainable_reduction, explained_rms, noise_floor, weak_is_distinct
 from .structures import _FRICTION
-from .heldout import (NESTED_ALPHA, breakaway_proven_at_rest, candidate_levels, correlation_length, held_out_test,
-                      verdict_ties, richer_law_justified, richer_law_resolved, test_units)
+from .heldout import (NESTED_ALPHA, breakaway_proven_at_rest, candidate_levels, correlation_length, effect_held_out_test,
+                      held_out_test, verdict_ties, richer_law_justified, richer_law_resolved, test_units)
 from .motion import creeping
 from .residuals import GapData, GapOptions, TauSSource, prepare_gap_data
 
@@ -503,8 +503,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         explained = explained_rms(base, fit, held_rows & own)
         counted = red_own if explained >= accuracy else 0.0
         all_units = test_units(data, fit)
-        units = np.where(own, all_units, -1)
-        p = held_out_test(base, fit, held_blocks, units=units, floor=floor)
+        p = effect_held_out_test(data, base, fit, units=all_units, floor=floor)
         # and the total gap, all equations, must drop by the same test (an environment mismatch explaining its quiet
         # equation next to a motor equation full of stiction is no verdict); one removing min_reduction of the total
         # is asked there at the unsplit level, its own test keeping its share (J x 0.44: 82 %, p 0.0076 > 0.005)

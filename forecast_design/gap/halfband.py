@@ -12,12 +12,10 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
-
 from ..effects import Effect
-from .candidates import CandidateFit, effect_rows, fit_baseline
-from .grading import floor_rms, noise_floor
-from .heldout import held_out_test, test_units
+from .candidates import CandidateFit, fit_baseline
+from .grading import floor_rms
+from .heldout import effect_held_out_test
 from .identifiability import EffectAssessment, assess_fit, calibration_status, refit_prepared_again
 from .residuals import GapData
 
@@ -103,10 +101,7 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
         # and a delay must still pass a held-out test there: an effect-free 14-bit closed-loop multisine's "delay"
         # (1.21 ms at coefficient 1.48) came back as 12.3 ms at 0.08 in half the band, coefficient x delay "within
         # a factor 2", p = 0.12
-        own = effect_rows(half[0], refit)
-        units = np.where(own, test_units(half[0], refit), -1)
-        p_half = held_out_test(base_half, refit, np.arange(1, half[0].options.n_blocks, 2), units=units,
-                               floor=noise_floor(half[0]))
+        p_half = effect_held_out_test(half[0], base_half, refit)
         if not p_half < HALF_BAND_ALPHA:
             why = (f"the delay is not significant in half the equation band (held-out test p = {p_half:.2g}): "
                    "the encoders' quantisation, not a delay")
@@ -133,7 +128,7 @@ def persists_in_half_band(data: GapData, fit: CandidateFit, assessment: EffectAs
         # gains of 0.969 and 0.967 fitted 0.930 and 0.922 in the full band, 0.969 and 0.966 in half of it. Beyond
         # the re-calibration's tolerance there, the gain is one
         a, b = (1.0 - f.params["gain"] for f in (fit, refit))
-        if a * b > 0.0 and (abs(b) >= 0.5 * abs(a) or abs(b) > data.options.calibration_tolerance):
+        if a * b > 0.0 and (abs(b) >= 0.5 * abs(a) or abs(b) > tol):
             return assessment
         why = (f"the torque gain does not persist in half the equation band ({1.0 - a:.4g} -> {1.0 - b:.4g}): "
                "the encoders' quantisation, not a gain")

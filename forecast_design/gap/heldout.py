@@ -27,13 +27,13 @@ import numpy as np
 from scipy import stats
 
 from ..effects import Effect
-from .candidates import CandidateFit
+from .candidates import CandidateFit, effect_rows
 from .grading import noise_floor
 from .identifiability import method_shift, terms_wald_p
 from .motion import held_at_rest_rows, held_level_factor
 from .residuals import GapData, gap_log_scales
 
-__all__ = ["held_out_test", "units_test", "correlation_length", "test_units", "nested_law_test", "richer_law_justified",
+__all__ = ["held_out_test", "effect_held_out_test", "units_test", "correlation_length", "test_units", "nested_law_test", "richer_law_justified",
            "breakaway_resolved_at_rest", "breakaway_proven_at_rest", "richer_law_resolved", "candidate_levels", "verdict_ties", "NESTED_ALPHA"]
 
 
@@ -137,6 +137,32 @@ def _log_ratio_p(a: np.ndarray, b: np.ndarray) -> float:
     if sd <= 1e-12 * max(1.0, abs(mean)):
         return 0.0 if mean > 1e-12 else 1.0
     return float(stats.t.sf(mean / (sd / math.sqrt(n)), n - 1))
+
+
+def effect_held_out_test(data: GapData, reference: CandidateFit, candidate: CandidateFit, *,
+                         units: np.ndarray | None = None, floor: np.ndarray | None = None) -> float:
+    """:func:`held_out_test` of ``candidate`` on the held-out units of the equations where its effect acts.
+
+    Parameters
+    ----------
+    data : GapData
+        The prepared log both fits were made on.
+    reference, candidate : CandidateFit
+        The nominal model (or the fit the candidate must beat) and the candidate.
+    units : ndarray or None
+        The candidate's test units over every stacked row (:func:`test_units`); None: computed here.
+    floor : ndarray or None
+        The quantisation floor of every stacked row (:func:`.grading.noise_floor`); None: computed here.
+
+    Returns
+    -------
+    float
+        One-sided p-value [-].
+    """
+    units = test_units(data, candidate) if units is None else units
+    floor = noise_floor(data) if floor is None else floor
+    return held_out_test(reference, candidate, np.arange(1, data.options.n_blocks, 2),
+                         units=np.where(effect_rows(data, candidate), units, -1), floor=floor)
 
 
 def correlation_length(residual: np.ndarray) -> int:
