@@ -284,9 +284,10 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     for r in m["ranking"]:
         assert {"effect", "gap_after", "reduction", "params", "p_value", "counts", "weak", "identified",
                 "not_identified", "status", "reasons", "equations", "reduction_in_equations", "explained_rms_N_m",
-                "below_accuracy"} == set(r)
+                "below_accuracy", "level", "n_units"} == set(r)
         assert r["effect"] in VOCAB - {"none"} and 0.0 <= r["reduction"] <= 1.0
         assert r["counts"] <= r["identified"]
+        assert 0.0 < r["level"] <= 0.01 and r["n_units"] >= 1 and (not r["counts"] or r["p_value"] < r["level"])
     # locked output: no environment equation, so environment_mismatch is not tried
     tried = {r["effect"] for r in m["ranking"]}
     assert tried == VOCAB - {"none"}

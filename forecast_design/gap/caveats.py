@@ -1,7 +1,7 @@
 """Caveats a diagnosis computes from its log: what the verdict cannot tell apart, and what it did not count.
 
 Each caveat is one sentence of the diagnosis JSON's ``caveats``, starting with its kind (``Caution``,
-``Assumed``, ``Not identified``, ``Below accuracy``, ``Note``).
+``Assumed``, ``Not identified``, ``Not proven``, ``Below accuracy``, ``Note``).
 """
 
 from __future__ import annotations
@@ -75,6 +75,14 @@ def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso:
                 and r.reduction >= opts.min_reduction:
             out.append(f"Not identified: '{r.effect}' would remove {100 * r.reduction:.0f} % of the gap but "
                        f"{'; '.join(r.assessment.reasons[:2])}.")
+        elif r.effect is not verdict and r.identified and r.reduction >= opts.min_reduction \
+                and not r.significant and not r.weak and r.p_value >= r.level:
+            # a large, identified reduction the held-out test does not prove (few units, or an improvement
+            # concentrated in a few of them: a delay on the edges of a slow square) is no verdict, but it is said
+            out.append(f"Not proven: '{r.effect}' is identified and removes {100 * r.reduction:.0f} % of the gap, but "
+                       f"its held-out test over {r.n_units} units gives p = {r.p_value:.2g}, above its level "
+                       f"{r.level:.2g}: this log does not prove it (a longer log, or one with more of the motion "
+                       "where it acts, would decide).")
         elif r.withheld_by_accuracy:
             what = ("the accuracy of the spring torque its equation holds" if r.effect is Effect.ENVIRONMENT_MISMATCH
                     else "the quantisation of the spring torque it acts on" if r.accuracy > data.torque_accuracy else

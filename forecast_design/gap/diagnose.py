@@ -157,6 +157,10 @@ class RankedCandidate:
         the RMS command), for a dead band the spring torque's quantisation where larger [N m].
     withheld_by_accuracy : bool
         Passes every other test of a clear or weak effect but explains less than ``accuracy``: not counted.
+    level : float
+        The level its held-out test must reach (:func:`.heldout.candidate_levels`) [-]; NaN where not set.
+    n_units : int
+        Held-out test units of that test (:func:`.heldout.test_units`) [-].
     """
 
     effect: Effect
@@ -173,6 +177,8 @@ class RankedCandidate:
     explained_rms: float = float("nan")
     accuracy: float = 0.0
     withheld_by_accuracy: bool = False
+    level: float = float("nan")
+    n_units: int = 0
 
     @property
     def identified(self) -> bool:
@@ -187,7 +193,8 @@ class RankedCandidate:
         dict
             ``effect``, ``gap_after`` [N m], ``reduction``, ``params``, ``p_value``, ``counts``
             (passes every test), ``weak``, ``equations``, ``reduction_in_equations``, ``explained_rms_N_m``,
-            ``below_accuracy`` (withheld by the accuracy alone), and ``identified``, ``not_identified``,
+            ``below_accuracy`` (withheld by the accuracy alone), ``level`` (the level ``p_value`` must reach,
+            null where not set), ``n_units`` (held-out test units), and ``identified``, ``not_identified``,
             ``status``, ``reasons`` from the assessment.
         """
         out = {"effect": str(self.effect), "gap_after": float(self.gap_after),
@@ -196,7 +203,8 @@ class RankedCandidate:
                "equations": list(self.equations),
                "reduction_in_equations": None if math.isnan(self.reduction_own) else float(self.reduction_own),
                "explained_rms_N_m": None if math.isnan(self.explained_rms) else float(self.explained_rms),
-               "below_accuracy": bool(self.withheld_by_accuracy)}
+               "below_accuracy": bool(self.withheld_by_accuracy),
+               "level": None if math.isnan(self.level) else float(self.level), "n_units": int(self.n_units)}
         if self.assessment is not None:
             out.update(self.assessment.to_mapping())
         return out
@@ -526,7 +534,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                                       significant=passes and counted >= opts.min_reduction,
                                       weak=passes and 0.0 < counted < opts.min_reduction,
                                       explained_rms=explained, accuracy=accuracy,
-                                      withheld_by_accuracy=passes and red_own > 0.0 and counted == 0.0))
+                                      withheld_by_accuracy=passes and red_own > 0.0 and counted == 0.0,
+                                      level=alpha_fit, n_units=int(all_units.max()) + 1))
     # an environment mismatch acts in the environment equation alone: where a motor-equation candidate passing the test
     # removes more of the total gap, it lies in the motor equation (six verdicts: 47-95 % of a quiet equation, 0.3-10 %
     # of the total, beside a friction, gain or cogging removing 11-37 %)
