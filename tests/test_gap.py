@@ -277,7 +277,7 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     # every parameter of the verdict carries a status; a verdict's parameters are plausible
     assert set(m["verdict"]["status"]) >= set(m["verdict"]["params"])
     assert all(v["status"] != "implausible" for v in m["verdict"]["status"].values())
-    assert set(m["verdict"]["calibration"]) == {"J_m", "spring_scale"}
+    assert set(m["verdict"]["calibration"]) == {"J_m", "spring_scale", "d_m"}
     assert m["tau_s"]["source"] == "absent"
     words = m["isolability"]["words"]
     assert words[-1] == "calibration" and len(m["isolability"]["separation"]) == len(words)

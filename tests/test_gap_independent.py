@@ -230,6 +230,24 @@ def test_an_identified_candidate_the_held_out_test_does_not_prove_is_said_not_hi
     assert len(said) == 1 and f"over {delay['n_units']} units" in said[0]
 
 
+
+@pytest.mark.slow
+def test_a_viscous_recalibration_far_from_the_declared_one_is_reported_and_said():
+    # d_m has no datasheet tolerance (only d_m >= 0). On a 14-bit closed-loop square with stiction (true d_m 0.30 N m
+    # s/rad) the nominal model's re-calibration took d_m = 12 (40 x) and the verdict was a bare none: the friction
+    # had gone into d_m, and neither the JSON's calibration nor a caveat said so
+    log = ind.make_independent_log("stiction", 6, 132)
+    declared = log.experiment.design.testbed.d_m
+    doc = diagnose(log.experiment, joint=False).to_mapping()
+    d_m = doc["verdict"]["calibration"]["d_m"]["value"]
+    assert d_m > 10 * declared
+    said = [c for c in doc["caveats"] if c.startswith("Caution: the re-calibrated viscous friction")]
+    assert doc["verdict"]["effect"] != "none" or len(said) == 1
+    # an effect-free log keeps its d_m within the factor and says nothing of it
+    free = diagnose(ind.make_independent_log("none", 6, 132).experiment, joint=False).to_mapping()
+    ratio = free["verdict"]["calibration"]["d_m"]["value"] / declared
+    assert 0.5 <= ratio <= 2.0 and not any("viscous friction d_m" in c for c in free["caveats"])
+
 # --- 4b. the verdict's intervals: a delay, a dead band and an environment cover the truth --------
 
 _TRUE_NAME = {"delay": {"delay_s": "delay_s"}, "backlash": {"width": "width_rad"},

@@ -18,12 +18,16 @@ from .isolability import CALIBRATION, Isolability
 from .residuals import GapData, GapOptions, gap_log_scales
 from .structures import j_held
 
-__all__ = ["computed_caveats", "COARSE_ENCODER_FRACTION"]
+__all__ = ["computed_caveats", "COARSE_ENCODER_FRACTION", "VISCOUS_SHIFT_FACTOR"]
 
 
 #: Spring-torque resolution ``k x encoder step``, as a fraction of the RMS command, above which a
 #: diagnosis warns that the log is coarser than its validation [-] (2,000,000 counts: ~2e-4).
 COARSE_ENCODER_FRACTION = 2e-3
+
+#: Factor by which the re-calibrated viscous friction ``d_m`` may differ from the declared one (either way) before a
+#: diagnosis says so: ``d_m`` has no datasheet tolerance (only ``d_m >= 0``), and what it absorbs is no verdict [-].
+VISCOUS_SHIFT_FACTOR = 2.0
 
 
 def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso: Isolability,
@@ -115,6 +119,14 @@ def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso:
     if offset is not None and abs(offset) > opts.calibration_tolerance * peak:
         out.append(f"Note: the torque sensor's zero offset, {-offset:+.3g} N m ({100 * abs(offset) / peak:.2g} % "
                    "of the peak |tau_s|), is calibrated out, not blamed on an effect.")
+    d_m, d_m_declared = (chosen or base).calibration.get("d_m"), data.experiment.design.testbed.d_m
+    if d_m is not None and d_m_declared > 0 and not 1.0 / VISCOUS_SHIFT_FACTOR <= d_m / d_m_declared <= VISCOUS_SHIFT_FACTOR:
+        absorbed = ("an effect acting like viscous friction at this log's speeds is absorbed in it (a Coulomb level "
+                    "on a log that moves at nearly one speed)" if d_m > d_m_declared else
+                    "it absorbs an effect that cancels damping (a delay in a closed loop, at this log's frequencies)")
+        out.append(f"Caution: the re-calibrated viscous friction d_m = {d_m:.3g} N m s/rad is {d_m / d_m_declared:.2g} x "
+                   f"the declared {d_m_declared:.3g} (it is bounded below by zero only): the declared d_m is off, or "
+                   f"{absorbed}.")
     at_bound = [k for k, st in calibration_status(data, base).items() if st.status == "at_bound"]
     if at_bound:
         out.append(f"Caution: the nominal re-calibration of {', '.join(at_bound)} sits on its datasheet bound "

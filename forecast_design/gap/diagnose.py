@@ -694,7 +694,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     return Diagnosis(effect=eff, gap_before=gap0, gap_after=gap_after, reduction=reduction, params=params,
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
-                     replay=replay, isolability=iso, calibration=calibration_status(data, base), grade=grade,
+                     replay=replay, isolability=iso, calibration=calibration_status(data, base, viscous=True), grade=grade,
                      method_shift=shift, calibration_freedom=freed)
 
 

@@ -695,7 +695,7 @@ def _is_harmonic(name: str) -> bool:
     return len(name) > 1 and name[0] in "ab" and name[1:].isdigit()
 
 
-def calibration_status(data: GapData, fit: CandidateFit) -> dict[str, ParameterStatus]:
+def calibration_status(data: GapData, fit: CandidateFit, *, viscous: bool = False) -> dict[str, ParameterStatus]:
     """Whether the re-calibrated ``J_m``, spring scale (and ``k``) of a fit sit on their tolerance.
 
     A measured ``tau_s``'s zero offset is reported too; it is not bounded (no effect word is a
@@ -707,11 +707,14 @@ def calibration_status(data: GapData, fit: CandidateFit) -> dict[str, ParameterS
         Prepared equation errors.
     fit : CandidateFit
         Any fit (the baseline or a candidate).
+    viscous : bool
+        Also report the re-calibrated ``d_m`` [N m s/rad], bounded below by zero only (``at_bound`` at zero). Off
+        where a bound decides something: ``d_m`` has no datasheet tolerance.
 
     Returns
     -------
     dict of str to ParameterStatus
-        ``J_m`` [kg m^2], ``spring_scale`` [-] (and ``k`` [N m/rad]); ``at_bound`` when on the tolerance.
+        ``J_m`` [kg m^2], ``spring_scale`` [-] (and ``k`` [N m/rad], ``d_m``); ``at_bound`` when on the tolerance.
     """
     tb = data.experiment.design.testbed
     tol = data.options.calibration_tolerance
@@ -724,4 +727,7 @@ def calibration_status(data: GapData, fit: CandidateFit) -> dict[str, ParameterS
         out["k"] = assess("k", c["k"], solver_bounds=(tb.k * (1 - tol), tb.k * (1 + tol)), rel_tol=1e-5)
     if "tau_s_offset_N_m" in c:      # unbounded: a constant is no effect
         out["tau_s_offset_N_m"] = assess("tau_s_offset_N_m", c["tau_s_offset_N_m"])
+    if viscous and "d_m" in c:
+        d_m = float(c["d_m"]) if c["d_m"] > 1e-5 * tb.d_m else 0.0     # on zero up to the solver's rounding
+        out["d_m"] = assess("d_m", d_m, solver_bounds=(0.0, math.inf))
     return out
