@@ -148,6 +148,24 @@ def test_simulate_friction_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys,
     assert not (tmp_path / "run.toml").exists()
 
 
+def test_simulate_json_says_what_the_run_assumed(tmp_path, capsys):
+    # the JSON named the compensator's kind but not its cutoff, nor the testbed, environment, rate or true plant:
+    # a summary a reader could not tie to a design. Now it carries them, as the scenario defines them
+    path = _scenario(tmp_path, TABLE, "\n[compensator]\nkind = \"ea-fob\"\nw_q_hz = 7.0\n")
+    scen = load_scenario(path)
+    code, out, _ = _run(capsys, "simulate", path, "--out", tmp_path / "r.toml", "--json", "-")
+    doc = json.loads(out, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+    assert code == 0 and doc["design"]["compensator"] == {"kind": "ea-fob", "w_q_hz": 7.0}
+    assert doc["design"]["testbed"] == scen.design.testbed.to_mapping()
+    assert doc["design"]["environment"] == scen.design.environment.to_mapping()
+    assert doc["rate_hz"] == scen.rate_hz and doc["options"]["seed"] == scen.options["seed"]
+    assert doc["options"]["torque_limit"] is None      # no limit: null, not Infinity
+    assert doc["truth"] == str(tmp_path / "r.truth.json") and "effects" in doc["true_plant"]
+    # every statistic is a count or carries its unit in its name
+    assert set(doc["statistics"]) <= {"n_samples", "duration_s", "max_abs_tau_m_N_m", "mae_friction_estimate_N_m",
+                                      "mae_tracking_N_m"}
+
+
 def test_check_and_simulate_json_file_stdout_and_old_flag_form_agree(tmp_path, capsys):
     scenario = _scenario(tmp_path)
     code, out, _ = _run(capsys, "simulate", scenario, "--out", tmp_path / "r.toml", "--json", tmp_path / "s.json")

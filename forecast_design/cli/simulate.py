@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 
 from . import (_add_allow_unidentified, _add_json_option, _check_sfm_loop, _command, _friction_from_file,
                _json_positional, _note, _progress_bar, _write_json)
@@ -19,7 +20,8 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repetitions", metavar="N|all",
                    help="simulate repetitions 0..N-1 (or all) of the scenario's [variability] in one batch "
                         "(simulate_batch, one run per core) and write RUN_000.toml, RUN_001.toml, ...")
-    _add_json_option(p, "the written paths and the run's statistics (a list with --repetitions)")
+    _add_json_option(p, "the written paths, what the run assumed (design, rate, options, true plant) and its "
+                        "statistics (a list with --repetitions)")
     p.add_argument("--plot", metavar="OUT.png", help="plot the run (torque tracking, friction, motion)")
 
 
@@ -49,16 +51,31 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
         plot_simulation({args.scenario: result}, args.plot, title=run_title(result, source=Path(args.scenario).name))
     if args.json:
+        mapping = result.to_mapping()
         _write_json(args.json, {**{key: str(value) for key, value in paths.items()},
                                 **_compensator_keys(result.design.compensator),
                                 "controller": _controller_label(result.design.controller),
                                 "controller_table": _controller_table(result.design.controller),
-                                "controller_fault": result.fault,
-                                "statistics": result.to_mapping()["statistics"]})
+                                "controller_fault": result.fault, **_assumed(mapping), **_run_assumed(mapping),
+                                "statistics": mapping["statistics"]})
     if args.json != "-":
         for key, value in paths.items():
             print(f"{key}: {value}")
     return _report_faults([result.fault])
+
+
+def _assumed(mapping: dict) -> dict:
+    """What every run of a scenario assumed, for its JSON: the design (testbed, environment, controller, compensator
+    with its cutoff) and the rate [Hz]."""
+    return {"design": mapping["design"], "rate_hz": mapping["rate_hz"]}
+
+
+def _run_assumed(mapping: dict) -> dict:
+    """What one run (repetition) assumed: the simulation options (its seed; a non-finite value, e.g. no torque limit,
+    as null) and the true plant (``true_plant``: its effects, environment and initial angle; ``truth`` is the path
+    of its files)."""
+    options = {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in mapping["options"].items()}
+    return {"options": options, "true_plant": mapping["truth"]}
 
 
 def _controller_label(controller) -> str | None:
@@ -155,7 +172,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     # batches of at most 1e6 samples (about 280 MB): each is written when done (memory of one batch, not of
     # all runs) and the bar moves; every run is bit-equal to its own simulation, whatever the batch
     step = max(1, min(n, _BATCH_SAMPLES // samples))
-    results, written, stats, faults = [], [], [], []
+    results, written, stats, faults, assumed = [], [], [], [], {}
     with _progress_bar("simulate", "run", enabled=args.json != "-") as progress:
         for start in range(0, n, step):
             stop = min(n, start + step)
@@ -165,7 +182,9 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
                 written.append(save_simulation(result, outs[start + k]))
                 faults.append(result.fault)
                 if args.json:
-                    stats.append(result.to_mapping()["statistics"])
+                    mapping = result.to_mapping()
+                    stats.append({**_run_assumed(mapping), "statistics": mapping["statistics"]})
+                    assumed = assumed or _assumed(mapping)     # one design for every repetition
                 if args.plot:
                     results.append(result)
             progress(stop, n)
@@ -179,9 +198,9 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, {**_compensator_keys(scenario.design.compensator),
                                 "controller": _controller_label(scenario.design.controller),
-                                "controller_table": _controller_table(scenario.design.controller),
+                                "controller_table": _controller_table(scenario.design.controller), **assumed,
                                 "repetitions": [{"repetition": i, **{k: str(v) for k, v in paths.items()},
-                                                 "controller_fault": fault, "statistics": stat}
+                                                 "controller_fault": fault, **stat}
                                                 for i, (paths, stat, fault) in enumerate(zip(written, stats, faults))]})
     if args.json != "-":
         for i, paths in enumerate(written):

@@ -324,14 +324,11 @@ class SimulationResult:
         stats = {
             "n_samples": int(self.t.shape[0]),
             "duration_s": float(self.t.shape[0] / self.rate_hz),
-            "max_abs_tau_m": float(np.max(np.abs(self.tau_m))) if self.t.size else 0.0,
-            "mae_friction_estimate": float(np.mean(np.abs(self.tau_frc_hat - self.truth.tau_frc))),
+            "max_abs_tau_m_N_m": float(np.max(np.abs(self.tau_m))) if self.t.size else 0.0,
+            "mae_friction_estimate_N_m": float(np.mean(np.abs(self.tau_frc_hat - self.truth.tau_frc))),
         }
         if self.tau_r is not None:
-            stats["mae_tracking"] = float(np.mean(np.abs(self.tau_r - self.tau_s)))
-        # the same numbers with their unit in the name (the keys above stay for existing scripts)
-        stats.update({f"{key}_N_m": stats[key] for key in ("max_abs_tau_m", "mae_friction_estimate", "mae_tracking")
-                      if key in stats})
+            stats["mae_tracking_N_m"] = float(np.mean(np.abs(self.tau_r - self.tau_s)))
         return {"design": _design_mapping(self.design), "rate_hz": self.rate_hz, "options": dict(self.options),
                 "truth": self.truth.metadata(), "stability": dict(self.stability), "statistics": stats,
                 "controller_fault": None if self.fault is None else dict(self.fault),
