@@ -99,8 +99,8 @@ class WorstCaseMargin:
             Appended after the point (e.g. `` in soft``).
         """
         J, d, k_e = self.point
-        return (f"certified over J, d, k_e x [{1 - self.uncertainty:g}, {1 + self.uncertainty:g}] (continuous loop): "
-                f"{quantity} in [{self.lower:.6f}, {self.upper:.6f}] (gap {self.gap:.2g}) at J = {J:.4g} kg m^2, "
+        return (f"over J, d, k_e x [{1 - self.uncertainty:g}, {1 + self.uncertainty:g}] (continuous loop): "
+                f"{quantity} certified in [{self.lower:.6f}, {self.upper:.6f}] (gap {self.gap:.2g}) at J = {J:.4g} kg m^2, "
                 f"d = {d:.4g} N m s/rad, k_e = {k_e:.4g} N m/rad{where}; the vertices alone gave {self.vertex_min:.6f}")
 
     def to_dict(self) -> dict[str, Any]:

@@ -92,9 +92,16 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
               f"agrees {result.agrees_with_scan}; {result.plants} plants, {result.evaluations} evaluations")
         if result.worst_case is not None:
             print(result.worst_case.summary("worst ratio", f" in {result.worst_case_environment}"))
+        if result.certified_for is not None:
+            print(f"tuned to a ratio of {result.certified_for:.6f} at the vertices so that min-ratio "
+                  f"{result.min_ratio:g} is certified over the whole box")
     if result.worst_case is None and args.uncertainty > 0.0 and args.sampled:
         print("forecast-design: note: --sampled: the worst case over the box is checked at its vertices only (the "
               "certified bound is for the continuous loop)", file=sys.stderr)
+    if result.worst_case is not None and result.feasible and result.worst_case.lower < result.min_ratio:
+        print(f"forecast-design: warning: min-ratio {result.min_ratio:g} is not certified over the box: the worst "
+              f"ratio is only known to lie in [{result.worst_case.lower:.6f}, {result.worst_case.upper:.6f}]",
+              file=sys.stderr)
     if result.at_bound:
         option = "--band" if result.q_damping is None else "the damping range"
         print(f"forecast-design: warning: the answer sits on the {result.at_bound}: the best value may lie "
