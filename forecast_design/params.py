@@ -579,6 +579,16 @@ class Design:
         env = environment_preset(environment) if isinstance(environment, str) else environment
         return dataclasses.replace(self, environment=env)
 
+    def to_mapping(self) -> dict[str, Any]:
+        """What the design assumes, for JSON: ``testbed``, ``environment`` and, when set, ``controller`` and
+        ``compensator`` (with its cutoff), each as its own ``to_mapping``."""
+        out: dict[str, Any] = {"testbed": self.testbed.to_mapping(), "environment": self.environment.to_mapping()}
+        if self.controller is not None:
+            out["controller"] = self.controller.to_mapping()
+        if self.compensator is not None:
+            out["compensator"] = self.compensator.to_mapping()
+        return out
+
     def with_friction(self, friction: Mapping[str, float] | None) -> "Design":
         """A copy whose ``sfm`` compensator carries `friction` (identified parameters); None changes nothing.
 

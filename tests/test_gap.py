@@ -265,7 +265,11 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     exp = _log((fx.Coulomb(F_c=0.3),), duration_s=4.0)
     d = diagnose(exp)
     m = json.loads(json.dumps(d.to_mapping()))
-    assert set(m) == {"verdict", "metric", "location", "ranking", "caveats", "isolability", "tau_s"}
+    assert set(m) == {"verdict", "metric", "location", "ranking", "caveats", "isolability", "tau_s", "design"}
+    # what the gap is measured against: the log's own nominal model and extent
+    assert m["design"]["testbed"] == exp.design.testbed.to_mapping()
+    assert m["design"]["environment"] == exp.design.environment.to_mapping()
+    assert m["design"]["rate_hz"] == exp.rate_hz and m["design"]["duration_s"] == pytest.approx(4.0)
     assert set(m["verdict"]) == {"effect", "grade", "gap_before", "gap_after", "reduction", "params", "status",
                                  "secondary", "calibration", "std_method",
                                  "std_calibration_bound"}
@@ -278,6 +282,8 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     assert set(m["verdict"]["status"]) >= set(m["verdict"]["params"])
     assert all(v["status"] != "implausible" for v in m["verdict"]["status"].values())
     assert set(m["verdict"]["calibration"]) == {"J_m", "spring_scale", "d_m"}
+    # a re-calibration has no interval: never `identified` (README's statuses ask for one)
+    assert all(v["std"] is None and v["status"] in ("uncertain", "at_bound") for v in m["verdict"]["calibration"].values())
     assert m["tau_s"]["source"] == "absent"
     words = m["isolability"]["words"]
     assert words[-1] == "calibration" and len(m["isolability"]["separation"]) == len(words)

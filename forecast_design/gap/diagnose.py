@@ -325,14 +325,16 @@ class Diagnosis:
         -------
         dict
             ``{"verdict": {...}, "metric": str, "location": {...}, "ranking": [...],
-            "isolability": {...}, "tau_s": {...}, "caveats": [...]}``. The verdict holds
+            "isolability": {...}, "tau_s": {...}, "design": {...}, "caveats": [...]}``; ``design`` is the nominal model
+            the gap is measured against (testbed, environment, controller and compensator as logged, ``rate_hz``,
+            ``duration_s``). The verdict holds
             ``effect``, ``gap_before``/``gap_after`` [N m], ``reduction``, ``params``, their
             ``status`` (value, std, status), ``std_method`` (the analysis' own error per parameter),
             ``std_calibration_bound`` (what a re-calibration held on its bounds hid, per parameter),
             ``secondary`` (``effect``, ``params`` and ``status`` of the pair fitted together,
             ``gap_after`` with both effects [N m], ``reduction`` of both relative to
             ``gap_before``; null when no second effect counts) and ``calibration`` (the
-            re-calibrated nominal values with ``at_bound`` flags).
+            re-calibrated nominal values with ``at_bound`` flags; without an interval, so never ``identified``).
         """
         loc = self.location.to_mapping()
         loc["summary"] = self.summary
@@ -365,6 +367,8 @@ class Diagnosis:
         if self.data is not None:
             out["tau_s"] = self.data.tau_s_source.to_mapping()
             out["tau_s"]["alternative"] = None if self.reading is None else dict(self.reading)
+            exp = self.data.experiment     # the nominal model the gap is measured against, and the log's extent
+            out["design"] = {**exp.design.to_mapping(), "rate_hz": exp.rate_hz, "duration_s": exp.duration}
         return out
 
 

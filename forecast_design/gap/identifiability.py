@@ -714,7 +714,8 @@ def calibration_status(data: GapData, fit: CandidateFit, *, viscous: bool = Fals
     Returns
     -------
     dict of str to ParameterStatus
-        ``J_m`` [kg m^2], ``spring_scale`` [-] (and ``k`` [N m/rad], ``d_m``); ``at_bound`` when on the tolerance.
+        ``J_m`` [kg m^2], ``spring_scale`` [-] (and ``k`` [N m/rad], ``d_m``); ``at_bound`` when on the tolerance,
+        else ``uncertain`` (no interval), ``implausible`` or ``not_identifiable``.
     """
     tb = data.experiment.design.testbed
     tol = data.options.calibration_tolerance
@@ -730,4 +731,7 @@ def calibration_status(data: GapData, fit: CandidateFit, *, viscous: bool = Fals
     if viscous and "d_m" in c:
         d_m = float(c["d_m"]) if c["d_m"] > 1e-5 * tb.d_m else 0.0     # on zero up to the solver's rounding
         out["d_m"] = assess("d_m", d_m, solver_bounds=(0.0, math.inf))
-    return out
+    # a re-calibration carries no interval: it is never an estimate to rely on (README's statuses)
+    return {k: dataclasses.replace(st, status="uncertain", reason="re-calibrated within its bounds, without an "
+                                   "interval: a nuisance value of the diagnosis, not an estimate")
+            if st.status == "identified" else st for k, st in out.items()}

@@ -329,19 +329,10 @@ class SimulationResult:
         }
         if self.tau_r is not None:
             stats["mae_tracking_N_m"] = float(np.mean(np.abs(self.tau_r - self.tau_s)))
-        return {"design": _design_mapping(self.design), "rate_hz": self.rate_hz, "options": dict(self.options),
+        return {"design": self.design.to_mapping(), "rate_hz": self.rate_hz, "options": dict(self.options),
                 "truth": self.truth.metadata(), "stability": dict(self.stability), "statistics": stats,
                 "controller_fault": None if self.fault is None else dict(self.fault),
                 "description": self.description}
-
-
-def _design_mapping(design: Design) -> dict[str, Any]:
-    out: dict[str, Any] = {"testbed": design.testbed.to_mapping(), "environment": design.environment.to_mapping()}
-    if design.controller is not None:
-        out["controller"] = design.controller.to_mapping()
-    if design.compensator is not None:
-        out["compensator"] = design.compensator.to_mapping()
-    return out
 
 
 def _reference_samples(reference: Any, n: int, rate_hz: float, what: str) -> np.ndarray:
