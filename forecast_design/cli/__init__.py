@@ -340,7 +340,8 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
                                                         "(the file identify --model sfm --json F.json writes)")
     _add_allow_unidentified(p)
     p.add_argument("--tau-max", type=_float_range, default=float("inf"), metavar="N_M",
-                   help="command saturation |tau_m| <= TAU_MAX [N m] (default: none)")
+                   help="command saturation |tau_m| <= TAU_MAX [N m] (default: none for C; 1 N m with --firmware, "
+                        "the board's torque limit, docs/firmware.md)")
     p.add_argument("--w-q-hz", type=_float_range, default=10.0, help="Q cutoff [Hz] (default 10)")
     p.add_argument("--method", default=None, choices=("backward-euler", "tustin", "zoh", "matched"),
                    help="set the controller's discretization (default: the controller's own, e.g. backward-euler "
