@@ -159,6 +159,7 @@ def test_simulate_json_says_what_the_run_assumed(tmp_path, capsys):
     assert doc["design"]["testbed"] == scen.design.testbed.to_mapping()
     assert doc["design"]["environment"] == scen.design.environment.to_mapping()
     assert doc["rate_hz"] == scen.rate_hz and doc["options"]["seed"] == scen.options["seed"]
+    assert doc["reference"] == scen.reference.to_mapping()
     assert doc["options"]["torque_limit"] is None      # no limit: null, not Infinity
     assert doc["truth"] == str(tmp_path / "r.truth.json") and "effects" in doc["true_plant"]
     # every statistic is a count or carries its unit in its name

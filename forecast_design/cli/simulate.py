@@ -20,7 +20,7 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repetitions", metavar="N|all",
                    help="simulate repetitions 0..N-1 (or all) of the scenario's [variability] in one batch "
                         "(simulate_batch, one run per core) and write RUN_000.toml, RUN_001.toml, ...")
-    _add_json_option(p, "the written paths, what the run assumed (design, rate, options, true plant) and its "
+    _add_json_option(p, "the written paths, what the run assumed (design, rate, reference, options, true plant) and its "
                         "statistics (a list with --repetitions)")
     p.add_argument("--plot", metavar="OUT.png", help="plot the run (torque tracking, friction, motion)")
 
@@ -56,7 +56,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
                                 **_compensator_keys(result.design.compensator),
                                 "controller": _controller_label(result.design.controller),
                                 "controller_table": _controller_table(result.design.controller),
-                                "controller_fault": result.fault, **_assumed(mapping), **_run_assumed(mapping),
+                                "controller_fault": result.fault, **_assumed(mapping),
+                                "reference": scenario.to_mapping().get("reference"), **_run_assumed(mapping),
                                 "statistics": mapping["statistics"]})
     if args.json != "-":
         for key, value in paths.items():
@@ -199,6 +200,7 @@ def _simulate_repetitions(args: argparse.Namespace) -> int:
         _write_json(args.json, {**_compensator_keys(scenario.design.compensator),
                                 "controller": _controller_label(scenario.design.controller),
                                 "controller_table": _controller_table(scenario.design.controller), **assumed,
+                                "reference": scenario.to_mapping().get("reference"),
                                 "repetitions": [{"repetition": i, **{k: str(v) for k, v in paths.items()},
                                                  "controller_fault": fault, **stat}
                                                 for i, (paths, stat, fault) in enumerate(zip(written, stats, faults))]})
