@@ -20,8 +20,8 @@ def _configure_simulate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repetitions", metavar="N|all",
                    help="simulate repetitions 0..N-1 (or all) of the scenario's [variability] in one batch "
                         "(simulate_batch, one run per core) and write RUN_000.toml, RUN_001.toml, ...")
-    _add_json_option(p, "the written paths, what the run assumed (design, rate, reference, options, true plant) and its "
-                        "statistics (a list with --repetitions)")
+    _add_json_option(p, "the written paths, what the run assumed (design, rate, reference, options, true "
+                        "plant) and its statistics (a list with --repetitions)")
     p.add_argument("--plot", metavar="OUT.png", help="plot the run (torque tracking, friction, motion)")
 
 
