@@ -167,6 +167,21 @@ def test_simulate_json_says_what_the_run_assumed(tmp_path, capsys):
                                       "mae_tracking_N_m"}
 
 
+def test_tune_q_json_says_what_the_cutoff_was_tuned_for(capsys):
+    # a cutoff is meaningless without the loop it was tuned in: the JSON gave no controller (the default PD was
+    # silent), no testbed and no environment values (only "plants": 2)
+    from forecast_design.controllers import parse_controller
+
+    code, out, _ = _run(capsys, "tune-q", "--observer", "lo-dob", "--envs", "soft,stiff",
+                        "--controller", "pid:6:20:0.05:0.002", "--json", "-")
+    doc = json.loads(out)
+    assert code == 0 and doc["assumed"]["controller"] == parse_controller("pid:6:20:0.05:0.002").to_mapping()
+    envs = dict(resolve_environments("soft,stiff"))
+    assert doc["assumed"]["environments"] == {label: env.to_mapping() for label, env in envs.items()}
+    assert doc["assumed"]["testbed"] == Design.nominal("soft").testbed.to_mapping()
+    assert doc["assumed"]["loop"] == "continuous" and doc["assumed"]["q_family"] == "butterworth"
+
+
 def test_check_and_simulate_json_file_stdout_and_old_flag_form_agree(tmp_path, capsys):
     scenario = _scenario(tmp_path)
     code, out, _ = _run(capsys, "simulate", scenario, "--out", tmp_path / "r.toml", "--json", tmp_path / "s.json")

@@ -78,6 +78,7 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
                                 delay_samples=args.delay_samples,
                                 scan="exact" if args.exact_scan else "bounded", testbed=testbed, executor=executor)
     mapping = require_no_nan(result.to_mapping(), "tune-q")
+    mapping["assumed"] = _assumed(args, testbed, controller)
     if args.plot:
         from ._tradeoff_plot import plot_tune_q_tradeoff
 
@@ -112,3 +113,20 @@ def _cmd_tune_q(args: argparse.Namespace) -> int:
               f"({result.worst_environment})", file=sys.stderr)
         return 1
     return 0
+
+
+def _assumed(args: argparse.Namespace, testbed, controller) -> dict:
+    """What the cutoff was tuned for: controller, testbed, each environment's values (the nominal points; the
+    vertices are their J, d, k_e scaled by 1 +- uncertainty), Q form, break point and loop."""
+    from ..environments import resolve_environments, resolve_testbed
+
+    tb = resolve_testbed(testbed)
+    envs = resolve_environments(args.envs, testbed=tb, seed=args.seed)
+    return {"controller": controller.to_mapping(), "testbed": tb.to_mapping(),
+            "environments": {label: env.to_mapping() for label, env in envs},
+            "uncertainty": args.uncertainty,
+            # --max-margin tunes a 2nd-order Q's damping at a fixed cutoff: no family of its own
+            "q_family": None if args.max_margin is not None else args.q_family,
+            "q_order": 2 if args.max_margin is not None else args.q_order,
+            "break_at": args.break_at, "loop": "sampled" if args.sampled else "continuous",
+            "rate_hz": args.rate_hz if args.sampled else None}
