@@ -89,6 +89,10 @@ def test_emulate_scenario_run_and_diagnose_name_the_scenarios_effect(capsys, tmp
         proc.communicate(timeout=10)       # closes the pipes too
     assert proc.returncode == 0            # the emulator stops cleanly on SIGTERM
     assert summary["samples"] == 6000 and summary["lost"] == 0
+    # the summary says what the run assumed, as recorded: the scenario's nominal model, the reference, the length
+    assumed = summary["assumed"]
+    assert assumed["design"]["testbed"] == Testbed(k=40.0).to_mapping() and assumed["rate_hz"] == 2000.0
+    assert assumed["reference"] == "square:0.5:1" and assumed["duration_s"] == 3.0
     rec = load_experiment(tmp_path / "rec.toml")
     # the recording carries the scenario's nominal model (testbed and environment), not the defaults
     assert rec.design.testbed == Testbed(k=40.0)

@@ -8,6 +8,8 @@ the firmware's own float32 inputs, the commands differ by float32 rounding only 
 largest command). Cost: instructions per control period from qemu -icount against 84,000 cycles.
 """
 
+import json
+
 import numpy as np
 import pytest
 
@@ -187,3 +189,9 @@ def test_pil_takes_the_scenarios_torque_limit_as_the_firmwares(tmp_path, capsys)
     tau_m = np.asarray(load_experiment(tmp_path / "run.toml").signals.columns()["tau_m"])
     assert np.max(np.abs(tau_m)) <= 0.05 * (1 + 1e-6)        # the square of +-0.3 N m asks for more
     assert np.max(np.abs(tau_m)) >= 0.05 * (1 - 1e-3)        # and reaches the clamp
+    # the summary says what ran: the recorded design, the scenario's reference and length
+    from forecast_design.simulation.scenario import load_scenario
+
+    assumed = json.loads((tmp_path / "s.json").read_text())["assumed"]
+    assert assumed["design"] == load_experiment(tmp_path / "run.toml").design.to_mapping()
+    assert assumed["reference"] == load_scenario(path).reference.to_mapping() and assumed["duration_s"] == 0.05

@@ -9,6 +9,7 @@ import math
 import os
 import sys
 import warnings
+from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from .. import __version__
@@ -202,6 +203,18 @@ def _configure_reproduce(p: argparse.ArgumentParser) -> None:
                    "(pearson [default]: zero lag, means removed; pearson-max-lag; raw: means kept)")
     p.add_argument("--derivative-on", metavar="WHERE", help="table3: where the board's PD takes its derivative "
                    "(measurement [default]: no kick at the step; error: the format's u = P e + D de/dt)")
+
+
+def _recorded_assumptions(path: str | None, reference: str, duration_s: float | None) -> dict:
+    """What a recorded run (``run``, ``pil``) assumed, read back from the experiment it wrote: the design (testbed,
+    environment, controller, compensator with its cutoff), the rate [Hz], the force reference and duration [s]."""
+    from ..experiment_io import parse_toml, read_toml_document
+
+    out: dict[str, Any] = {"reference": reference, "duration_s": duration_s}
+    if path:
+        design, rate_hz, _, _ = parse_toml(read_toml_document(Path(path)), str(path))
+        out = {"design": design.to_mapping(), "rate_hz": rate_hz, **out}
+    return out
 
 
 def _write_json(target: str, obj: Any) -> None:
@@ -478,7 +491,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         result = run_on_port(args.port, out=args.out, reference=args.reference, duration=args.duration,
                              controller=_controller_from_args(args), compensator=comp if comp is not None else "none",
                              w_q_hz=args.w_q_hz, env=env, testbed=_testbed_from_args(args), timeout=args.timeout)
-        summary = result.to_mapping()
+        summary = {**result.to_mapping(), "assumed": _recorded_assumptions(result.path, args.reference, args.duration)}
     except (LinkError, BoardError) as exc:
         # a run that ended badly (lost link, board fault, a late write failure saved to a recovery file)
         # still gets its --json summary, and the one error line says where it went

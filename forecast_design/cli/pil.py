@@ -8,7 +8,7 @@ import sys
 
 from . import _command, _compensator_from_args, _configure_export, _controller_from_args, _one_environment_from_args
 from . import _note, _testbed_from_args
-from . import _write_json
+from . import _recorded_assumptions, _write_json
 from ._firmware import _firmware_options_from_args
 
 #: pil's defaults of the design options it shares with export; None on the parser, so that an option a
@@ -62,6 +62,8 @@ def _cmd_pil(args: argparse.Namespace) -> int:
                        f"{args.tau_full_scale:g} N m (--tau-full-scale): the firmware clamps at the full scale"])
             args.tau_max = min(limit, args.tau_full_scale)
             options = _firmware_options_from_args(args, link_timeout_ms=PIL_LINK_TIMEOUT_MS)
+        reference = args.reference or scenario.to_mapping().get("reference")
+        duration_s = args.duration if args.duration is not None else scenario.options["duration_s"]
         result = run_pil_scenario(scenario, reference=args.reference, duration=args.duration, out=args.out,
                                   work_dir=args.work_dir, options=options, icount=not args.no_icount)
         _note(scenario.notes)                       # after the run: a refusal stays one line
@@ -71,12 +73,12 @@ def _cmd_pil(args: argparse.Namespace) -> int:
                 setattr(args, key, value)
         _, env = _one_environment_from_args(args, "pil")
         comp = _compensator_from_args(args)
+        reference, duration_s = args.reference or "square:0.2:0.5", 2.0 if args.duration is None else args.duration
         result = run_pil(controller=_controller_from_args(args), compensator=comp if comp is not None else "none",
                          env=env, testbed=_testbed_from_args(args), w_q_hz=args.w_q_hz, rate_hz=args.rate_hz,
-                         reference=args.reference or "square:0.2:0.5",
-                         duration=2.0 if args.duration is None else args.duration, out=args.out,
+                         reference=reference, duration=duration_s, out=args.out,
                          work_dir=args.work_dir, options=options, icount=not args.no_icount)
-    summary = result.to_mapping()
+    summary = {**result.to_mapping(), "assumed": _recorded_assumptions(result.path, reference, duration_s)}
     if args.json:
         _write_json(args.json, summary)
     if args.json != "-":
