@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from forecast_design.cli import build_parser, main
-from forecast_design.params import environment_preset, Testbed
+from forecast_design.params import Design, environment_preset, Testbed
 
 
 def _run(capsys, *argv):
@@ -33,7 +33,9 @@ def test_tf_json_matches_hand_built_python_control_model(capsys, env_name):
     code, out, _ = _run(capsys, "tf", "--env", env_name, "--json")
     assert code == 0
     result = json.loads(out)
-    assert set(result) == {"P", "EA", "LO", "LD"}
+    assert set(result) == {"P", "EA", "LO", "LD", "design", "conventions"}
+    # what the plants were computed for: the environment preset with the testbed's link, and the paper's testbed
+    assert result["design"] == Design.nominal(env_name).to_mapping()
     hand = _hand_built_plant(environment_preset(env_name))
     num = np.trim_zeros(hand.num[0][0], "f")
     den = np.trim_zeros(hand.den[0][0], "f")

@@ -155,6 +155,12 @@ def _configure_tf(p: argparse.ArgumentParser) -> None:
     p.add_argument("--plot", metavar="OUT.png", help="Bode plot of P and the nominal plants")
 
 
+#: How to read the ``tf`` JSON (its symbols and units).
+_TF_CONVENTIONS = ("P = tau_s / tau_m (the force plant, eq. 2), EA, LO, LD its nominal plants (eqs. 5-8); num and den "
+                   "in powers of s, highest first, den[0] = 1; in the latex J = J_e + J_l and d = d_e + d_l (the "
+                   "output's whole inertia [kg m^2] and damping [N m s/rad]); poles as [re, im] [rad/s]; dc_gain [-]")
+
+
 @_command("tf", "print the plant P and the nominal plants EA, LO, LD (eqs. 2-8)", _configure_tf)
 def _cmd_tf(args: argparse.Namespace) -> int:
     from ..symbolic import transfer_functions
@@ -172,8 +178,9 @@ def _cmd_tf(args: argparse.Namespace) -> int:
 
         plot_plants(results, args.plot)
     if args.json:
-        _write_json(args.json, results[0][1].to_mapping() if len(results) == 1
-                    else {label: tfs.to_mapping() for label, tfs in results})
+        described = {label: {**tfs.to_mapping(), "design": design.to_mapping(), "conventions": _TF_CONVENTIONS}
+                     for (label, tfs), (_, design) in zip(results, designs)}
+        _write_json(args.json, next(iter(described.values())) if len(results) == 1 else described)
         if args.json == "-":
             return 0
     for label, tfs in results:
