@@ -98,3 +98,23 @@ def test_emps_cross_test_on_pulses_matches_published(symmetric_fit):
     test = _load("emps_pulses_test.csv")
     val = validate(symmetric_fit, test.t, test.position, test.force)
     assert val.relative_error_percent == pytest.approx(5.9824, abs=0.5)
+
+
+def test_emps_identify_json_gives_the_scales_of_a_linear_axis_in_its_units(train, tmp_path, capsys):
+    # the scales' keys say torque and angle; on EMPS's prismatic axis they are N and m, and the JSON says so
+    import json
+
+    import numpy as np
+
+    from forecast_design.cli import main
+
+    code = main(["identify", "--csv", str(DATA / "emps_train.csv"), "--time", "t_s", "--position", "qm_m",
+                 "--force", "force_N", "--model", "sfm", "--offset", "--estimate-inertia", "--json",
+                 str(tmp_path / "f.json")])
+    doc = json.loads((tmp_path / "f.json").read_text())
+    capsys.readouterr()
+    assert code == 0 and set(doc["scales"]) <= set(doc["scale_units"])
+    assert doc["scale_units"]["angle_span"] == "m" and doc["scale_units"]["torque_max"] == "N"
+    assert doc["scales"]["angle_span"] == pytest.approx(float(np.ptp(train.position)), rel=1e-9)
+    assert doc["scales"]["torque_max"] == pytest.approx(float(np.max(np.abs(train.force))), rel=0.02)
+    assert doc["units"]["viscous"] == "N s/m"

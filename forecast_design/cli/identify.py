@@ -101,9 +101,15 @@ def _cmd_identify(args: argparse.Namespace) -> int:
 
         plot_friction_fit(fit, fit_data(fit, log), args.plot, prismatic=getattr(log, "prismatic", False))
     mapping = fit.to_mapping()
-    from ..friction.logs import parameter_unit    # units follow the log: N, m for a prismatic axis
+    from ..friction.logs import axis_units, parameter_unit    # units follow the log: N, m for a prismatic axis
 
-    mapping["units"] = {name: parameter_unit(name, getattr(log, "prismatic", False)) for name in mapping["params"]}
+    prismatic = getattr(log, "prismatic", False)
+    mapping["units"] = {name: parameter_unit(name, prismatic) for name in mapping["params"]}
+    # the log's scales in the axis' units too (a linear axis: N and m, though the keys say torque and angle)
+    u = axis_units(prismatic)
+    mapping["scale_units"] = {"torque_max": u["force"], "speed_max": u["velocity"], "speed_p99": u["velocity"],
+                              "deflection_max": u["position"], "angle_span": u["position"], "rate_hz": "Hz",
+                              "duration_s": "s", "encoder_step": u["position"]}
     not_identifiable = mapping["identifiability"].startswith("not identifiable")
     mapping["exit_code"] = EXIT_NOT_IDENTIFIABLE if not_identifiable else 0
     if args.json:

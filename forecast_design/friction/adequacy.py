@@ -178,11 +178,17 @@ class Adequacy:
                 f"({', '.join(t.name for t in self.tests if t.significant)}); the data ask for {models}")
 
     def to_mapping(self) -> dict[str, Any]:
-        """JSON-ready mapping: ``adequate``, ``suggested``, ``tests``, ``whiteness``, ``flagged``, ``alpha``."""
-        return {"adequate": self.adequate, "suggested": list(self.suggested), "alpha": self.alpha,
+        """JSON-ready mapping: ``adequate``, ``rule``, ``suggested``, ``tests``, ``whiteness``, ``flagged``, ``alpha``."""
+        return {"adequate": self.adequate, "rule": ADEQUACY_RULE, "suggested": list(self.suggested), "alpha": self.alpha,
                 "tests": {t.name: t.to_mapping() for t in self.tests},
                 "whiteness": None if self.whiteness is None else self.whiteness.to_mapping(),
                 "flagged": dict(self.flagged)}
+
+
+#: How ``adequate`` is decided, for the JSON: a significant structure alone is not enough.
+ADEQUACY_RULE = ("inadequate when a structure test is significant at alpha and the richer model it suggests moves a "
+                 "fitted parameter outside its 95 % interval (listed in 'flagged'); a significant structure that "
+                 "moves nothing leaves the model adequate for its parameters")
 
 
 def whiteness(residual: np.ndarray, velocity: np.ndarray, lags: int = RESID_LAGS) -> Whiteness:
