@@ -266,7 +266,14 @@ def test_tune_q_and_export_json_share_the_keys(capsys, tmp_path):
                         "--json")
     assert code == 0 and json.loads(out)["tau_max_N_m"] == 3.0
     code, out, _ = _run(capsys, "export", "--compensator", "ea-fob", "--out", tmp_path / "d", "--json")
-    assert code == 0 and json.loads(out)["tau_max_N_m"] is None       # no saturation: null, not Infinity
+    doc = json.loads(out)
+    assert code == 0 and doc["tau_max_N_m"] is None       # no saturation: null, not Infinity
+    # the defaults the [controller] and [compensator] tables leave out are said, as the generated C has them
+    header = (tmp_path / "d" / "fd_controller.h").read_text()
+    assert doc["controller_discretization"] == "backward-euler" and "controller by backward-euler" in header
+    assert doc["q_filter"] == {"family": "butterworth", "order": 2} and "butterworth, order 2" in header
+    code, out, _ = _run(capsys, "export", "--compensator", "none", "--out", tmp_path / "e", "--json")
+    assert code == 0 and json.loads(out)["q_filter"] is None
 
 
 # --- Python: environments as objects, names, inline values and sets -----------------------------------

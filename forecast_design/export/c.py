@@ -66,6 +66,7 @@ class ExportResult:
 
     def to_mapping(self) -> dict[str, Any]:
         """Summary for ``--json``: files, rate, method, sections, coefficient count, digest."""
+        comp = self.design.compensator
         return {
             "header": str(self.header), "source": str(self.source),
             "user_source": None if self.user_source is None else str(self.user_source),
@@ -83,7 +84,11 @@ class ExportResult:
             "tau_max_N_m": self.program.tau_max if math.isfinite(self.program.tau_max) else None,
             "n_sections": self.program.n_sections,
             "controller": None if self.design.controller is None else self.design.controller.to_mapping(),
+            # the defaults the tables leave out, said: how the controller is discretized, the Q filter's form
+            "controller_discretization": getattr(self.design.controller, "discretization", None),
             "compensator": None if self.design.compensator is None else self.design.compensator.to_mapping(),
+            "q_filter": {"family": comp.q_family, "order": comp.q_order} if comp is not None and comp.is_observer
+            else None,
             # what the observer's nominal plant was built from (the believed environment, its link)
             "testbed": self.design.testbed.to_mapping(), "environment": self.design.environment.to_mapping(),
             "sha256": self.digest,
@@ -133,6 +138,9 @@ def _provenance(design: Design, rate_hz: float, tau_max: float) -> tuple:
                              ("controller", design.controller.to_mapping() if design.controller else {}),
                              ("compensator", {k: v for k, v in comp.to_mapping().items() if k != "friction"})):
         rows.append((section, ", ".join(f"{k} = {v!r}" for k, v in mapping.items())))
+    method = getattr(design.controller, "discretization", None)
+    if method is not None and not (design.controller and design.controller.is_code):
+        rows.append(("discretized", f"controller by {method}"))      # the table leaves its default out
     if comp.is_observer:
         rows.append(("q_filter", f"{comp.q_family}, order {comp.q_order}; filters discretised {OBSERVER_METHOD}"))
     if comp.friction:
