@@ -73,8 +73,11 @@ def _tune(out: Path) -> dict[str, Any]:
             "text": (f"Disk margins of Fig. 6: the EA-FOB stays within {100 * ea_dev:.1f} % of the plant's own margin; "
                      f"unstable: {', '.join(unstable) or 'none'}. Largest Q cutoff keeping 90 % of the plant's "
                      "disk margin in both environments (0.5-30 Hz): "
-                     + ", ".join(f"{obs} {r['w_q_hz']:.3g} Hz" for obs, r in tuned.items()) + "."),
-            "summary": {obs: r["w_q_hz"] for obs, r in tuned.items()}}
+                     + ", ".join(f"{obs} {r['w_q_hz']:.3g} Hz" + (f" (on the {r['at_bound']})" if r["at_bound"] else "")
+                                 for obs, r in tuned.items()) + "."),
+            # a cutoff on the band's end is the band's, not the tuning's answer: said with it
+            "summary": {obs: {key: r[key] for key in ("w_q_hz", "at_bound", "worst_ratio", "feasible")}
+                        for obs, r in tuned.items()}}
 
 
 def _simulate(out: Path) -> dict[str, Any]:
