@@ -45,3 +45,8 @@ def test_small_benchmark_names_every_withheld_effect():
     assert res.min_true_reduction >= 0.5
     m = json.loads(json.dumps(res.to_mapping()))
     assert sum(sum(row.values()) for row in m["confusion"].values()) == len(BENCH_WORDS)
+    # every case says what its log declared, and every score says what it counts
+    assert all(c["design"]["duration_s"] == pytest.approx(6.0) and c["design"]["rate_hz"] == 2000.0
+               and set(c["design"]) >= {"testbed", "environment"} for c in m["cases"])
+    assert set(m["definitions"]) == {"accuracy", "joint_accuracy", "false_alarms", "min_true_reduction",
+                                     "hard_honesty"}

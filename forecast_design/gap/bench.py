@@ -46,7 +46,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -137,6 +137,9 @@ class BenchCase:
         The diagnosis's caveats.
     attempts : int
         Scenario draws needed to find an identifiable log (main suite) [-].
+    design : dict
+        The log's nominal model as its file declares it (:meth:`Design.to_mapping`: testbed, environment, and in
+        closed loop the controller and compensator), with its ``rate_hz`` and ``duration_s``.
     """
 
     truth: Effect
@@ -153,6 +156,7 @@ class BenchCase:
     secondary: Effect = Effect.NONE
     caveats: tuple[str, ...] = ()
     attempts: int = 1
+    design: dict = field(default_factory=dict)
 
     @property
     def correct(self) -> bool:
@@ -182,7 +186,8 @@ class BenchCase:
                 "joint": [str(e) for e in self.joint], "reduction": self.reduction,
                 "true_reduction": None if math.isnan(self.true_reduction) else self.true_reduction,
                 "environment": self.environment, "excitation": self.excitation, "attempts": self.attempts,
-                "effect_params": self.effect_params, "caveats": list(self.caveats), "seconds": self.seconds}
+                "effect_params": self.effect_params, "caveats": list(self.caveats), "seconds": self.seconds,
+                "design": self.design}
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -287,7 +292,10 @@ class BenchResult:
     def to_mapping(self) -> dict[str, Any]:
         """JSON-ready summary with the confusion matrix and every case."""
         secs = [c.seconds for c in self.cases]
-        return {"generator": self.generator, "magnitude_scale": self.magnitude_scale,
+        return {"definitions": {name: " ".join(getattr(type(self), name).__doc__.split())
+                                for name in ("accuracy", "joint_accuracy", "false_alarms", "min_true_reduction",
+                                             "hard_honesty")},
+                "generator": self.generator, "magnitude_scale": self.magnitude_scale,
                 "per_effect": self.per_effect, "seed": self.seed, "n_logs": len(self.main),
                 "accuracy": self.accuracy, "joint_accuracy": self.joint_accuracy,
                 "false_alarms": self.false_alarms, "min_true_reduction": self.min_true_reduction,
@@ -623,7 +631,7 @@ def _independent_case(job: tuple) -> BenchCase:
                      environment=case.environment_name, excitation=f"{loop}-{case.excitation.kind}",
                      effect_params=_jsonable_params(case.effect_params), seconds=seconds, suite=suite,
                      truths=(word,), secondary=diag.secondary.effect if diag.secondary else Effect.NONE,
-                     caveats=diag.caveats, attempts=attempts)
+                     caveats=diag.caveats, attempts=attempts, design=_log_design(exp))
 
 
 def _jsonable_params(params: Any) -> dict:
@@ -681,7 +689,12 @@ def _diagnosed(spec: CaseSpec, exp: Any, suite: str) -> BenchCase:
                      reduction=diag.reduction, true_reduction=true_red, environment=spec.environment,
                      excitation=spec.excitation, effect_params=params, seconds=seconds, suite=suite,
                      truths=spec.words, secondary=diag.secondary.effect if diag.secondary else Effect.NONE,
-                     caveats=diag.caveats, attempts=spec.attempt + 1)
+                     caveats=diag.caveats, attempts=spec.attempt + 1, design=_log_design(exp))
+
+
+def _log_design(exp: Any) -> dict:
+    """What a benchmark log declares: its nominal model, rate [Hz] and length [s]."""
+    return {**exp.design.to_mapping(), "rate_hz": exp.rate_hz, "duration_s": exp.duration}
 
 
 def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *, duration_s: float = 10.0,
