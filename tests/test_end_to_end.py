@@ -67,7 +67,9 @@ def test_run_against_emulator_feeds_identify_and_diagnose(tmp_path, capsys):
     assert fit["params"]["viscous"] >= 0.0
     assert main(["diagnose", str(out), "--json", str(tmp_path / "gap.json"), "--report", str(tmp_path / "rep")]) == 0
     gap = json.loads((tmp_path / "gap.json").read_text())
-    assert set(gap) == {"verdict", "metric", "location", "ranking", "caveats", "isolability", "tau_s"}
+    assert set(gap) == {"verdict", "metric", "location", "ranking", "caveats", "isolability", "tau_s", "design"}
+    # the diagnosis names the nominal model it measured the gap against: the one the board ran
+    assert gap["design"]["compensator"]["kind"] == "ea-fob" and gap["design"]["duration_s"] == pytest.approx(1.5)
     assert (tmp_path / "rep").is_dir() and any(p.suffix == ".png" for p in (tmp_path / "rep").iterdir())
 
 
