@@ -130,7 +130,9 @@ def tune_q(observer: str = "ea-fob", envs: Sequence[str] | str = ("soft", "stiff
         tuning constrains the nominal point and the 8 vertices of [1 - u, 1 + u]^3; the answer is
         then certified over the whole box (continuous loop: :func:`forecast_design.worstcase.worst_case_ratio`,
         branch and bound) and, where an interior point falls below ``min_ratio``, that point joins
-        the set and the cutoff is tuned again (at most ``_CERTIFY_ROUNDS`` times).
+        the set and the cutoff is tuned again (at most ``_CERTIFY_ROUNDS`` times); an answer on its
+        constraint is then tuned to ``min_ratio`` plus the branch and bound's shortfall, so that the
+        certificate holds for ``min_ratio`` itself (``TuningResult.certified_for``).
     min_ratio : float
         Required alpha_observer / alpha_plant in every plant of the set [-].
     band_hz : (float, float)
