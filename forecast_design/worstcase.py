@@ -100,14 +100,16 @@ class WorstCaseMargin:
         """
         J, d, k_e = self.point
         return (f"over J, d, k_e x [{1 - self.uncertainty:g}, {1 + self.uncertainty:g}] (continuous loop): "
-                f"{quantity} certified in [{self.lower:.6f}, {self.upper:.6f}] (gap {self.gap:.2g}) at J = {J:.4g} kg m^2, "
-                f"d = {d:.4g} N m s/rad, k_e = {k_e:.4g} N m/rad{where}; the vertices alone gave {self.vertex_min:.6f}")
+                f"{quantity} certified in [{self.lower:.6f}, {self.upper:.6f}] (gap {self.gap:.2g}) at J_e + J_l = "
+                f"{J:.4g} kg m^2, d_e + d_l = {d:.4g} N m s/rad, k_e = {k_e:.4g} N m/rad{where}; the vertices alone "
+                f"gave {self.vertex_min:.6f}")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready fields (``worst_case_lower``, ``worst_case_upper``, ``worst_case_point``, ...)."""
         return {"worst_case_lower": self.lower, "worst_case_upper": self.upper, "worst_case_gap": self.gap,
-                "worst_case_point": {"J_kg_m2": self.point[0], "d_n_m_s_per_rad": self.point[1],
-                                     "k_e_n_m_per_rad": self.point[2]},
+                # the output's whole inertia and damping (environment and link), as the box scales them
+                "worst_case_point": {"J_e_plus_J_l_kg_m2": self.point[0], "d_e_plus_d_l_N_m_s_per_rad": self.point[1],
+                                     "k_e_N_m_per_rad": self.point[2]},
                 "worst_case_factors": {"J": self.factors[0], "d": self.factors[1], "k_e": self.factors[2]},
                 "vertex_min": self.vertex_min, "uncertainty": self.uncertainty, "boxes": self.boxes,
                 "converged": self.converged, "tolerance": self.tolerance,

@@ -90,7 +90,9 @@ def test_margins_uncertainty_reports_the_certified_bounds_and_the_point(capsys, 
     f = r["worst_case_factors"]
     design = Design.nominal(INTERIOR)
     true = scaled_environment(design, (f["J"], f["d"], f["k_e"]))
-    assert true.environment.J_e + true.environment.J_l == pytest.approx(r["worst_case_point"]["J_kg_m2"], rel=1e-12)
+    point, env = r["worst_case_point"], true.environment      # the output's whole J and d, as the names say
+    assert env.J_e + env.J_l == pytest.approx(point["J_e_plus_J_l_kg_m2"], rel=1e-12)
+    assert env.d_e + env.d_l == pytest.approx(point["d_e_plus_d_l_N_m_s_per_rad"], rel=1e-12)
     again = disk_margins([force_loop(true, None, believed=design).L]).alpha
     assert again[0] == pytest.approx(r["worst_case_upper"], rel=1e-9)
     assert "certified" in out and "gap" in out
