@@ -195,3 +195,19 @@ def test_pil_takes_the_scenarios_torque_limit_as_the_firmwares(tmp_path, capsys)
     assumed = json.loads((tmp_path / "s.json").read_text())["assumed"]
     assert assumed["design"] == load_experiment(tmp_path / "run.toml").design.to_mapping()
     assert assumed["reference"] == load_scenario(path).reference.to_mapping() and assumed["duration_s"] == 0.05
+
+
+@pytest.mark.slow
+def test_pil_counts_the_cycle_budget_of_its_own_rate(tmp_path, capsys):
+    """The budget is one control period at the firmware's rate: 168,000 cycles at 1 kHz (it was 2 kHz's 84,000
+    whatever --rate-hz, so the reported budget fraction was twice the true one at 1 kHz)."""
+    from forecast_design.cli import main
+    from forecast_design.export.toolchain import M4_CLOCK_HZ
+
+    code = main(["pil", "--compensator", "ea-fob", "--rate-hz", "1000", "--duration", "0.1", "--out",
+                 str(tmp_path / "run.toml"), "--work-dir", str(tmp_path / "fw"), "--json", str(tmp_path / "s.json")])
+    assert code == 0, capsys.readouterr().err
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert s["rate_hz"] == 1000.0 and s["budget_cycles_per_period"] == M4_CLOCK_HZ / 1000.0
+    assert s["budget_fraction_at_cpi_2"] == pytest.approx(2.0 * s["instructions_per_step"] / (M4_CLOCK_HZ / 1000.0))
+    assert load_experiment(tmp_path / "run.toml").rate_hz == 1000.0

@@ -403,7 +403,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     if args.check_arm:
         from ..export.toolchain import check_on_cortex_m4
 
-        mapping["cortex_m4"] = check_on_cortex_m4(args.out)
+        mapping["cortex_m4"] = check_on_cortex_m4(args.out, rate_hz=result.program.rate_hz)
     if args.json:
         _write_json(args.json, mapping)
     if args.json != "-":
@@ -411,7 +411,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
         if args.check_arm:
             m4 = mapping["cortex_m4"]
             print(f"Cortex-M4 (qemu): {m4['instructions_per_step']:.0f} instructions/step, <= "
-                  f"{m4['cycles_per_step_bound']:.0f} cycles of {m4['budget_cycles_2khz_168mhz']:.0f}; "
+                  f"{m4['cycles_per_step_bound']:.0f} cycles of {m4['budget_cycles_per_period']:.0f}; "
                   f".text {m4['text_bytes']} B; max |M4 - host| {m4['max_abs_diff_vs_host']:.3g} N m")
     return 0
 

@@ -73,7 +73,7 @@ def _report_cycles(cycles) -> None:
         return
     line = (f"C controller on the Cortex-M4 (qemu, {cycles['steps']} steps): longest step <= "
             f"{cycles['max_cycles_per_step_bound']:.0f} cycles, mean <= {cycles['cycles_per_step_bound']:.0f}, of "
-            f"{cycles['budget_cycles']:.0f} per period ({100 * cycles['max_budget_fraction']:.1f} %); "
+            f"{cycles['budget_cycles_per_period']:.0f} per period ({100 * cycles['max_budget_fraction']:.1f} %); "
             f"max |M4 - host| {cycles['max_abs_diff_vs_host']:.3g} N m")
     prefix = "warning" if cycles["verdict"] != "ok" else "note"
     print(f"forecast-design: {prefix}: {line}", file=sys.stderr)

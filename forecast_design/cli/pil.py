@@ -83,7 +83,8 @@ def _cmd_pil(args: argparse.Namespace) -> int:
         _write_json(args.json, summary)
     if args.json != "-":
         ips, worst = summary["instructions_per_step"], summary["max_instructions_per_step"]
-        cost = (f"; {ips:.0f} instructions per period (longest {worst:.0f}; x CPI 2 against 84000 cycles: "
+        cost = (f"; {ips:.0f} instructions per period (longest {worst:.0f}; x CPI 2 against "
+                f"{summary['budget_cycles_per_period']:.0f} cycles: "
                 f"{100 * summary['max_budget_fraction_at_cpi_2']:.1f} %)" if ips is not None and worst is not None
                 else "")
         print(f"{args.out}: {result.samples} of {result.expected} periods with the firmware in the loop{cost}")

@@ -231,7 +231,7 @@ def code_cycle_check(design: Design | None = None, *, controller: Any = None, co
     Returns
     -------
     dict
-        :meth:`~.toolchain.ArmRun.to_mapping` plus ``max_abs_diff_vs_host`` [N m], ``budget_cycles``
+        :meth:`~.toolchain.ArmRun.to_mapping` plus ``max_abs_diff_vs_host`` [N m], ``budget_cycles_per_period``
         at ``rate_hz``, ``verdict`` (``ok``, ``warning``: the longest step above
         :data:`CYCLE_WARNING_FRACTION` of the period, ``over``: above the period) and
         ``inputs`` (what the cost was measured on); or ``{"measured": False, "why": ...}``
@@ -239,7 +239,7 @@ def code_cycle_check(design: Design | None = None, *, controller: Any = None, co
     """
     import shutil
 
-    from .toolchain import budget_cycles, check_on_cortex_m4, find_tools, scratch_dir
+    from .toolchain import check_on_cortex_m4, find_tools, scratch_dir
 
     tools = find_tools()
     if not tools.arm_ready:
@@ -249,13 +249,13 @@ def code_cycle_check(design: Design | None = None, *, controller: Any = None, co
     try:
         export_controller(design, tmp, controller=controller, compensator=compensator, env=env, w_q_hz=w_q_hz,
                           rate_hz=rate_hz, sfm_params=sfm_params, tau_max=tau_max, testbed=testbed)
-        m = check_on_cortex_m4(tmp, n_steps=n_steps)
+        m = check_on_cortex_m4(tmp, n_steps=n_steps, rate_hz=rate_hz)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    budget = budget_cycles(rate_hz)
+    budget = m["budget_cycles_per_period"]       # the period at the export's rate
     worst = m["max_cycles_per_step_bound"]
     verdict = "over" if worst > budget else ("warning" if worst > CYCLE_WARNING_FRACTION * budget else "ok")
-    return {"measured": True, **m, "budget_cycles": budget, "verdict": verdict,
+    return {"measured": True, **m, "verdict": verdict,
             "inputs": f"test_sequence({n_steps}): 0.2 N m square reference, first-order tau_s with noise, "
                       "slow theta; a data-dependent controller may take longer on other inputs"}
 
@@ -308,7 +308,7 @@ def export_firmware(design: Design | None = None, out_dir: str | Path = ".", *,
             raise ExportError(f"controller {code.source}: its longest step takes up to "
                               f"{cycles['max_cycles_per_step_bound']:.0f} cycles "
                               f"({cycles['max_instructions_per_step']:.0f} instructions x CPI "
-                              f"{cycles['cpi_bound']:g}) of the {cycles['budget_cycles']:.0f} in a {rate_hz:g} Hz "
+                              f"{cycles['cpi_bound']:g}) of the {cycles['budget_cycles_per_period']:.0f} in a {rate_hz:g} Hz "
                               "period: it would overrun on the board (fault OVERRUN); make it cheaper or lower the rate")
     # One project, one unit: every file is written into a staging folder and swapped in with the
     # manifest last (fileio.staged_set); the Makefile refuses to build without a matching manifest,

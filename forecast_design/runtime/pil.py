@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import ExportError, ParameterError
 from ..export.firmware import (FirmwareOptions, build_firmware, export_firmware, firmware_measurements,
                                firmware_reference, sensor_counts)
-from ..export.toolchain import M4_CLOCK_HZ, find_tools
+from ..export.toolchain import M4_CLOCK_HZ, budget_cycles, find_tools
 from ..params import Design
 from ..simulation import plant_stepper
 from ..simulation.run import DEFAULT_PROCESS_NOISE_STD
@@ -108,6 +108,8 @@ class PilResult:
         The experiment written.
     arrays : dict of ndarray
         Recorded signals by name (``tau_m``, ``theta``, ``q``, ``tau_s``, ``tau_r``, ``u``, ``tau_frc_hat``).
+    rate_hz : float
+        The firmware's control rate [Hz] (the period whose cycles are the budget).
     """
 
     samples: int
@@ -119,16 +121,17 @@ class PilResult:
     instructions_per_step: float | None
     path: str | None
     arrays: dict
+    rate_hz: float = 2000.0
 
     def to_mapping(self) -> dict[str, Any]:
         """Summary for ``--json`` (without the arrays)."""
-        budget = M4_CLOCK_HZ / 2000.0
+        budget = budget_cycles(self.rate_hz)     # one control period at the firmware's rate
         ips = self.instructions_per_step
         worst = self.stats.get("max_instructions_per_step") if (self.stats and ips is not None) else None
         return {"samples": self.samples, "expected": self.expected, "fault": self.fault,
                 "fault_index": self.fault_index, "fault_latency_s": self.fault_latency_s, "stats": self.stats,
                 "instructions_per_step": ips, "max_instructions_per_step": worst,
-                "budget_cycles_2khz_168mhz": budget,
+                "rate_hz": self.rate_hz, "clock_hz": M4_CLOCK_HZ, "budget_cycles_per_period": budget,
                 "budget_fraction_at_cpi_2": None if ips is None else 2.0 * ips / budget,
                 "max_budget_fraction_at_cpi_2": None if worst is None else 2.0 * worst / budget, "path": self.path}
 
@@ -427,7 +430,7 @@ def run_pil(design: Design | None = None, *, controller: str | None = "pd:5:0.1"
     stats = info["stats"]
     ips = stats["mean_instructions_per_step"] if (stats and icount) else None
     return PilResult(len(samples), n, info["fault"], info["fault_index"], info["fault_latency_s"], stats, ips,
-                     path, arrays)
+                     path, arrays, rate_hz=fw.program.rate_hz)
 
 
 
