@@ -400,7 +400,7 @@ else:
     fw = export_firmware(out_dir=work / "fw", controller=mine_c, compensator="ea-fob", env="exp-soft", w_q_hz=10.0)
     cyc = fw.cycles
     print(f"firmware in {fw.out_dir.name}/ with {', '.join(n for n in fw.files if n.startswith('fd_user'))}; "
-          f"longest step <= {cyc['max_cycles_per_step_bound']:.0f} cycles of {cyc['budget_cycles']:.0f} "
+          f"longest step <= {cyc['max_cycles_per_step_bound']:.0f} cycles of {cyc['budget_cycles_per_period']:.0f} "
           f"({cyc['max_budget_fraction']:.1%}): {cyc['verdict']}")
     assert cyc["verdict"] == "ok" and cyc["max_abs_diff_vs_host"] == 0.0
 
