@@ -375,6 +375,11 @@ class Experiment:
         """Time covered by the rows, n_samples * dt [s] (each row holds for one period)."""
         return self.n_samples * self.dt
 
+    def declared(self) -> dict[str, Any]:
+        """What the log declares, for JSON: its nominal model (:meth:`Design.to_mapping`), ``rate_hz`` [Hz] and
+        ``duration_s`` [s]."""
+        return {**self.design.to_mapping(), "rate_hz": self.rate_hz, "duration_s": self.duration}
+
     def window(self, t0: float | None = None, t1: float | None = None) -> "Experiment":
         """The rows with ``t0 <= t < t1`` as a new experiment.
 

@@ -631,7 +631,7 @@ def _independent_case(job: tuple) -> BenchCase:
                      environment=case.environment_name, excitation=f"{loop}-{case.excitation.kind}",
                      effect_params=_jsonable_params(case.effect_params), seconds=seconds, suite=suite,
                      truths=(word,), secondary=diag.secondary.effect if diag.secondary else Effect.NONE,
-                     caveats=diag.caveats, attempts=attempts, design=_log_design(exp))
+                     caveats=diag.caveats, attempts=attempts, design=exp.declared())
 
 
 def _jsonable_params(params: Any) -> dict:
@@ -689,12 +689,7 @@ def _diagnosed(spec: CaseSpec, exp: Any, suite: str) -> BenchCase:
                      reduction=diag.reduction, true_reduction=true_red, environment=spec.environment,
                      excitation=spec.excitation, effect_params=params, seconds=seconds, suite=suite,
                      truths=spec.words, secondary=diag.secondary.effect if diag.secondary else Effect.NONE,
-                     caveats=diag.caveats, attempts=spec.attempt + 1, design=_log_design(exp))
-
-
-def _log_design(exp: Any) -> dict:
-    """What a benchmark log declares: its nominal model, rate [Hz] and length [s]."""
-    return {**exp.design.to_mapping(), "rate_hz": exp.rate_hz, "duration_s": exp.duration}
+                     caveats=diag.caveats, attempts=spec.attempt + 1, design=exp.declared())
 
 
 def benchmark(per_effect: int = 5, seed: int = 0, workers: int | None = None, *, duration_s: float = 10.0,

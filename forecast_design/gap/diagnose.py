@@ -367,8 +367,7 @@ class Diagnosis:
         if self.data is not None:
             out["tau_s"] = self.data.tau_s_source.to_mapping()
             out["tau_s"]["alternative"] = None if self.reading is None else dict(self.reading)
-            exp = self.data.experiment     # the nominal model the gap is measured against, and the log's extent
-            out["design"] = {**exp.design.to_mapping(), "rate_hz": exp.rate_hz, "duration_s": exp.duration}
+            out["design"] = self.data.experiment.declared()     # the nominal model the gap is measured against
         return out
 
 
