@@ -488,8 +488,8 @@ class Experiment:
         Returns
         -------
         dict
-            ``source``, ``description``, ``rate_hz`` [Hz], ``n_samples``, ``t_start`` [s],
-            ``duration`` [s] (also ``t_start_s``, ``duration_s``), ``columns`` (CSV order),
+            ``source``, ``description``, ``rate_hz`` [Hz], ``n_samples``, ``t_start_s`` [s],
+            ``duration_s`` [s], ``columns`` (CSV order),
             ``tau_s_derived``, ``locked``, ``has_controller``, ``compensator`` (kind or None),
             ``design`` (TOML tables).
         """
@@ -499,8 +499,6 @@ class Experiment:
             "description": self.description,
             "rate_hz": self.rate_hz,
             "n_samples": self.n_samples,
-            "t_start": float(self.signals.t[0]),
-            "duration": self.duration,
             "t_start_s": float(self.signals.t[0]),
             "duration_s": self.duration,
             "columns": list(self.signals.columns()),

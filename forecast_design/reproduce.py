@@ -384,14 +384,27 @@ class MarginRow:
     frequency_rad_s: float                  # critical frequency               [rad/s]
     stable: bool                            # nominal closed loop stable
     skew: float = 0.0                       # skew of the disk                 [-]
+    #: The nominal design of this disk (testbed, environment values, controller, compensator); None
+    #: for a row built by hand.
+    design: Design | None = None
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON row with keys environment, observer, w_q_hz, disk_margin, gain_margin_db,
         phase_margin_deg, frequency_rad_s, stable (infinities as ``None``), and the keys every verb
         uses for these quantities (README, "Interface conventions"): ``compensator`` (= observer),
         ``alpha`` (= disk_margin), ``skew``, ``phase_margins_deg`` ([-phase, +phase]) and
-        ``frequency_hz``."""
+        ``frequency_hz``; ``assumed``: the design (testbed, environment values, controller,
+        compensator), the Q filter's form, where the loop is broken, the loop kind and conventions."""
         pm, w = json_float(self.phase_margin_deg), json_float(self.frequency_rad_s)
+        assumed: dict[str, Any] | None = None
+        if self.design is not None:
+            comp = self.design.compensator
+            assumed = {"design": self.design.to_mapping(),
+                       "q_family": comp.q_family if comp is not None else None,
+                       "q_order": comp.q_order if comp is not None else None,
+                       "break_at": "controller", "loop": "continuous",
+                       "conventions": "negative feedback 1 + L = 0; balanced disk (skew 0) unless given; "
+                                      "disk margin of Seiler, Packard and Gahinet (2020)"}
         return {
             "environment": self.environment,
             "observer": self.observer,
@@ -406,6 +419,7 @@ class MarginRow:
             "frequency_rad_s": w,
             "frequency_hz": None if w is None else w / (2.0 * math.pi),
             "stable": self.stable,
+            "assumed": assumed,
         }
 
 
@@ -487,5 +501,6 @@ def fig6_table(
                     disk_margin=dm.alpha, gain_margin_db=dm.gain_margin_db,
                     phase_margin_deg=dm.phase_margin_deg, frequency_rad_s=dm.frequency_rad_s,
                     stable=dm.stable, skew=dm.sigma,
+                    design=dataclasses.replace(design, controller=controller, compensator=comp),
                 ))
     return rows

@@ -177,3 +177,29 @@ def test_fig6_table_rejects_unknown_observer_and_environment():
         fig6_table(observers=("magic",))
     with pytest.raises(ParameterError, match="unknown environment"):
         fig6_table(environments=("mud",), observers=("none",))
+
+
+def test_fig6_rows_say_what_they_assumed_and_it_is_what_was_analysed():
+    """Each row's ``assumed`` names the testbed, environment values, controller and compensator of its disk;
+    the loop rebuilt from that record alone by the ``margins`` path gives the row's alpha."""
+    from forecast_design.analysis import analyse_loop
+    from forecast_design.controllers import controller_from_mapping
+    from forecast_design.params import Compensator, Design, Environment, Testbed
+    from forecast_design.reproduce import fig6_table
+
+    rows = fig6_table(environments="soft", testbed="k=40", controller="pid:2:3:0.05", w_q_hz=(4.0,),
+                      observers=("none", "lo-dob"))
+    assert len(rows) == 2
+    for row in rows:
+        m = row.to_mapping()
+        a = m["assumed"]
+        assert a["design"]["testbed"]["k"] == 40.0 and a["design"]["controller"]["kind"] == "pid"
+        assert a["break_at"] == "controller" and a["loop"] == "continuous"
+        d = a["design"]
+        comp = Compensator.from_mapping(d["compensator"]) if "compensator" in d else None
+        assert (comp is None) == (row.observer == "none") and (comp is None or comp.w_q_hz == 4.0)
+        assert (a["q_family"], a["q_order"]) == ((None, None) if comp is None else ("butterworth", 2))
+        design = Design(testbed=Testbed.from_mapping(d["testbed"]),
+                        environment=Environment.from_mapping(d["environment"]))
+        again = analyse_loop(design, comp, controller=controller_from_mapping(d["controller"]))
+        assert again.disk.alpha == pytest.approx(m["alpha"], rel=1e-9)
