@@ -638,3 +638,16 @@ def test_the_firmware_export_measures_a_c_controller_against_the_cycle_budget(tm
     assert cyc["verdict"] == "warning" and 0.5 < cyc["max_budget_fraction"] < 1.0
     assert cyc["max_abs_diff_vs_host"] == 0.0
     assert "fd_user.c" in json.loads(p.stdout)["files"]
+
+
+def test_a_python_controller_acts_on_the_torque_sensors_reading_like_the_compiled_one(tmp_path):
+    # the code loop's measurement is the simulator's: with a torque sensor, the true spring torque plus its noise;
+    # a P controller written as code then gives the compiled P's run (both in float64)
+    src = _write(tmp_path, "p.py", "class P:\n    def reset(self, *a): pass\n"
+                                   "    def step(self, t, tau_r, tau_s, theta, q): return 5.0 * (tau_r - tau_s)\n")
+    kw = dict(reference=Step(amplitude=0.2), duration_s=0.2, seed=3, torque_sensor_noise_std=2e-3)
+    code = simulate(_design(PythonController(source=str(src), class_name="P")), **kw)
+    compiled = simulate(_design(resolve_controller("pd:5:0")), **kw)
+    assert 1.5e-3 < np.std(code.tau_s - code.truth.tau_s) < 2.5e-3
+    np.testing.assert_allclose(code.tau_m, compiled.tau_m, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(code.tau_s, compiled.tau_s, rtol=1e-12, atol=1e-12)

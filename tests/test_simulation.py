@@ -7,6 +7,7 @@ import control
 import numpy as np
 import pytest
 import tomli_w
+from scipy import stats
 
 from forecast_design.effects import (
     Backlash,
@@ -484,3 +485,39 @@ def test_plots_write_png_files(tmp_path):
     import matplotlib.pyplot as plt
 
     plt.close("all")
+
+
+def test_a_torque_sensor_reads_the_true_spring_torque_plus_white_noise():
+    # a backlash makes the true spring torque differ from k (theta - q): the sensor reads the spring, not the encoders
+    width, std = 2e-3, 3e-3
+    kw = dict(reference=Sine(amplitude=0.2, frequency_hz=2.0), duration_s=2.0, closed_loop=False,
+              effects=[Backlash(width_rad=width)], seed=4)
+    r = simulate(Design.nominal("locked"), torque_sensor_noise_std=std, **kw)
+    e = r.tau_s - r.truth.tau_s
+    n = e.size
+    assert abs(e.mean()) < 4.0 * std / np.sqrt(n)
+    assert stats.chi2.ppf(1e-4, n - 1) < (n - 1) * e.var(ddof=1) / std ** 2 < stats.chi2.ppf(1 - 1e-4, n - 1)
+    assert abs(np.corrcoef(e[:-1], e[1:])[0, 1]) < 4.0 / np.sqrt(n)        # white
+    # open loop: the sensor changes nothing the plant does; the process noise is drawn as before
+    plain = simulate(Design.nominal("locked"), **kw)
+    np.testing.assert_array_equal(r.theta, plain.theta)
+    np.testing.assert_array_equal(r.truth.tau_s, plain.truth.tau_s)
+    exact = simulate(Design.nominal("locked"), torque_sensor_noise_std=0.0, **kw)
+    np.testing.assert_array_equal(exact.tau_s, exact.truth.tau_s)
+    assert r.options["torque_sensor_noise_std"] == std and plain.options["torque_sensor_noise_std"] is None
+    assert not r.to_experiment().signals.tau_s_derived
+
+
+def test_a_torque_sensor_in_the_loop_feeds_its_noise_back():
+    # closed loop: the PD acts on the sensor's reading, so the motor torque carries -P times its noise
+    kw = dict(reference=Step(amplitude=0.2), duration_s=0.5, seed=2, process_noise_std=0.0, encoder_counts=None)
+    design = Design.nominal("locked", controller=PD(P=5.0, D=0.0))
+    quiet = simulate(design, torque_sensor_noise_std=0.0, **kw)
+    noisy = simulate(design, torque_sensor_noise_std=1e-3, **kw)
+    sens = noisy.tau_s - noisy.truth.tau_s
+    assert 0.9e-3 < sens.std() < 1.1e-3 and not np.array_equal(noisy.tau_m, quiet.tau_m)
+    # the P controller acted on the sensor's reading, its noise included
+    np.testing.assert_allclose(noisy.tau_m, 5.0 * (noisy.tau_r - noisy.tau_s), rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(quiet.tau_m, 5.0 * (quiet.tau_r - quiet.truth.tau_s), rtol=1e-12, atol=1e-15)
+    with pytest.raises(ParameterError, match="torque_sensor_noise_std"):
+        simulate(design, torque_sensor_noise_std=-1e-3, **kw)

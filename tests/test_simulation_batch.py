@@ -160,3 +160,13 @@ def test_simulate_verb_writes_every_repetition_as_the_batch_computes_it(tmp_path
         assert (tmp_path / f"run_{i:03d}.truth.csv").is_file()
     assert main(["simulate", str(scenario), "--out", str(tmp_path / "x.toml"), "--repetitions", "4"]) == 2
     assert "--repetitions must be 'all' or an integer in 1..3" in capsys.readouterr().err
+
+
+def test_a_batch_with_a_torque_sensor_equals_simulate_bit_for_bit():
+    runs = _runs()[:3]
+    batch = simulate_batch(runs, duration_s=0.2, reference=REF, torque_sensor_noise_std=2e-3)
+    for i, run in enumerate(runs):
+        single = simulate(run.design, reference=run.reference or REF, duration_s=0.2, effects=run.effects,
+                          seed=run.seed, initial_angle=run.initial_angle, torque_sensor_noise_std=2e-3)
+        _assert_same(batch.result(i), single)
+        assert 1e-3 < np.std(single.tau_s - single.truth.tau_s) < 3e-3

@@ -79,7 +79,8 @@ from ..params import Design, Environment
 # IR-inlined: LLVM inlines the scalar ones (_rhs, _level, stribeck_level) as well, and inlining
 # them in numba's IR too multiplied the first compile by 2.5 (25 s against 10 s per kernel) for no
 # measurable speed (benchmarks/RESULTS.md, "Plant kernel: compile time").
-_INLINE = {"_substep": "always", "_unpack": "always", "advance_period": "always", "_angle_terms": "always"}
+_INLINE = {"_substep": "always", "_unpack": "always", "advance_period": "always", "_angle_terms": "always",
+           "spring_torque": "always"}
 
 def _njit(func):
     return njit(func, inline=_INLINE.get(func.__name__, "never"))
@@ -89,7 +90,7 @@ def _njit(func):
 _stribeck_level = _njit(stribeck_level)
 
 __all__ = ["PlantModel", "PlantStepper", "build_plant", "stability_check", "rk4_growth", "integrate_open_loop",
-           "advance_period", "history_length", "HAVE_NUMBA"]
+           "advance_period", "history_length", "spring_torque", "HAVE_NUMBA"]
 
 # Indices into the packed float parameter vector of the kernels.
 I_JM, I_DM, I_K, I_MODE, I_J, I_D, I_KE, I_BL = 0, 1, 2, 3, 4, 5, 6, 7
@@ -434,24 +435,28 @@ def _level(x1, c, fsh, lvs):
 
 
 @_njit
-def _rhs(x0, x1, x2, x3, x4, tau, c, pos, cog, g, qs):
-    """Derivatives and (tau_frc, tau_s) at one state.
-
-    ``c`` from :func:`_unpack`; ``pos, cog`` at this state from :func:`_angle_terms` and ``g`` from :func:`_level`;
-    ``qs``: quasi-steady bristle.
-    """
-    # spring with optional backlash dead band
-    delta = x0 - x2
-    bl = c[I_BL]
+def spring_torque(delta, k, bl, blc):
+    """The spring torque [N m] at deflection ``delta = theta - q`` [rad]: ``k`` [N m/rad], with a backlash dead
+    band of half-width ``bl`` [rad] centred on ``blc`` [rad] (none when ``bl`` is 0)."""
     if bl > 0.0:
-        delta = delta - c[I_BLC]
+        delta = delta - blc
         if delta > bl:
             delta = delta - bl
         elif delta < -bl:
             delta = delta + bl
         else:
             delta = 0.0
-    tau_s = c[I_K] * delta
+    return k * delta
+
+
+@_njit
+def _rhs(x0, x1, x2, x3, x4, tau, c, pos, cog, g, qs):
+    """Derivatives and (tau_frc, tau_s) at one state.
+
+    ``c`` from :func:`_unpack`; ``pos, cog`` at this state from :func:`_angle_terms` and ``g`` from :func:`_level`;
+    ``qs``: quasi-steady bristle.
+    """
+    tau_s = spring_torque(x0 - x2, c[I_K], c[I_BL], c[I_BLC])
     w = x1
     frc = c[I_DM] * w
     if c[I_CFC] > 0.0:
