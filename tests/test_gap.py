@@ -606,3 +606,21 @@ def test_bristle_stiffness_at_the_grid_end_is_judged_by_the_fitted_breakaway_lev
     # the friction level, F_s / sigma0 is
     d = diagnose(_gain_log(fx.Stiction(), "exp-soft", 2.0, 0.3, "square").to_experiment(), joint=False)
     assert d.effect is Effect.STICTION
+
+
+@pytest.mark.parametrize("std, counts", [(1e-3, 2_000_000), (4e-3, 16_384)])
+def test_a_torque_sensors_noise_is_read_from_the_log_whatever_the_encoders(std, counts):
+    # the replicas of a closed loop need the noise its controller fed back: a sensor's, read from tau_s alone
+    # (14-bit encoders put 12 mN m of quantisation into k (theta - q), three times the noise sought)
+    from forecast_design.gap.replicas import sensor_noise_std
+    from forecast_design.gap.residuals import prepare_gap_data
+    from forecast_design.simulation import Square, simulate
+
+    run = simulate(Design.nominal("exp-soft"), reference=Square(high=0.4, low=-0.4, period_s=0.5), duration_s=4.0,
+                   encoder_counts=counts, torque_sensor_noise_std=std, seed=5)
+    data = prepare_gap_data(run.to_experiment())
+    assert data.tau_s_measured
+    assert sensor_noise_std(data) == pytest.approx(std, rel=0.1)
+    derived = simulate(Design.nominal("exp-soft"), reference=Square(high=0.4, low=-0.4, period_s=0.5),
+                       duration_s=4.0, encoder_counts=counts, seed=5)
+    assert sensor_noise_std(prepare_gap_data(derived.to_experiment())) is None

@@ -108,8 +108,9 @@ from .isolability import Isolability, isolability
 from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
+from .replicas import LoopNoiseCheck, loop_noise_check
 from ..plausibility import ParameterStatus
-from .grading import explainable_reduction, explained_rms, noise_floor, weak_is_distinct
+from .grading import explained_rms, noise_floor, own_reduction, weak_is_distinct
 from .structures import _FRICTION
 from .heldout import (NESTED_ALPHA, breakaway_proven_at_rest, candidate_levels, correlation_length, effect_held_out_test,
                       held_out_test, verdict_ties, richer_law_justified, richer_law_resolved, test_units)
@@ -277,6 +278,9 @@ class Diagnosis:
         What the verdict's re-calibration, held on its bounds, hid of its standard deviations
         (:func:`.identifiability.calibration_freedom`), in their units; already in them (JSON
         ``verdict.std_calibration_bound``; empty when no calibrated value is on its bound).
+    loop_noise : LoopNoiseCheck or None
+        A weak candidate on a closed-loop log ranked among effect-free replicas of the loop
+        (:func:`.replicas.loop_noise_check`; JSON ``loop_noise``); None when none was made.
     """
 
     effect: Effect
@@ -300,6 +304,7 @@ class Diagnosis:
     grade: str = "clear"
     method_shift: Mapping[str, float] = field(default_factory=dict)
     calibration_freedom: Mapping[str, float] = field(default_factory=dict)
+    loop_noise: LoopNoiseCheck | None = None
 
     @property
     def identified(self) -> bool:
@@ -335,6 +340,7 @@ class Diagnosis:
             ``gap_after`` with both effects [N m], ``reduction`` of both relative to
             ``gap_before``; null when no second effect counts) and ``calibration`` (the
             re-calibrated nominal values with ``at_bound`` flags; without an interval, so never ``identified``).
+            ``loop_noise``: a weak candidate's rank among effect-free replicas of a closed loop, or null.
         """
         loc = self.location.to_mapping()
         loc["summary"] = self.summary
@@ -361,6 +367,7 @@ class Diagnosis:
             "location": loc,
             "ranking": [r.to_mapping() for r in self.ranking],
             "caveats": list(self.caveats),
+            "loop_noise": None if self.loop_noise is None else self.loop_noise.to_mapping(),
         }
         if self.isolability is not None:
             out["isolability"] = self.isolability.to_mapping()
@@ -497,22 +504,13 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     alphas = candidate_levels(data, fits, opts.alpha)
     gap0 = base.gap_held_out
     ranked = []
-    held_rows = data.stacked(data.held_out)
     floor = noise_floor(data)
     in_band_only: set[Effect] = set()
     for fit, alpha_fit in zip(fits, alphas):
         red = 1.0 - fit.gap_held_out / gap0 if gap0 > 0 else 0.0
-        # judged on the equations where the effect acts: a quiet equation's gap is not diluted by
-        # another equation's noise (an environment mismatch next to a noisy motor equation), and on the
-        # part of it above the encoders' quantisation, which no effect explains (grading.noise_floor)
         own = effect_rows(data, fit)
-        red_own = explainable_reduction(base, fit, held_rows & own, floor)
-        # below the motor's torque accuracy: not an effect; nor a dead band explaining less than the quantisation of
-        # the spring torque it acts on (an effect-free 16-bit square: 0.7 of it, true dead bands at least 1.5)
-        accuracy = data.environment_torque_accuracy if fit.effect is Effect.ENVIRONMENT_MISMATCH else \
-            max(data.torque_accuracy, data.spring_torque_quantisation if fit.effect is Effect.BACKLASH else 0.0)
-        explained = explained_rms(base, fit, held_rows & own)
-        counted = red_own if explained >= accuracy else 0.0
+        mine = own_reduction(data, base, fit, floor)
+        red_own, explained, accuracy, counted = mine.reduction, mine.explained_rms, mine.accuracy, mine.counted
         all_units = test_units(data, fit)
         p = effect_held_out_test(data, base, fit, units=all_units, floor=floor)
         # and the total gap, all equations, must drop by the same test (an environment mismatch explaining its quiet
@@ -637,6 +635,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             ranked.remove(winner)
             ranked.insert(0, winner)
     grade = "none" if winner is None else "clear"
+    loop_noise = None
     if winner is None:
         # an effect the log resolves (held-out test, identified, the torque accuracy, the total gap lowered)
         # but that explains less than min_reduction: the verdict, graded weak
@@ -653,13 +652,19 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                 # as a clear one: with coulomb not resolved, its extra terms must be (an effect-free 14-bit square:
                 # the Coulomb level the quantisation, F_s 0.10 +- 0.14 N m, a weak stiction)
                 weak.pop(0)
-        if weak:
+        # in a closed loop, only what stands above the loop's own answer to its sensors' noise (.replicas)
+        loop_noise = loop_noise_check(data, base, by_effect[str(weak[0].effect)]) if weak else None
+        if loop_noise is not None and not loop_noise.distinct:
+            caveats.append(loop_noise.caveat())
+        elif weak:
             winner, grade = weak[0], "weak"
             ranked.remove(winner)
             ranked.insert(0, winner)
             caveats.append(f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above "
                            f"the encoders' noise floor, below the {100 * opts.min_reduction:g} % of a clear verdict, "
-                           f"but passes the held-out test (p = {winner.p_value:.2g}) and is identified.")
+                           f"but passes the held-out test (p = {winner.p_value:.2g}) and is identified"
+                           + ("." if loop_noise is None else f", above every one of {len(loop_noise.replicas)} "
+                              "effect-free replicas of its closed loop."))
     if winner is not None and winner.effect is Effect.STICTION and str(Effect.COULOMB) in by_effect \
             and breakaway_proven_at_rest(data, by_effect[str(Effect.COULOMB)]):
         caveats.append("Stiction over coulomb: while the encoder read one count the motor held net torques that would "
@@ -698,7 +703,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
                      replay=replay, isolability=iso, calibration=calibration_status(data, base, viscous=True), grade=grade,
-                     method_shift=shift, calibration_freedom=freed)
+                     method_shift=shift, calibration_freedom=freed, loop_noise=loop_noise)
 
 
 def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[RankedCandidate],

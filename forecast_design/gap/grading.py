@@ -24,18 +24,19 @@ The same floor bounds what a friction law explains where the motor is at rest
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..effects import Effect
-from .candidates import CandidateFit, fit_constant_torque
+from .candidates import CandidateFit, effect_rows, fit_constant_torque
 from .identifiability import calibration_status
 from .isolability import CALIBRATION, Isolability
 from .residuals import GapData
 
 __all__ = ["noise_floor", "floor_rms", "held_at_rest", "explainable_reduction", "explained_rms", "GRADES", "weak_is_distinct",
-           "CONSTANT_TORQUE_SHARE"]
+           "CONSTANT_TORQUE_SHARE", "OwnReduction", "own_reduction"]
 
 #: Grades of a verdict: an effect that removes ``min_reduction`` of the explainable gap, one the log
 #: resolves but that explains less, or no effect.
@@ -151,6 +152,42 @@ def explainable_reduction(reference: CandidateFit, candidate: CandidateFit, rows
     if a2 <= 0.0:
         return 0.0
     return float(min(max(1.0 - math.sqrt(max(b2, 0.0) / a2), 0.0), 1.0))
+
+
+@dataclass(frozen=True, slots=True)
+class OwnReduction:
+    """What a candidate removes on the held-out rows of its own equations.
+
+    ``reduction``: the explainable reduction there [-]; ``explained_rms``: the torque it explains [N m];
+    ``accuracy``: the torque below which it is no effect [N m] (the motor's torque accuracy; the
+    environment's for an environment mismatch; at least the spring torque's quantisation for a backlash).
+    """
+
+    reduction: float
+    explained_rms: float
+    accuracy: float
+
+    @property
+    def counted(self) -> float:
+        """The reduction that counts: zero when the torque explained is below the accuracy [-]."""
+        return self.reduction if self.explained_rms >= self.accuracy else 0.0
+
+
+def own_reduction(data: GapData, reference: CandidateFit, candidate: CandidateFit,
+                  floor: np.ndarray) -> OwnReduction:
+    """:class:`OwnReduction` of a candidate over the reference on the held-out rows of the candidate's equations.
+
+    Judged where the effect acts, a quiet equation's gap is not diluted by another equation's noise
+    (an environment mismatch next to a noisy motor equation), and above the encoders' quantisation
+    (:func:`noise_floor`), which no effect explains.
+    """
+    rows = data.stacked(data.held_out) & effect_rows(data, candidate)
+    # below the motor's torque accuracy: not an effect; nor a dead band explaining less than the quantisation of
+    # the spring torque it acts on (an effect-free 16-bit square: 0.7 of it, true dead bands at least 1.5)
+    accuracy = data.environment_torque_accuracy if candidate.effect is Effect.ENVIRONMENT_MISMATCH else \
+        max(data.torque_accuracy, data.spring_torque_quantisation if candidate.effect is Effect.BACKLASH else 0.0)
+    return OwnReduction(reduction=explainable_reduction(reference, candidate, rows, floor),
+                        explained_rms=explained_rms(reference, candidate, rows), accuracy=accuracy)
 
 
 def explained_rms(reference: CandidateFit, candidate: CandidateFit, rows: np.ndarray) -> float:
