@@ -33,6 +33,7 @@ from forecast_design.export.toolchain import find_tools
 from forecast_design.params import Compensator, Design
 from forecast_design.simulation.code import code_runner
 from forecast_design.simulation.references import Step
+from forecast_design.simulation import TorqueSensor
 from forecast_design.simulation.run import simulate
 
 EXAMPLE_PY = "forecast_design.controllers.examples.gain_scheduled_pid:GainScheduledPID"
@@ -645,7 +646,7 @@ def test_a_python_controller_acts_on_the_torque_sensors_reading_like_the_compile
     # a P controller written as code then gives the compiled P's run (both in float64)
     src = _write(tmp_path, "p.py", "class P:\n    def reset(self, *a): pass\n"
                                    "    def step(self, t, tau_r, tau_s, theta, q): return 5.0 * (tau_r - tau_s)\n")
-    kw = dict(reference=Step(amplitude=0.2), duration_s=0.2, seed=3, torque_sensor_noise_std=2e-3)
+    kw = dict(reference=Step(amplitude=0.2), duration_s=0.2, seed=3, torque_sensor=TorqueSensor(noise_std_N_m=2e-3))
     code = simulate(_design(PythonController(source=str(src), class_name="P")), **kw)
     compiled = simulate(_design(resolve_controller("pd:5:0")), **kw)
     assert 1.5e-3 < np.std(code.tau_s - code.truth.tau_s) < 2.5e-3

@@ -614,10 +614,10 @@ def test_a_torque_sensors_noise_is_read_from_the_log_whatever_the_encoders(std, 
     # (14-bit encoders put 12 mN m of quantisation into k (theta - q), three times the noise sought)
     from forecast_design.gap.replicas import sensor_noise_std
     from forecast_design.gap.residuals import prepare_gap_data
-    from forecast_design.simulation import Square, simulate
+    from forecast_design.simulation import Square, TorqueSensor, simulate
 
     run = simulate(Design.nominal("exp-soft"), reference=Square(high=0.4, low=-0.4, period_s=0.5), duration_s=4.0,
-                   encoder_counts=counts, torque_sensor_noise_std=std, seed=5)
+                   encoder_counts=counts, torque_sensor=TorqueSensor(noise_std_N_m=std), seed=5)
     data = prepare_gap_data(run.to_experiment())
     assert data.tau_s_measured
     assert sensor_noise_std(data) == pytest.approx(std, rel=0.1)

@@ -32,6 +32,7 @@ from forecast_design.simulation import (
     Sine,
     Square,
     Step,
+    TorqueSensor,
     build_plant,
     integrate_open_loop,
     reference_from_mapping,
@@ -487,13 +488,14 @@ def test_plots_write_png_files(tmp_path):
     plt.close("all")
 
 
-def test_a_torque_sensor_reads_the_true_spring_torque_plus_white_noise():
+def test_a_torque_sensor_reads_the_true_spring_torque_with_its_gain_zero_and_white_noise():
     # a backlash makes the true spring torque differ from k (theta - q): the sensor reads the spring, not the encoders
-    width, std = 2e-3, 3e-3
+    width, std, gain, zero = 2e-3, 3e-3, 1.05, -0.02
     kw = dict(reference=Sine(amplitude=0.2, frequency_hz=2.0), duration_s=2.0, closed_loop=False,
               effects=[Backlash(width_rad=width)], seed=4)
-    r = simulate(Design.nominal("locked"), torque_sensor_noise_std=std, **kw)
-    e = r.tau_s - r.truth.tau_s
+    sensor = TorqueSensor(noise_std_N_m=std, gain=gain, offset_N_m=zero)
+    r = simulate(Design.nominal("locked"), torque_sensor=sensor, **kw)
+    e = r.tau_s - (gain * r.truth.tau_s + zero)
     n = e.size
     assert abs(e.mean()) < 4.0 * std / np.sqrt(n)
     assert stats.chi2.ppf(1e-4, n - 1) < (n - 1) * e.var(ddof=1) / std ** 2 < stats.chi2.ppf(1 - 1e-4, n - 1)
@@ -502,9 +504,9 @@ def test_a_torque_sensor_reads_the_true_spring_torque_plus_white_noise():
     plain = simulate(Design.nominal("locked"), **kw)
     np.testing.assert_array_equal(r.theta, plain.theta)
     np.testing.assert_array_equal(r.truth.tau_s, plain.truth.tau_s)
-    exact = simulate(Design.nominal("locked"), torque_sensor_noise_std=0.0, **kw)
+    exact = simulate(Design.nominal("locked"), torque_sensor=TorqueSensor(), **kw)
     np.testing.assert_array_equal(exact.tau_s, exact.truth.tau_s)
-    assert r.options["torque_sensor_noise_std"] == std and plain.options["torque_sensor_noise_std"] is None
+    assert r.options["torque_sensor"] == sensor.to_mapping() and plain.options["torque_sensor"] is None
     assert not r.to_experiment().signals.tau_s_derived
 
 
@@ -512,12 +514,15 @@ def test_a_torque_sensor_in_the_loop_feeds_its_noise_back():
     # closed loop: the PD acts on the sensor's reading, so the motor torque carries -P times its noise
     kw = dict(reference=Step(amplitude=0.2), duration_s=0.5, seed=2, process_noise_std=0.0, encoder_counts=None)
     design = Design.nominal("locked", controller=PD(P=5.0, D=0.0))
-    quiet = simulate(design, torque_sensor_noise_std=0.0, **kw)
-    noisy = simulate(design, torque_sensor_noise_std=1e-3, **kw)
+    quiet = simulate(design, torque_sensor=TorqueSensor(noise_std_N_m=0.0), **kw)
+    noisy = simulate(design, torque_sensor=TorqueSensor(noise_std_N_m=1e-3), **kw)
     sens = noisy.tau_s - noisy.truth.tau_s
     assert 0.9e-3 < sens.std() < 1.1e-3 and not np.array_equal(noisy.tau_m, quiet.tau_m)
     # the P controller acted on the sensor's reading, its noise included
     np.testing.assert_allclose(noisy.tau_m, 5.0 * (noisy.tau_r - noisy.tau_s), rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(quiet.tau_m, 5.0 * (quiet.tau_r - quiet.truth.tau_s), rtol=1e-12, atol=1e-15)
-    with pytest.raises(ParameterError, match="torque_sensor_noise_std"):
-        simulate(design, torque_sensor_noise_std=-1e-3, **kw)
+    for bad in (dict(noise_std_N_m=-1e-3), dict(gain=0.0), dict(offset_N_m=float("nan"))):
+        with pytest.raises(ParameterError, match=f"TorqueSensor {next(iter(bad))}"):
+            TorqueSensor(**bad)
+    with pytest.raises(ParameterError, match="torque_sensor must be a TorqueSensor"):
+        simulate(design, torque_sensor=1e-3, **kw)

@@ -8,7 +8,7 @@ from forecast_design.environments import environment_preset
 from forecast_design.errors import ParameterError
 from forecast_design.controllers import PD
 from forecast_design.params import Compensator, Design
-from forecast_design.simulation import Sine, Square, simulate
+from forecast_design.simulation import Sine, Square, TorqueSensor, simulate
 from forecast_design.simulation.batch import MEASURED, TRUE, BatchRun, simulate_batch, simulate_scenario
 from forecast_design.simulation.scenario import Variability, scenario_from_mapping
 
@@ -164,9 +164,10 @@ def test_simulate_verb_writes_every_repetition_as_the_batch_computes_it(tmp_path
 
 def test_a_batch_with_a_torque_sensor_equals_simulate_bit_for_bit():
     runs = _runs()[:3]
-    batch = simulate_batch(runs, duration_s=0.2, reference=REF, torque_sensor_noise_std=2e-3)
+    sensor = TorqueSensor(noise_std_N_m=2e-3, gain=0.95, offset_N_m=0.01)
+    batch = simulate_batch(runs, duration_s=0.2, reference=REF, torque_sensor=sensor)
     for i, run in enumerate(runs):
         single = simulate(run.design, reference=run.reference or REF, duration_s=0.2, effects=run.effects,
-                          seed=run.seed, initial_angle=run.initial_angle, torque_sensor_noise_std=2e-3)
+                          seed=run.seed, initial_angle=run.initial_angle, torque_sensor=sensor)
         _assert_same(batch.result(i), single)
-        assert 1e-3 < np.std(single.tau_s - single.truth.tau_s) < 3e-3
+        assert 1e-3 < np.std(single.tau_s - 0.95 * single.truth.tau_s) < 3e-3

@@ -108,7 +108,7 @@ from .isolability import Isolability, isolability
 from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
-from .replicas import LoopNoiseCheck, loop_noise_check
+from .replicas import ReplicaCheck, replica_check
 from ..plausibility import ParameterStatus
 from .grading import explained_rms, noise_floor, own_reduction, weak_is_distinct
 from .structures import _FRICTION
@@ -278,9 +278,10 @@ class Diagnosis:
         What the verdict's re-calibration, held on its bounds, hid of its standard deviations
         (:func:`.identifiability.calibration_freedom`), in their units; already in them (JSON
         ``verdict.std_calibration_bound``; empty when no calibrated value is on its bound).
-    loop_noise : LoopNoiseCheck or None
-        A weak candidate on a closed-loop log ranked among effect-free replicas of the loop
-        (:func:`.replicas.loop_noise_check`; JSON ``loop_noise``); None when none was made.
+    replicas : ReplicaCheck or None
+        A weak verdict's candidate, or a clear one removing less than ``min_reduction`` of the total
+        gap, ranked among effect-free replicas of the log (:func:`.replicas.replica_check`; JSON
+        ``replicas``); None when none was made.
     """
 
     effect: Effect
@@ -304,7 +305,7 @@ class Diagnosis:
     grade: str = "clear"
     method_shift: Mapping[str, float] = field(default_factory=dict)
     calibration_freedom: Mapping[str, float] = field(default_factory=dict)
-    loop_noise: LoopNoiseCheck | None = None
+    replicas: ReplicaCheck | None = None
 
     @property
     def identified(self) -> bool:
@@ -340,7 +341,7 @@ class Diagnosis:
             ``gap_after`` with both effects [N m], ``reduction`` of both relative to
             ``gap_before``; null when no second effect counts) and ``calibration`` (the
             re-calibrated nominal values with ``at_bound`` flags; without an interval, so never ``identified``).
-            ``loop_noise``: a weak candidate's rank among effect-free replicas of a closed loop, or null.
+            ``replicas``: a small verdict's rank among effect-free replicas of the log, or null.
         """
         loc = self.location.to_mapping()
         loc["summary"] = self.summary
@@ -367,7 +368,7 @@ class Diagnosis:
             "location": loc,
             "ranking": [r.to_mapping() for r in self.ranking],
             "caveats": list(self.caveats),
-            "loop_noise": None if self.loop_noise is None else self.loop_noise.to_mapping(),
+            "replicas": None if self.replicas is None else self.replicas.to_mapping(),
         }
         if self.isolability is not None:
             out["isolability"] = self.isolability.to_mapping()
@@ -634,8 +635,14 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                 winner, secondary = alone, dataclasses.replace(secondary, effect=winner.effect)
             ranked.remove(winner)
             ranked.insert(0, winner)
+    replicas = None
+    if winner is not None and secondary is None and winner.reduction < opts.min_reduction:
+        # clear only above the encoders' floor: it must stand above what the sensors alone produce (.replicas)
+        replicas = replica_check(data, base, by_effect[str(winner.effect)])
+        if replicas is not None and not replicas.distinct:
+            caveats.append(replicas.caveat())
+            winner = None
     grade = "none" if winner is None else "clear"
-    loop_noise = None
     if winner is None:
         # an effect the log resolves (held-out test, identified, the torque accuracy, the total gap lowered)
         # but that explains less than min_reduction: the verdict, graded weak
@@ -652,10 +659,10 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                 # as a clear one: with coulomb not resolved, its extra terms must be (an effect-free 14-bit square:
                 # the Coulomb level the quantisation, F_s 0.10 +- 0.14 N m, a weak stiction)
                 weak.pop(0)
-        # in a closed loop, only what stands above the loop's own answer to its sensors' noise (.replicas)
-        loop_noise = loop_noise_check(data, base, by_effect[str(weak[0].effect)]) if weak else None
-        if loop_noise is not None and not loop_noise.distinct:
-            caveats.append(loop_noise.caveat())
+        # only what stands above what the sensors alone produce (.replicas)
+        replicas = replica_check(data, base, by_effect[str(weak[0].effect)]) if weak else replicas
+        if weak and replicas is not None and not replicas.distinct:
+            caveats.append(replicas.caveat())
         elif weak:
             winner, grade = weak[0], "weak"
             ranked.remove(winner)
@@ -663,8 +670,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             caveats.append(f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above "
                            f"the encoders' noise floor, below the {100 * opts.min_reduction:g} % of a clear verdict, "
                            f"but passes the held-out test (p = {winner.p_value:.2g}) and is identified"
-                           + ("." if loop_noise is None else f", above every one of {len(loop_noise.replicas)} "
-                              "effect-free replicas of its closed loop."))
+                           + ("." if replicas is None else f", above every one of {len(replicas.replicas)} "
+                              "effect-free replicas of the log."))
     if winner is not None and winner.effect is Effect.STICTION and str(Effect.COULOMB) in by_effect \
             and breakaway_proven_at_rest(data, by_effect[str(Effect.COULOMB)]):
         caveats.append("Stiction over coulomb: while the encoder read one count the motor held net torques that would "
@@ -703,7 +710,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                      metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
                      replay=replay, isolability=iso, calibration=calibration_status(data, base, viscous=True), grade=grade,
-                     method_shift=shift, calibration_freedom=freed, loop_noise=loop_noise)
+                     method_shift=shift, calibration_freedom=freed, replicas=replicas)
 
 
 def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[RankedCandidate],

@@ -1,6 +1,6 @@
 """The virtual testbed: true plant with unmodelled effects, 2 kHz controllers, references, runs, scenarios."""
 
-from .plant import PlantModel, PlantStepper, build_plant, integrate_open_loop, stability_check
+from .plant import PlantModel, PlantStepper, TorqueSensor, build_plant, integrate_open_loop, stability_check
 from .references import (
     REFERENCE_KINDS,
     Chirp,
@@ -23,6 +23,7 @@ __all__ = [
     "ENCODER_COUNTS",
     "PlantModel",
     "PlantStepper",
+    "TorqueSensor",
     "plant_stepper",
     "build_plant",
     "integrate_open_loop",

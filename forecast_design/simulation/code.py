@@ -304,7 +304,7 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
     x = np.zeros(5)
     # the compiled period's arguments after the controller's output: the plant, the program, the logs
     period_args = (prep.substeps, int(prep.plant.delay_substeps), prep.arrays["p"], prep.arrays["harm"], x,
-                   prep.enc_step, prep.arrays["noise"], prep.k_nominal, prep.arrays["sens"],
+                   prep.enc_step, prep.arrays["noise"], prep.k_nominal, prep.arrays["sens"], prep.sensor_gain,
                    *(np.array(a, order="C") for a in packed.arrays()), state, mem, meas, truth,
                    np.zeros(history_length(prep.substeps, prep.plant.delay_substeps)), np.zeros(2))
     runner.reset(rate, prep.ran.testbed, prep.ran.environment)
@@ -318,7 +318,8 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
 
     def loop() -> None:
         step, monotonic, period = runner.step, time.monotonic, _code_period
-        th, qq, tau_s = _sensors(x, 0, prep.enc_step, prep.k_nominal, prep.arrays["p"], prep.arrays["sens"])
+        th, qq, tau_s = _sensors(x, 0, prep.enc_step, prep.k_nominal, prep.arrays["p"], prep.arrays["sens"],
+                                 prep.sensor_gain)
         lock.acquire()
         try:
             for k in range(n):
@@ -383,7 +384,8 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
     fault = shared["fault"]
     # after a fault: zero torque to the end of the log, the plant running on (the firmware's safe stop)
     k = shared["k"]
-    th, qq, tau_s = _sensors(x, k, prep.enc_step, prep.k_nominal, prep.arrays["p"], prep.arrays["sens"])
+    th, qq, tau_s = _sensors(x, k, prep.enc_step, prep.k_nominal, prep.arrays["p"], prep.arrays["sens"],
+                             prep.sensor_gain)
     for k in range(shared["k"], n):
         th, qq, tau_s = _code_period(k, th, qq, tau_s, 0.0, 0.0, True, *period_args)
     return fault

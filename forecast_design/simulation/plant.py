@@ -89,7 +89,7 @@ def _njit(func):
 # The friction laws' one definition, compiled for the scalar kernels.
 _stribeck_level = _njit(stribeck_level)
 
-__all__ = ["PlantModel", "PlantStepper", "build_plant", "stability_check", "rk4_growth", "integrate_open_loop",
+__all__ = ["PlantModel", "PlantStepper", "TorqueSensor", "build_plant", "stability_check", "rk4_growth", "integrate_open_loop",
            "advance_period", "history_length", "spring_torque", "HAVE_NUMBA"]
 
 # Indices into the packed float parameter vector of the kernels.
@@ -109,6 +109,44 @@ MODE_LOCKED, MODE_INERTIAL, MODE_FIRST_ORDER = 0.0, 1.0, 2.0
 QS_THRESHOLD = 2.0
 #: RK4 real-axis stability limit (root of 1 + x + x^2/2 + x^3/6 + x^4/24 = +-1).
 RK4_REAL_LIMIT = 2.785293563405282
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class TorqueSensor:
+    """A torque sensor in the spring: its reading is ``gain`` times the true spring torque, plus ``offset_N_m``
+    and white noise of std ``noise_std_N_m`` per sample.
+
+    Parameters
+    ----------
+    noise_std_N_m : float
+        Std of the white noise [N m] (>= 0).
+    gain : float
+        Scale of the reading [-] (> 0; a datasheet's few per cent off 1).
+    offset_N_m : float
+        Zero of the reading [N m].
+
+    Examples
+    --------
+    >>> TorqueSensor(noise_std_N_m=0.002, gain=1.05).to_mapping()
+    {'noise_std_N_m': 0.002, 'gain': 1.05, 'offset_N_m': 0.0}
+    """
+
+    noise_std_N_m: float = 0.0
+    gain: float = 1.0
+    offset_N_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name, ok in (("noise_std_N_m", lambda v: 0.0 <= v < math.inf), ("gain", lambda v: 0.0 < v < math.inf),
+                         ("offset_N_m", math.isfinite)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not ok(float(value)):
+                raise ParameterError(f"TorqueSensor {name} must be a finite number"
+                                     f"{' >= 0' if name == 'noise_std_N_m' else ' > 0' if name == 'gain' else ''}, "
+                                     f"got {value!r}", name=name, value=value)
+
+    def to_mapping(self) -> dict[str, float]:
+        """The sensor's values for JSON (``noise_std_N_m`` [N m], ``gain`` [-], ``offset_N_m`` [N m])."""
+        return {"noise_std_N_m": float(self.noise_std_N_m), "gain": float(self.gain), "offset_N_m": float(self.offset_N_m)}
 
 
 @dataclass(frozen=True, slots=True)

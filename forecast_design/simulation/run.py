@@ -43,8 +43,8 @@ from ..controllers import PAPER_PD
 from ..params import Compensator, Design, Environment
 from ..limits import SIGNAL_LIMITS, check_limit, check_physical, first_beyond
 from ..program import ControllerProgram, build_program, program_step
-from .plant import (I_BL, I_BLC, I_K, PlantModel, PlantStepper, advance_period, build_plant, history_length,
-                    spring_torque, stability_check)
+from .plant import (I_BL, I_BLC, I_K, PlantModel, PlantStepper, TorqueSensor, advance_period, build_plant,
+                    history_length, spring_torque, stability_check)
 
 __all__ = [
     "ENCODER_COUNTS",
@@ -69,11 +69,12 @@ _TRUTH = ("theta", "omega", "q", "v", "z", "tau_frc", "tau_s", "tau_m_applied")
 
 
 @_njit(inline="always")
-def _sensors(x, k, enc_step, k_nom, p, sens):
+def _sensors(x, k, enc_step, k_nom, p, sens, sens_gain):
     """Step 1 of period ``k``: the encoder readings ``theta_m``, ``q_m`` [rad] and ``tau_s_m`` [N m].
 
     ``tau_s_m`` is derived from the encoders, ``k_nom (theta_m - q_m)``, or, with a torque sensor (``sens``
-    not empty), the true spring torque (its backlash included) plus the sensor's noise ``sens[k]``.
+    not empty), ``sens_gain`` times the true spring torque (its backlash included) plus ``sens[k]``, the
+    sensor's zero and noise.
     """
     theta = x[0]
     q = x[2]
@@ -82,17 +83,17 @@ def _sensors(x, k, enc_step, k_nom, p, sens):
         q = math.floor(q / enc_step + 0.5) * enc_step
     if sens.shape[0] > 0:
         noise = sens[k] if k < sens.shape[0] else 0.0     # the code loop reads once past its last period
-        return theta, q, spring_torque(x[0] - x[2], p[I_K], p[I_BL], p[I_BLC]) + noise
+        return theta, q, sens_gain * spring_torque(x[0] - x[2], p[I_K], p[I_BL], p[I_BLC]) + noise
     return theta, q, k_nom * (theta - q)
 
 
 @_njit
-def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, noise, k_nom, sens,
+def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, noise, k_nom, sens, sens_gain,
           sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, meas, truth, hist):
     out = np.zeros(2)
     H = hist.shape[0]
     for k in range(n):
-        th, qq, tau_s = _sensors(x, k, enc_step, k_nom, p, sens)
+        th, qq, tau_s = _sensors(x, k, enc_step, k_nom, p, sens, sens_gain)
         if closed:
             cmd = program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, ref[k], tau_s, th)
             u = mem[3]
@@ -117,7 +118,7 @@ def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, no
 
 
 @_njit
-def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, enc_step, noise, k_nom, sens,
+def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, enc_step, noise, k_nom, sens, sens_gain,
                  sos, meta, gains, flags, par, ff_coef, ff_harm, state, mem, meas, truth, hist, out):
     """Period ``k`` of ``_loop`` for a controller written as code (:mod:`.code`), which gave ``u`` [N m].
 
@@ -146,7 +147,7 @@ def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, en
     meas[k, 5] = hat
     hist[k % hist.shape[0]] = cmd
     advance_period(x, k, nsub, dsub, hist, p, harm, noise[k] if k < noise.shape[0] else 0.0, out, truth[k])
-    return _sensors(x, k + 1, enc_step, k_nom, p, sens)
+    return _sensors(x, k + 1, enc_step, k_nom, p, sens, sens_gain)
 
 
 def _kernel_dependencies() -> list:
@@ -164,12 +165,15 @@ def process_noise(seed: int, std: float, n: int) -> np.ndarray:
     return np.random.default_rng(seed).normal(0.0, std, n) if std > 0 else np.zeros(n)
 
 
-def sensor_noise(seed: int, std: float | None, n: int) -> np.ndarray:
-    """A torque sensor's white noise, one value per sample [N m], shape (n,); shape (0,) without a sensor (None:
-    ``tau_s`` derived from the encoders). Drawn from its own stream, so the process noise is the same either way."""
-    if std is None:
+def sensor_noise(seed: int, sensor: TorqueSensor | None, n: int) -> np.ndarray:
+    """A torque sensor's zero plus its white noise, one value per sample [N m], shape (n,); shape (0,) without a
+    sensor (``tau_s`` derived from the encoders). Drawn from its own stream: the process noise is the same either
+    way."""
+    if sensor is None:
         return np.zeros(0)
-    return np.random.default_rng([seed, 0x5E45]).normal(0.0, std, n) if std > 0 else np.zeros(n)
+    noise = (np.random.default_rng([seed, 0x5E45]).normal(0.0, sensor.noise_std_N_m, n) if sensor.noise_std_N_m > 0
+             else np.zeros(n))
+    return noise + sensor.offset_N_m
 
 
 def plant_stepper(design: Design, effects: Sequence[Any] = (), *, n: int, rate_hz: float = 2000.0,
@@ -377,7 +381,7 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
              include_nominal_viscous: bool = True, description: str = "",
              step_timeout_s: float | None = None,
-             torque_sensor_noise_std: float | None = None) -> SimulationResult:
+             torque_sensor: TorqueSensor | None = None) -> SimulationResult:
     """Simulate the testbed: force control (+ compensator) or an open-loop torque profile.
 
     Parameters
@@ -420,10 +424,10 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         Encoder counts per revolution on theta and q; ``None`` or 0: exact.
     process_noise_std : float
         Std of a motor torque noise held per period [N m].
-    torque_sensor_noise_std : float, optional
-        A torque sensor in the spring: ``tau_s`` (fed back and logged) is the true spring torque
-        (its backlash included) plus white noise of this std [N m], drawn from the seed's own
-        stream. None (default): ``tau_s`` derived from the encoders, ``k (theta - q)``.
+    torque_sensor : TorqueSensor, optional
+        A torque sensor in the spring: ``tau_s`` (fed back and logged) is its reading of the true
+        spring torque (its backlash included): its gain, zero and white noise (drawn from the
+        seed's own stream). None (default): ``tau_s`` derived from the encoders, ``k (theta - q)``.
     initial_angle : float
         Absolute motor angle at theta = 0 for angle-dependent effects and
         the SFM harmonics [rad] (the controller's encoder is homed).
@@ -461,7 +465,7 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
                     process_noise_std=process_noise_std, initial_angle=initial_angle,
                     include_nominal_viscous=include_nominal_viscous,
                     description=description, step_timeout_s=step_timeout_s,
-                    torque_sensor_noise_std=torque_sensor_noise_std)
+                    torque_sensor=torque_sensor)
     meas = np.empty((prep.n, len(_MEAS)))
     truth = np.empty((prep.n, len(_TRUTH)))
     if prep.is_code:
@@ -511,6 +515,7 @@ class _Prepared:
     rate_hz: float
     description: str
     step_timeout_s: float = math.inf
+    sensor_gain: float = 1.0          # the torque sensor's gain (with no sensor: unused) [-]
 
     @property
     def is_code(self) -> bool:
@@ -525,7 +530,7 @@ class _Prepared:
         state, mem = self.program.pack().new_state()
         return (self.n, self.substeps, int(self.plant.delay_substeps), a["p"], a["harm"], np.zeros(5),
                 self.closed_loop, a["ref"], a["ol"], self.torque_limit, self.enc_step, a["noise"], self.k_nominal,
-                a["sens"], sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, meas, truth,
+                a["sens"], self.sensor_gain, sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, meas, truth,
                 np.zeros(history_length(self.substeps, self.plant.delay_substeps)))
 
     def program_arrays(self) -> tuple[np.ndarray, ...]:
@@ -562,7 +567,7 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
              torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
              include_nominal_viscous: bool = True, description: str = "",
-             step_timeout_s: float | None = None, torque_sensor_noise_std: float | None = None) -> _Prepared:
+             step_timeout_s: float | None = None, torque_sensor: TorqueSensor | None = None) -> _Prepared:
     """Validate :func:`simulate`'s arguments and pack one run for the kernel (no simulation)."""
     if not isinstance(design, Design):
         raise ParameterError(f"simulate needs a Design (e.g. Design.nominal('exp-soft')), got {type(design).__name__}",
@@ -585,10 +590,9 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
     if not (process_noise_std >= 0 and math.isfinite(process_noise_std)):
         raise ParameterError(f"process_noise_std must be >= 0 [N m], got {process_noise_std!r}",
                              name="process_noise_std", value=process_noise_std)
-    if torque_sensor_noise_std is not None and not (
-            isinstance(torque_sensor_noise_std, (int, float)) and 0 <= torque_sensor_noise_std < math.inf):
-        raise ParameterError(f"torque_sensor_noise_std must be >= 0 [N m] or None, got {torque_sensor_noise_std!r}",
-                             name="torque_sensor_noise_std", value=torque_sensor_noise_std)
+    if torque_sensor is not None and not isinstance(torque_sensor, TorqueSensor):
+        raise ParameterError(f"torque_sensor must be a TorqueSensor or None, got {type(torque_sensor).__name__}",
+                             name="torque_sensor", value=torque_sensor)
     if encoder_counts is not None and (isinstance(encoder_counts, bool) or not isinstance(encoder_counts, int)
                                        or encoder_counts < 0):
         raise ParameterError(f"encoder_counts must be an integer >= 0 [counts/rev], got {encoder_counts!r}",
@@ -631,7 +635,7 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
         "velocity_cutoff_hz": float(velocity_cutoff_hz), "sfm_deadband": float(sfm_deadband),
         "torque_limit": float(torque_limit), "encoder_counts": int(encoder_counts or 0),
         "process_noise_std": float(process_noise_std),
-        "torque_sensor_noise_std": None if torque_sensor_noise_std is None else float(torque_sensor_noise_std),
+        "torque_sensor": None if torque_sensor is None else torque_sensor.to_mapping(),
         "sfm_params": comp.friction_params,
         "compensator": comp.kind, "w_q_hz": comp.w_q_hz if comp.is_observer else None,
         "q_family": comp.q_family if comp.is_observer else None,
@@ -639,13 +643,14 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
         "delay_substeps": int(plant.delay_substeps),
     }
     arrays = {"p": rw(plant.params), "harm": rw(plant.harmonics), "ref": rw(ref), "ol": ol, "noise": noise,
-              "sens": sensor_noise(seed, torque_sensor_noise_std, n)}
+              "sens": sensor_noise(seed, torque_sensor, n)}
     return _Prepared(n=n, substeps=int(substeps), plant=plant, stability=stability, closed_loop=bool(closed_loop),
                      ref=ref, torque_limit=float(torque_limit), enc_step=float(enc_step),
                      k_nominal=float(design.testbed.k), program=program, arrays=arrays, ran=ran,
                      options=options, effects=tuple(effects), initial_angle=float(initial_angle),
                      include_nominal_viscous=include_nominal_viscous, rate_hz=float(rate_hz),
-                     description=description, step_timeout_s=float(step_timeout_s))
+                     description=description, step_timeout_s=float(step_timeout_s),
+                     sensor_gain=1.0 if torque_sensor is None else float(torque_sensor.gain))
 
 
 def save_simulation(result: SimulationResult, path: str | os.PathLike[str]) -> dict[str, Path]:
