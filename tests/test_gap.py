@@ -272,7 +272,7 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     assert m["design"]["rate_hz"] == exp.rate_hz and m["design"]["duration_s"] == pytest.approx(4.0)
     assert set(m["verdict"]) == {"effect", "grade", "gap_before", "gap_after", "reduction", "params", "status",
                                  "secondary", "calibration", "std_method",
-                                 "std_calibration_bound"}
+                                 "std_calibration_bound", "replicas"}
     assert m["verdict"]["grade"] in ("clear", "weak", "none")
     assert set(m["location"]) == {"time_windows_s", "frequency_band_hz", "speed_band_rad_s", "summary"}
     assert m["verdict"]["effect"] in VOCAB and 0.0 <= m["verdict"]["reduction"] <= 1.0

@@ -708,7 +708,7 @@ def test_an_effect_free_log_whose_small_effect_its_sensors_alone_produce_names_n
         assert check.sensor_noise_std_N_m is None
     assert check.encoder_counts == log.case.encoder_counts
     assert any(c.startswith(f"Not distinct from the sensors: '{named}'") for c in d.caveats)
-    assert d.to_mapping()["replicas"]["distinct"] is False
+    assert d.to_mapping()["verdict"]["replicas"]["distinct"] is False
 
 
 @pytest.mark.slow

@@ -526,3 +526,22 @@ def test_a_torque_sensor_in_the_loop_feeds_its_noise_back():
             TorqueSensor(**bad)
     with pytest.raises(ParameterError, match="torque_sensor must be a TorqueSensor"):
         simulate(design, torque_sensor=1e-3, **kw)
+
+
+def test_a_scenarios_torque_sensor_runs_like_simulate_and_round_trips(tmp_path):
+    doc = _scenario_doc()
+    doc["truth"] = {"torque_sensor": {"noise_std_N_m": 0.002, "gain": 0.95}}
+    sc = scenario_from_mapping(doc)
+    assert sc.options["torque_sensor"] == TorqueSensor(noise_std_N_m=0.002, gain=0.95)
+    again = scenario_from_mapping(sc.to_mapping())
+    assert again.options == sc.options
+    r = sc.run()
+    direct = simulate(sc.design, reference=sc.reference, duration_s=0.2, seed=5, torque_limit=5.0,
+                      torque_sensor=TorqueSensor(noise_std_N_m=0.002, gain=0.95))
+    np.testing.assert_array_equal(r.tau_s, direct.tau_s)
+    doc["truth"] = {"torque_sensor": {"noise_std_N_m": 0.002, "gian": 0.95}}
+    with pytest.raises(ExperimentFormatError, match=r"\[truth.torque_sensor\] unknown key 'gian'"):
+        scenario_from_mapping(doc)
+    doc["truth"] = {"torque_sensor": {"gain": -1.0}}
+    with pytest.raises(ExperimentFormatError, match=r"\[truth.torque_sensor\] TorqueSensor gain"):
+        scenario_from_mapping(doc)

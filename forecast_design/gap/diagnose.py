@@ -109,10 +109,11 @@ from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
 from .replicas import ReplicaCheck, replica_check
+from .rules import metric_text
 from ..plausibility import ParameterStatus
 from .grading import explained_rms, noise_floor, own_reduction, weak_is_distinct
 from .structures import _FRICTION
-from .heldout import (NESTED_ALPHA, breakaway_proven_at_rest, candidate_levels, correlation_length, effect_held_out_test,
+from .heldout import (breakaway_proven_at_rest, candidate_levels, correlation_length, effect_held_out_test,
                       held_out_test, verdict_ties, richer_law_justified, richer_law_resolved, test_units)
 from .motion import creeping
 from .residuals import GapData, GapOptions, TauSSource, prepare_gap_data
@@ -341,7 +342,8 @@ class Diagnosis:
             ``gap_after`` with both effects [N m], ``reduction`` of both relative to
             ``gap_before``; null when no second effect counts) and ``calibration`` (the
             re-calibrated nominal values with ``at_bound`` flags; without an interval, so never ``identified``).
-            ``replicas``: a small verdict's rank among effect-free replicas of the log, or null.
+            ``replicas``: a small verdict's rank among effect-free replicas of the log (also one it
+            dropped), or null.
         """
         loc = self.location.to_mapping()
         loc["summary"] = self.summary
@@ -360,6 +362,7 @@ class Diagnosis:
                        if self.secondary.assessment is not None else {})}
         verdict["std_method"] = {k: float(v) for k, v in self.method_shift.items()}
         verdict["std_calibration_bound"] = {k: float(v) for k, v in self.calibration_freedom.items()}
+        verdict["replicas"] = None if self.replicas is None else self.replicas.to_mapping()
         verdict["calibration"] = {k: {**v.to_mapping(), "at_bound": v.status == "at_bound"}
                                   for k, v in self.calibration.items()}
         out = {
@@ -368,7 +371,6 @@ class Diagnosis:
             "location": loc,
             "ranking": [r.to_mapping() for r in self.ranking],
             "caveats": list(self.caveats),
-            "replicas": None if self.replicas is None else self.replicas.to_mapping(),
         }
         if self.isolability is not None:
             out["isolability"] = self.isolability.to_mapping()
@@ -377,32 +379,6 @@ class Diagnosis:
             out["tau_s"]["alternative"] = None if self.reading is None else dict(self.reading)
             out["design"] = self.data.experiment.declared()     # the nominal model the gap is measured against
         return out
-
-
-def _metric_text(data: GapData) -> str:
-    o = data.options
-    eqs = ", ".join(data.equations)
-    return (f"RMS [N m] of the stacked equation errors ({eqs}) after the same zero-phase filtering of every "
-            f"column ({data.settings.position_cutoff_hz:g} Hz Butterworth) and parallel decimation to "
-            f"{data.settings.decimated_rate_hz:g} Hz, on held-out data: {o.n_blocks} interleaved time blocks, "
-            f"parameters fitted on the even blocks and the gap measured on the odd ones. tau_s column: "
-            f"{data.tau_s_source.source}. gap_before is the nominal model with J_m and the spring torque scale "
-            f"re-calibrated within the datasheet tolerance +-{100 * o.calibration_tolerance:g} % and d_m >= 0. "
-            f"An effect counts when it lowers the total held-out gap (all equations, by the t-test below) and, on the "
-            f"equations where it acts, it removes "
-            f">= {100 * o.min_reduction:g} % of the held-out gap above the encoders' quantisation floor (an effect "
-            f"that passes every other test but removes less is the verdict graded weak when none counts) and explains >= {100 * o.min_effect_fraction:g} % of the RMS command, a one-sided "
-            f"t-test on the log ratio of squared errors over held-out units of twice the residual's correlation "
-            f"length (all units, and those where the candidate differs from the nominal model by more than the floor, "
-            f"Simes' combination) gives p < {o.alpha:g}/2 for the candidate that explains the fit blocks best and {o.alpha:g}/(2 (n_candidates - 1)) for each other (weighted Bonferroni), and it is identified (defining coefficients "
-            f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
-            f"within its plausible range; an environment mismatch, a delay, a torque gain or a Coulomb level near the quantisation also persists in half the band; a delay "
-            f"short against the band is read where coefficient x delay leaves the coefficient's bound, an output J "
-            f"shrunk below a tenth of the declared one is held at it); an environment mismatch counts only where no motor-equation candidate removes more of the total gap; the winner minimises the held-out BIC; stiction/position_friction must "
-            f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
-            f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway at rest, above the "
-            f"Coulomb level on rows of two stays (a breakaway proven at the raw rate, two stays held beyond any Coulomb level within one encoder count, also makes stiction the verdict over a coulomb the BIC prefers); a second effect fitted together with the winner is reported when it passes the test against "
-            f"the winner alone.")
 
 
 def diagnose(experiment: Experiment, *, options: GapOptions | None = None, joint: bool = True) -> Diagnosis:
@@ -707,7 +683,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     reduction = float(min(max(1.0 - gap_after / gap0, 0.0), 1.0)) if gap0 > 0 else 0.0
     replay = replay_check(data, by_effect.get(str(eff), base))   # none: the calibrated nominal model
     return Diagnosis(effect=eff, gap_before=gap0, gap_after=gap_after, reduction=reduction, params=params,
-                     metric=_metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
+                     metric=metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
                      replay=replay, isolability=iso, calibration=calibration_status(data, base, viscous=True), grade=grade,
                      method_shift=shift, calibration_freedom=freed, replicas=replicas)

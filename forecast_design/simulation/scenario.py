@@ -39,6 +39,11 @@ sections, plus the hidden truth, the reference and the simulation options::
     initial_angle = 0.0              # absolute motor angle at theta = 0 [rad]
     include_nominal_viscous = true   # d_m omega is part of the true friction
 
+    [truth.torque_sensor]            # optional: tau_s read by a torque sensor, not derived from the encoders
+    noise_std_N_m = 0.002            # white noise [N m]
+    gain = 1.0                       # scale of the reading [-]
+    offset_N_m = 0.0                 # zero of the reading [N m]
+
     [[truth.effects]]                # one table per effect; words of the spec's vocabulary
     effect = "stiction"              # fields as in forecast_design.effects (defaults: Table 2)
     F_s = 0.5
@@ -99,6 +104,7 @@ from ..controllers import PAPER_PD, controller_from_mapping
 from ..params import Compensator, Design
 from ..limits import check_limit, check_physical
 from .references import reference_from_mapping
+from .plant import TorqueSensor
 from .run import SimulationResult, save_simulation, simulate
 
 __all__ = ["SCENARIO_FORMAT", "Repetition", "Scenario", "Variability", "load_scenario", "scenario_from_mapping", "run_scenario"]
@@ -414,6 +420,9 @@ class Scenario:
         for key in ("initial_angle", "include_nominal_viscous"):
             if key in opts:
                 truth[key] = opts.pop(key)
+        sensor = opts.pop("torque_sensor", None)
+        if sensor is not None:
+            truth["torque_sensor"] = sensor.to_mapping()
         if self.effects:
             truth["effects"] = effects_to_mappings(self.effects)
         if truth:
@@ -550,9 +559,11 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
                     raise ExperimentFormatError(f"{prefix}[truth] include_nominal_viscous must be true or false",
                                                 path=source, key="truth.include_nominal_viscous")
                 options["include_nominal_viscous"] = value
+            elif key == "torque_sensor":
+                options["torque_sensor"] = _torque_sensor(value, prefix, source)
             else:
                 raise ExperimentFormatError(f"{prefix}[truth] unknown key '{key}'; allowed: effects, initial_angle, "
-                                            "include_nominal_viscous", path=source, key=f"truth.{key}")
+                                            "include_nominal_viscous, torque_sensor", path=source, key=f"truth.{key}")
     variability = None
     var_table = _table(doc, "variability", prefix, source, required=False)
     if var_table is not None:
@@ -585,6 +596,22 @@ def scenario_from_mapping(doc: Mapping[str, Any], *, source: str | None = None) 
     return Scenario(design=design, rate_hz=float(rate), closed_loop=controller is not None, reference=reference,
                     effects=tuple(effects), options=options, description=description, source=source,
                     variability=variability, notes=notes)
+
+
+def _torque_sensor(value: Any, prefix: str, source: str | None) -> TorqueSensor:
+    """A ``[truth.torque_sensor]`` table: ``noise_std_N_m``, ``gain``, ``offset_N_m`` (each optional)."""
+    where = "truth.torque_sensor"
+    if not isinstance(value, Mapping):
+        raise ExperimentFormatError(f"{prefix}[{where}] must be a table, got {value!r}", path=source, key=where)
+    allowed = ("noise_std_N_m", "gain", "offset_N_m")
+    for key in value:
+        if key not in allowed:
+            raise ExperimentFormatError(f"{prefix}[{where}] unknown key '{key}'; allowed: {', '.join(allowed)}",
+                                        path=source, key=f"{where}.{key}")
+    try:
+        return TorqueSensor(**dict(value))
+    except ParameterError as exc:
+        raise ExperimentFormatError(f"{prefix}[{where}] {exc}", path=source, key=f"{where}.{exc.name}") from None
 
 
 def _check_simulation(options: Mapping[str, Any], rate: float, prefix: str, source: str | None) -> None:
