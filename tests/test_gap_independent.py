@@ -684,29 +684,32 @@ def test_a_coulomb_level_held_at_rest_within_the_analysis_error_is_no_breakaway(
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("index, seed, scale, named, sensor", [
+@pytest.mark.parametrize("index, seed, scale, named, sensor, closed", [
     # the controller feeds the torque sensor's noise (2.7 mN m) back into the motor torque; the filtered regressors
     # saw a 0.5 mN m sign(v)-like torque that removed 35 % of the gap above the floor (held-out p = 3e-10, weak)
-    (5, 73, 1.0, Effect.COULOMB, True),
+    (5, 73, 1.0, Effect.COULOMB, True, True),
     # a 16-bit closed loop with a torque sensor reading 6.4 % high: a gain of 0.966 removed all of the gap above the
     # encoders' floor, 3.4 % of the total (clear)
-    (8, 111, 1.0, Effect.TORQUE_GAIN, True),
+    (8, 111, 1.0, Effect.TORQUE_GAIN, True, True),
+    # open loop, 16 bits, a sensor reading 6.4 % low: a gain of 0.956 explaining 5.7 mN m, 48 % of the gap above the
+    # floor (clear); its replicas' gain explains 6.1 mN m
+    (2, 122, 0.25, Effect.TORQUE_GAIN, True, False),
     # a 16-bit closed-loop square, tau_s derived: the loop's answer to the encoders' quantisation read as a 4.4 ms
     # delay (weak, held-out p = 0.00045, still there in half the band)
-    (8, 140, 0.25, Effect.DELAY, False),
+    (8, 140, 0.25, Effect.DELAY, False, True),
 ])
 def test_an_effect_free_log_whose_small_effect_its_sensors_alone_produce_names_none(index, seed, scale, named,
-                                                                                     sensor):
+                                                                                     sensor, closed):
     log = ind.make_independent_log("none", index, seed, magnitude_scale=scale)
     d = diagnose(log.experiment, joint=False)
     assert d.effect is Effect.NONE
     check = d.replicas
-    assert check is not None and check.effect is named and not check.distinct and check.closed_loop
+    assert check is not None and check.effect is named and not check.distinct and check.closed_loop is closed
     if sensor:      # the replicas' sensor noise is the log's, read from tau_s alone
         assert check.sensor_noise_std_N_m == pytest.approx(log.case.sensor_noise, rel=0.15)
     else:
         assert check.sensor_noise_std_N_m is None
-    assert check.encoder_counts == log.case.encoder_counts
+    assert check.encoder_counts == pytest.approx(log.case.encoder_counts, rel=0.01)      # read from the angles
     assert any(c.startswith(f"Not distinct from the sensors: '{named}'") for c in d.caveats)
     assert d.to_mapping()["verdict"]["replicas"]["distinct"] is False
 
@@ -718,7 +721,7 @@ def test_a_weak_delay_in_a_closed_loop_stands_above_the_loops_noise():
     log = ind.make_independent_log("delay", 4, 150)
     d = diagnose(log.experiment, joint=False)
     assert d.effect is Effect.DELAY and d.grade == "weak"
-    assert d.replicas is not None and d.replicas.distinct and max(d.replicas.replicas) < 0.1
+    assert d.replicas is not None and d.replicas.distinct and d.replicas.ratio > 10.0
     assert d.params["delay_s"] == pytest.approx(log.case.effect_params["delay_s"], rel=0.5)
 
 

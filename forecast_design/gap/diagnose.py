@@ -646,8 +646,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             caveats.append(f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above "
                            f"the encoders' noise floor, below the {100 * opts.min_reduction:g} % of a clear verdict, "
                            f"but passes the held-out test (p = {winner.p_value:.2g}) and is identified"
-                           + ("." if replicas is None else f", above every one of {len(replicas.replicas)} "
-                              "effect-free replicas of the log."))
+                           + ("." if replicas is None else f", explaining {replicas.ratio:.3g} times the torque "
+                              f"it explains on effect-free replicas of the log."))
     if winner is not None and winner.effect is Effect.STICTION and str(Effect.COULOMB) in by_effect \
             and breakaway_proven_at_rest(data, by_effect[str(Effect.COULOMB)]):
         caveats.append("Stiction over coulomb: while the encoder read one count the motor held net torques that would "

@@ -16,13 +16,12 @@ A parametric bootstrap can: the nominal model (the log's design with its re-cali
 simulated with the log's own measurement chain (the encoders' step read from the log; a torque
 sensor's white noise read from ``tau_s``), effect-free, ``n`` times with other noise draws: in
 closed loop under the log's controller, compensator and force reference, open loop under its
-logged command. The candidate is fitted on each replica as on the log, and the log's statistic
-(the share of the gap above the noise floor the effect removes, counted as the diagnosis counts
-it) is ranked among the replicas'. An effect the replicas reach is the measurement chain's.
+logged command. The candidate is fitted on each replica as on the log; the torque it explains on
+the log must be :data:`REPLICA_MARGIN` times the most it explains on a replica. What it explains
+there is the measurement chain's.
 
-What the replicas leave out (a logger's printing of ``tau_m``, encoders' jitter, a torque limit)
-only narrows their spread: the check can keep a false alarm, not remove a true effect that stands
-above what the chain it models produces.
+What the replicas leave out (a logger's printing of ``tau_m``, encoders' jitter, process noise, a
+torque limit) narrows their spread, which the margin covers.
 """
 
 from __future__ import annotations
@@ -42,25 +41,33 @@ from .residuals import GapData, prepare_gap_data
 
 __all__ = ["ReplicaCheck", "closed_loop", "replica_check", "sensor_noise_std"]
 
-#: Replicas simulated per check (a log must beat every one: Monte Carlo p = 1 / (n + 1) = 0.05).
+#: Replicas simulated per check [-].
 N_REPLICAS = 19
+#: How many times the torque the chain alone explains a candidate must explain on the log [-]: the replicas
+#: leave out part of the log's noise (a logger's printing, encoders' jitter, process noise; without a sensor they
+#: are all one), which the margin covers. On 94 logs of twenty-one seeds the false alarms and wrong verdicts the
+#: replicas reproduce stood at 0.30-1.06 times the replicas' torque, the true effects at 1.58 and above.
+REPLICA_MARGIN = 1.5
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class ReplicaCheck:
-    """A candidate's statistic on the log against the same on effect-free replicas of its loop.
+    """A candidate on the log against the same candidate on effect-free replicas of its measurement chain.
+
+    The statistic is the torque the candidate explains on the held-out rows of its own equations
+    (RMS, beyond the calibrated nominal model): what the chain alone makes it explain is the
+    replicas'. Not the share of the gap it removes: that compares against residuals the replicas do
+    not reproduce (an open-loop 16-bit log with a sensor reading 6 % low: a gain explaining
+    5.7 mN m there, 48 % of the gap above the floor, and 6.1 mN m on its replicas, 24 %).
 
     Parameters
     ----------
     effect : Effect
         The candidate.
-    observed : float
-        Share of the gap above the noise floor it removes on the log (counted as the diagnosis
-        counts it) [-].
-    replicas : tuple of float
-        The same on each effect-free replica [-].
-    p_value : float
-        ``(1 + #(replica >= observed)) / (n + 1)`` [-].
+    observed_N_m : float
+        Torque it explains on the log [N m].
+    replicas_N_m : tuple of float
+        The same on each effect-free replica [N m].
     encoder_counts : int
         Encoder resolution the replicas used (read from the log) [counts/rev].
     sensor_noise_std_N_m : float or None
@@ -70,32 +77,37 @@ class ReplicaCheck:
     """
 
     effect: Effect
-    observed: float
-    replicas: tuple[float, ...]
-    p_value: float
+    observed_N_m: float
+    replicas_N_m: tuple[float, ...]
     encoder_counts: int
     sensor_noise_std_N_m: float | None
     closed_loop: bool
 
     @property
+    def ratio(self) -> float:
+        """The log's torque over the largest replica's [-] (inf when no replica explains any)."""
+        top = max(self.replicas_N_m, default=0.0)
+        return self.observed_N_m / top if top > 0.0 else math.inf
+
+    @property
     def distinct(self) -> bool:
-        """The log's statistic is above every replica's."""
-        return self.p_value <= 1.0 / (len(self.replicas) + 1) + 1e-12
+        """The log's candidate explains :data:`REPLICA_MARGIN` times the torque of every replica's."""
+        return self.ratio >= REPLICA_MARGIN
 
     def caveat(self) -> str:
-        """Why a weak candidate that does not stand above the replicas is no verdict."""
+        """Why a candidate that does not stand above the replicas is no verdict."""
         chain = (f"{self.encoder_counts}-count encoders" + ("" if self.sensor_noise_std_N_m is None else
                  f", the torque sensor's {1e3 * self.sensor_noise_std_N_m:.2g} mN m noise, scale and zero"))
         loop = "its controller and force reference" if self.closed_loop else "its motor command, open loop"
-        n_as_much = sum(r >= self.observed for r in self.replicas)
-        return (f"Not distinct from the sensors: '{self.effect}' removes {100 * self.observed:.0f} % of the gap "
-                f"above the floor, but effect-free replicas of this log ({loop}; {chain}) remove as much in "
-                f"{n_as_much} of {len(self.replicas)} (p = {self.p_value:.2g}): no effect is named.")
+        return (f"Not distinct from the sensors: '{self.effect}' explains {1e3 * self.observed_N_m:.2g} mN m, but on "
+                f"effect-free replicas of this log ({loop}; {chain}) it explains up to "
+                f"{1e3 * max(self.replicas_N_m):.2g} mN m ({self.ratio:.2f} times less, not the "
+                f"{REPLICA_MARGIN:g} times a verdict needs): no effect is named.")
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON: the effect, the statistic on the log and on the replicas, p, what the replicas assumed."""
-        return {"effect": str(self.effect), "observed": self.observed, "replicas": list(self.replicas),
-                "p_value": self.p_value, "distinct": self.distinct, "encoder_counts": self.encoder_counts,
+        return {"effect": str(self.effect), "observed_N_m": self.observed_N_m, "replicas_N_m": list(self.replicas_N_m),
+                "ratio": None if math.isinf(self.ratio) else self.ratio, "margin": REPLICA_MARGIN, "distinct": self.distinct, "encoder_counts": self.encoder_counts,
                 "sensor_noise_std_N_m": self.sensor_noise_std_N_m, "closed_loop": self.closed_loop,
                 "assumed": "the log's design with its re-calibrated J_m and d_m (and, with a torque sensor, k and the "
                            "sensor's scale and zero), in closed loop its controller, compensator and force reference, open loop its motor command; effect-free; "
@@ -150,12 +162,12 @@ def _replica_statistic(data: GapData, cal: dict[str, float], effect: Effect, see
     rdata = prepare_gap_data(rexp, data.options)
     base = fit_baseline(rdata)
     fit = fit_candidate(rdata, effect)
-    return 0.0 if fit is None else own_reduction(rdata, base, fit, noise_floor(rdata)).counted
+    return 0.0 if fit is None else own_reduction(rdata, base, fit, noise_floor(rdata)).explained_rms
 
 
 def replica_check(data: GapData, base: CandidateFit, fit: CandidateFit, *, n: int = N_REPLICAS,
                      seed: int = 0) -> ReplicaCheck | None:
-    """Rank a candidate's statistic on a log among effect-free replicas of its measurement chain.
+    """The torque a candidate explains on a log against what it explains on effect-free replicas of the log.
 
     Parameters
     ----------
@@ -175,14 +187,13 @@ def replica_check(data: GapData, base: CandidateFit, fit: CandidateFit, *, n: in
     """
     from ..plausibility import encoder_step_of
 
-    observed = own_reduction(data, base, fit, noise_floor(data)).counted
+    observed = own_reduction(data, base, fit, noise_floor(data))
     counts = int(round(2.0 * math.pi / encoder_step_of(np.asarray(data.experiment.signals.theta, dtype=float))))
     sensor = sensor_noise_std(data)
     try:
         reps = tuple(_replica_statistic(data, base.calibration, fit.effect, seed + i, sensor, counts) for i in range(n))
     except (ForecastError, ValueError, FloatingPointError):
         return None
-    p = (1 + sum(r >= observed for r in reps)) / (n + 1)
-    return ReplicaCheck(effect=fit.effect, observed=float(observed), replicas=tuple(float(r) for r in reps),
-                          p_value=float(p), encoder_counts=counts, sensor_noise_std_N_m=sensor,
-                          closed_loop=closed_loop(data))
+    return ReplicaCheck(effect=fit.effect, observed_N_m=float(observed.explained_rms),
+                        replicas_N_m=tuple(float(r) for r in reps), encoder_counts=counts,
+                        sensor_noise_std_N_m=sensor, closed_loop=closed_loop(data))

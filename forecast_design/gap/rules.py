@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .heldout import NESTED_ALPHA
-from .replicas import N_REPLICAS
+from .replicas import N_REPLICAS, REPLICA_MARGIN
 from .residuals import GapData
 
 __all__ = ["metric_text"]
@@ -45,6 +45,6 @@ def metric_text(data: GapData) -> str:
             f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway at rest, above the "
             f"Coulomb level on rows of two stays (a breakaway proven at the raw rate, two stays held beyond any Coulomb level within one encoder count, also makes stiction the verdict over a coulomb the BIC prefers); a second effect fitted together with the winner is reported when it passes the test against "
             f"the winner alone. A weak verdict, or a clear one removing less than {100 * o.min_reduction:g} % of the "
-            f"total gap, must also remove more than every one of {N_REPLICAS} effect-free replicas of the log (its "
-            f"re-calibrated nominal model, controller and reference or motor command, encoders' step and torque "
-            f"sensor simulated; the candidate refitted on each).")
+            f"total gap, must also explain {REPLICA_MARGIN:g} times the torque it explains on any of {N_REPLICAS} "
+            f"effect-free replicas of the log (its re-calibrated nominal model, controller and reference or motor "
+            f"command, encoders' step and torque sensor simulated; the candidate refitted on each).")
