@@ -101,18 +101,20 @@ class ReplicaCheck:
         loop = "its controller and force reference" if self.closed_loop else "its motor command, open loop"
         return (f"Not distinct from the sensors: '{self.effect}' explains {1e3 * self.observed_N_m:.2g} mN m, but on "
                 f"effect-free replicas of this log ({loop}; {chain}) it explains up to "
-                f"{1e3 * max(self.replicas_N_m):.2g} mN m ({self.ratio:.2f} times less, not the "
-                f"{REPLICA_MARGIN:g} times a verdict needs): no effect is named.")
+                f"{1e3 * max(self.replicas_N_m):.2g} mN m (a ratio of {self.ratio:.2f}, where a verdict needs "
+                f"{REPLICA_MARGIN:g}): no effect is named.")
 
     def to_mapping(self) -> dict[str, Any]:
-        """JSON: the effect, the statistic on the log and on the replicas, p, what the replicas assumed."""
+        """JSON: the effect, the torque it explains on the log and on each replica [N m], their ratio (null when no
+        replica explains any), the margin, whether it is distinct, and what the replicas assumed."""
         return {"effect": str(self.effect), "observed_N_m": self.observed_N_m, "replicas_N_m": list(self.replicas_N_m),
-                "ratio": None if math.isinf(self.ratio) else self.ratio, "margin": REPLICA_MARGIN, "distinct": self.distinct, "encoder_counts": self.encoder_counts,
+                "ratio": None if math.isinf(self.ratio) else self.ratio, "margin": REPLICA_MARGIN,
+                "distinct": self.distinct, "encoder_counts": self.encoder_counts,
                 "sensor_noise_std_N_m": self.sensor_noise_std_N_m, "closed_loop": self.closed_loop,
                 "assumed": "the log's design with its re-calibrated J_m and d_m (and, with a torque sensor, k and the "
-                           "sensor's scale and zero), in closed loop its controller, compensator and force reference, open loop its motor command; effect-free; "
-                           "the encoders' step and the sensor's white noise read from the log; no process noise, "
-                           "no torque limit"}
+                           "sensor's scale and zero); in closed loop its controller, compensator and force reference, "
+                           "open loop its motor command; effect-free; the encoders' step and the sensor's white noise "
+                           "read from the log; no process noise, no torque limit"}
 
 
 def closed_loop(data: GapData) -> bool:
@@ -166,7 +168,7 @@ def _replica_statistic(data: GapData, cal: dict[str, float], effect: Effect, see
 
 
 def replica_check(data: GapData, base: CandidateFit, fit: CandidateFit, *, n: int = N_REPLICAS,
-                     seed: int = 0) -> ReplicaCheck | None:
+                  seed: int = 0) -> ReplicaCheck | None:
     """The torque a candidate explains on a log against what it explains on effect-free replicas of the log.
 
     Parameters
