@@ -292,7 +292,8 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
         The fault that stopped the controller (``period``, ``t_s``, ``reason``), or None.
     """
     from .plant import history_length
-    from .run import _check_kernel_cache, _code_period, _sensors
+    from .plant import I_BL, I_BLC, I_K
+    from .run import _check_kernel_cache, _code_period, _reading, _sensors
 
     if not (step_timeout_s > 0 and math.isfinite(step_timeout_s)):
         raise ParameterError(f"step_timeout_s must be > 0 [s], got {step_timeout_s!r}", name="step_timeout_s",
@@ -308,6 +309,11 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
                    *(np.array(a, order="C") for a in packed.arrays()), state, mem, meas, truth,
                    np.zeros(history_length(prep.substeps, prep.plant.delay_substeps)), np.zeros(2))
     runner.reset(rate, prep.ran.testbed, prep.ran.environment)
+    par, sens = prep.arrays["p"], prep.arrays["sens"]
+
+    def measure(k: int) -> tuple[float, float, float]:      # the readings of period k (the kernel's _sensors)
+        return _sensors(float(x[0]), float(x[2]), prep.enc_step, prep.k_nominal, sens.shape[0] > 0, prep.sensor_gain,
+                        _reading(sens, k) if sens.shape[0] else 0.0, par[I_K], par[I_BL], par[I_BLC])
     ref = prep.ref.tolist()
     n = prep.n
     name = runner.controller.spelling()
@@ -318,8 +324,7 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
 
     def loop() -> None:
         step, monotonic, period = runner.step, time.monotonic, _code_period
-        th, qq, tau_s = _sensors(x, 0, prep.enc_step, prep.k_nominal, prep.arrays["p"], prep.arrays["sens"],
-                                 prep.sensor_gain)
+        th, qq, tau_s = measure(0)
         lock.acquire()
         try:
             for k in range(n):
@@ -384,8 +389,7 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
     fault = shared["fault"]
     # after a fault: zero torque to the end of the log, the plant running on (the firmware's safe stop)
     k = shared["k"]
-    th, qq, tau_s = _sensors(x, k, prep.enc_step, prep.k_nominal, prep.arrays["p"], prep.arrays["sens"],
-                             prep.sensor_gain)
+    th, qq, tau_s = measure(k)
     for k in range(shared["k"], n):
         th, qq, tau_s = _code_period(k, th, qq, tau_s, 0.0, 0.0, True, *period_args)
     return fault

@@ -69,22 +69,28 @@ _TRUTH = ("theta", "omega", "q", "v", "z", "tau_frc", "tau_s", "tau_m_applied")
 
 
 @_njit(inline="always")
-def _sensors(x, k, enc_step, k_nom, p, sens, sens_gain):
-    """Step 1 of period ``k``: the encoder readings ``theta_m``, ``q_m`` [rad] and ``tau_s_m`` [N m].
+def _sensors(theta, q, enc_step, k_nom, sensor, gain, reading, k_spring, bl, blc):
+    """Step 1 of a period: the encoder readings ``theta_m``, ``q_m`` [rad] and ``tau_s_m`` [N m] at the true angles.
 
-    ``tau_s_m`` is derived from the encoders, ``k_nom (theta_m - q_m)``, or, with a torque sensor (``sens``
-    not empty), ``sens_gain`` times the true spring torque (its backlash included) plus ``sens[k]``, the
-    sensor's zero and noise.
+    ``tau_s_m`` is derived from the encoders, ``k_nom (theta_m - q_m)``, or, with a torque ``sensor``, ``gain``
+    times the true spring torque (``k_spring``, its backlash ``bl``, ``blc`` included) plus ``reading``, the
+    sensor's zero and noise at this sample. Scalars only: numba reference-counts every array an inlined helper
+    receives, which would cost more than the arithmetic.
     """
-    theta = x[0]
-    q = x[2]
+    th = theta
+    qq = q
     if enc_step > 0.0:
-        theta = math.floor(theta / enc_step + 0.5) * enc_step
-        q = math.floor(q / enc_step + 0.5) * enc_step
-    if sens.shape[0] > 0:
-        noise = sens[k] if k < sens.shape[0] else 0.0     # the code loop reads once past its last period
-        return theta, q, sens_gain * spring_torque(x[0] - x[2], p[I_K], p[I_BL], p[I_BLC]) + noise
-    return theta, q, k_nom * (theta - q)
+        th = math.floor(theta / enc_step + 0.5) * enc_step
+        qq = math.floor(q / enc_step + 0.5) * enc_step
+    if sensor:
+        return th, qq, gain * spring_torque(theta - q, k_spring, bl, blc) + reading
+    return th, qq, k_nom * (th - qq)
+
+
+@_njit(inline="always")
+def _reading(sens, k):
+    """The torque sensor's zero and noise at sample ``k`` [N m] (0 past its end: the code loop reads once more)."""
+    return sens[k] if k < sens.shape[0] else 0.0
 
 
 @_njit
@@ -92,8 +98,11 @@ def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, no
           sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, meas, truth, hist):
     out = np.zeros(2)
     H = hist.shape[0]
+    sensor = sens.shape[0] > 0
+    k_spring, bl, blc = p[I_K], p[I_BL], p[I_BLC]
     for k in range(n):
-        th, qq, tau_s = _sensors(x, k, enc_step, k_nom, p, sens, sens_gain)
+        th, qq, tau_s = _sensors(x[0], x[2], enc_step, k_nom, sensor, sens_gain, sens[k] if sensor else 0.0,
+                                 k_spring, bl, blc)
         if closed:
             cmd = program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, ref[k], tau_s, th)
             u = mem[3]
@@ -147,7 +156,8 @@ def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, en
     meas[k, 5] = hat
     hist[k % hist.shape[0]] = cmd
     advance_period(x, k, nsub, dsub, hist, p, harm, noise[k] if k < noise.shape[0] else 0.0, out, truth[k])
-    return _sensors(x, k + 1, enc_step, k_nom, p, sens, sens_gain)
+    return _sensors(x[0], x[2], enc_step, k_nom, sens.shape[0] > 0, sens_gain, _reading(sens, k + 1), p[I_K], p[I_BL],
+                    p[I_BLC])
 
 
 def _kernel_dependencies() -> list:
