@@ -281,8 +281,8 @@ class Diagnosis:
         ``verdict.std_calibration_bound``; empty when no calibrated value is on its bound).
     replicas : ReplicaCheck or None
         A weak verdict's candidate, or a clear one removing less than ``min_reduction`` of the total
-        gap, ranked among effect-free replicas of the log (:func:`.replicas.replica_check`; JSON
-        ``replicas``); None when none was made.
+        gap, against effect-free replicas of the log (:func:`.replicas.replica_check`; JSON
+        ``verdict.replicas``); None when none was made.
     """
 
     effect: Effect
@@ -342,7 +342,7 @@ class Diagnosis:
             ``gap_after`` with both effects [N m], ``reduction`` of both relative to
             ``gap_before``; null when no second effect counts) and ``calibration`` (the
             re-calibrated nominal values with ``at_bound`` flags; without an interval, so never ``identified``).
-            ``replicas``: a small verdict's rank among effect-free replicas of the log (also one it
+            ``replicas``: a small verdict's torque against effect-free replicas of the log (also one it
             dropped), or null.
         """
         loc = self.location.to_mapping()
@@ -646,8 +646,9 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             caveats.append(f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above "
                            f"the encoders' noise floor, below the {100 * opts.min_reduction:g} % of a clear verdict, "
                            f"but passes the held-out test (p = {winner.p_value:.2g}) and is identified"
-                           + ("." if replicas is None else f", explaining {replicas.ratio:.3g} times the torque "
-                              f"it explains on effect-free replicas of the log."))
+                           + ("." if replicas is None else ", explaining torque no effect-free replica of the log "
+                              "explains." if math.isinf(replicas.ratio) else f", explaining {replicas.ratio:.3g} times "
+                              "the torque it explains on effect-free replicas of the log."))
     if winner is not None and winner.effect is Effect.STICTION and str(Effect.COULOMB) in by_effect \
             and breakaway_proven_at_rest(data, by_effect[str(Effect.COULOMB)]):
         caveats.append("Stiction over coulomb: while the encoder read one count the motor held net torques that would "
