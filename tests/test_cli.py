@@ -257,6 +257,10 @@ def test_simulate_writes_an_experiment_that_loads_with_truth_apart(tmp_path, cap
      "[simulation] derivative_on belongs to the controller now: set derivative_on in [controller]"),
     (("D = 0.1", 'D = 0.1\nderivative_on = "sideways"'), "derivative_on must be one of error, measurement"),
     (("D = 0.1", "D = 0.1\nI = 3.0"), "key 'I' does not belong to kind 'pd'"),
+    (('[[truth.effects]]', '[truth.torque_sensor]\nnoise_std_N_m = -0.002\n\n[[truth.effects]]'),
+     "[truth.torque_sensor] TorqueSensor noise_std_N_m must be a finite number >= 0"),
+    (('[[truth.effects]]', '[truth.torque_sensor]\nnoise = 0.002\n\n[[truth.effects]]'),
+     "[truth.torque_sensor] unknown key 'noise'"),
 ])
 def test_simulate_bad_scenario_exit_2_names_key(tmp_path, capsys, edit, fragment):
     scenario = tmp_path / "s.toml"

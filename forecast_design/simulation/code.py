@@ -291,8 +291,7 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
     dict or None
         The fault that stopped the controller (``period``, ``t_s``, ``reason``), or None.
     """
-    from .plant import history_length
-    from .plant import I_BL, I_BLC, I_K
+    from .plant import I_BL, I_BLC, I_K, history_length
     from .run import _check_kernel_cache, _code_period, _reading, _sensors
 
     if not (step_timeout_s > 0 and math.isfinite(step_timeout_s)):
