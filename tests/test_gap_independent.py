@@ -1069,21 +1069,3 @@ def test_a_log_decimated_by_more_than_a_hundred_is_diagnosed():
     d = diagnose(log.experiment, joint=False)
     assert d.data.settings.decimation_factor * 2 > 100
     assert json.loads(json.dumps(d.to_mapping()))["verdict"]["effect"] in {e.value for e in Effect}
-
-
-@pytest.mark.slow
-def test_a_breakaway_inside_the_coulomb_levels_own_error_is_no_stiction():
-    # a 2,000,000-count closed-loop coulomb log (seed 11): the stiction fit adds one-count bristles and a breakaway
-    # of 3 % of F_c at the reversals the filters smear, passes the nested test, and was the verdict. The breakaway
-    # does not stand beyond the Coulomb level's error (its shift under a halved cut-off) plus 5 % of the level
-    from forecast_design.gap.heldout import BREAKAWAY_MARGIN, breakaway_beyond_level
-    from forecast_design.gap.identifiability import method_shift
-
-    log = ind.make_independent_log("coulomb", 6, 11)
-    d = diagnose(log.experiment, joint=False)
-    assert d.effect is Effect.COULOMB
-    s, c = d.fits["stiction"], d.fits["coulomb"]
-    assert not breakaway_beyond_level(d.data, s, c)
-    error = max(method_shift(d.data, c).values())
-    assert s.params["F_s"] - s.params["F_c"] <= error + BREAKAWAY_MARGIN * c.params["F_c"]
-    assert d.params["F_c"] == pytest.approx(log.case.effect_params["F_c"], rel=0.05)

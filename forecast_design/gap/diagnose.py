@@ -45,9 +45,7 @@ probability or scales with the information in the log; none is tuned to one gene
    test removes more of the total gap.
 5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
    ``stiction`` or ``position_friction`` wins over ``coulomb`` only if it resolves what it adds
-   (stiction: ``F_s > F_c`` or bristles wider than one count, and a breakaway beyond the Coulomb level's own error
-   unless the bristles are wider than ten counts, :func:`.heldout.breakaway_beyond_level`; position_friction: its
-   harmonics) and beats ``coulomb`` by the
+   (stiction: ``F_s > F_c`` or bristles wider than one count; position_friction: its harmonics) and beats ``coulomb`` by the
    held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison between two laws that
    both count) on the held-out units where the two laws' predictions differ by more than the
    floor and on all of them (Simes' combination of the two), or, for stiction, shows its breakaway

@@ -34,7 +34,7 @@ from .motion import held_at_rest_rows, held_level_factor
 from .residuals import GapData, gap_log_scales
 
 __all__ = ["held_out_test", "effect_held_out_test", "units_test", "correlation_length", "test_units", "nested_law_test", "richer_law_justified",
-           "breakaway_resolved_at_rest", "breakaway_proven_at_rest", "breakaway_beyond_level", "richer_law_resolved", "candidate_levels", "verdict_ties", "NESTED_ALPHA"]
+           "breakaway_resolved_at_rest", "breakaway_proven_at_rest", "richer_law_resolved", "candidate_levels", "verdict_ties", "NESTED_ALPHA"]
 
 
 def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks: np.ndarray, *,
@@ -387,63 +387,15 @@ def _window_sums(x: np.ndarray, h: int) -> np.ndarray:
     return c[h:] - c[:-h]
 
 
-#: Presliding displacement, in units of the search's first point (one encoder count), beyond which LuGre
-#: bristles resolve stiction by themselves (:func:`breakaway_beyond_level`) [-].
-BRISTLES_RESOLVED = 10.0
-
-
-def breakaway_beyond_level(data: GapData, richer: CandidateFit, simpler: CandidateFit) -> bool:
-    """Whether a stiction fit's breakaway ``F_s - F_c`` stands beyond the Coulomb level's own error.
-
-    The Coulomb level carries the analysis' error (the filters smear every reversal,
-    :func:`.identifiability.method_shift`: its shift when the position filter's cut-off is halved), and a
-    stiction fit can place a breakaway of that size at the reversals where the smeared Coulomb law misses
-    (coulomb logs of the independent generator named stiction had fitted breakaways of 0-30 % of F_c, most
-    with bristles one to ten counts wide). The breakaway must exceed that error plus :data:`BREAKAWAY_MARGIN`
-    of the level, the share a torque held at rest must exceed it by too. Presliding bristles wider than ten
-    times the search's first point (:data:`BRISTLES_RESOLVED`) resolve LuGre stiction whatever the fitted
-    breakaway (the bundled Fig. 7 scenario: bristles about a thousand counts wide, its breakaway read as 3 %
-    of F_c for a true 25 %). Over fifty-one seeds (8,460 logs at scales 1 and 0.25): thirteen coulomb logs named
-    stiction become coulomb, seven stiction logs, on which the fitted breakaway falls inside the level's error,
-    become coulomb too.
-
-    Parameters
-    ----------
-    data : GapData
-        Prepared equation errors.
-    richer : CandidateFit
-        A stiction fit (alone or first in a pair: its ``F_s``, ``F_c``, ``F_c_neg``).
-    simpler : CandidateFit
-        The coulomb fit of the same data (alone: its analysis error is measured; in a pair: the margin only).
-
-    Returns
-    -------
-    bool
-        True when the breakaway exceeds the level's error and the margin.
-    """
-    p, c = richer.params, simpler.params
-    if "F_s" not in p or "F_c" not in c:
-        return False
-    bristles = next(((value, lo) for nm, value, lo, _ in richer.structure.grid if nm == "x_p"), None) \
-        if richer.structure is not None else None
-    if bristles is not None and bristles[0] > BRISTLES_RESOLVED * bristles[1]:
-        return True
-    level = max(float(c["F_c"]), float(c.get("F_c_neg", c["F_c"])))
-    shift = method_shift(data, simpler) if set(c) <= {"F_c", "F_c_neg"} else {}
-    error = max(shift.get("F_c", 0.0), shift.get("F_c_neg", 0.0))
-    return float(p["F_s"]) - float(p["F_c"]) > error + BREAKAWAY_MARGIN * level
-
-
 def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateFit, *,
                         at_rest: Callable[[], bool] | None = None, stribeck: Callable[[], bool] | None = None) -> bool:
     """Whether a richer friction law resolves what it adds to coulomb (part (a) of :func:`richer_law_justified`).
 
     Stiction: a breakaway above the Coulomb level (its Stribeck coefficient ``dF`` by the Wald test at
-    :data:`NESTED_ALPHA`, or at rest, :func:`breakaway_proven_at_rest`, :func:`breakaway_resolved_at_rest`) or
-    presliding bristles wider than the search's first point (one encoder count), and in either case a fitted
-    breakaway beyond the Coulomb level's own error (:func:`breakaway_beyond_level`); position_friction: its
-    angle harmonics by the Wald test. A stiction law that resolves neither is a Coulomb law with a bump or
-    presliding the log does not carry, whether or not the Coulomb law itself counts.
+    :data:`NESTED_ALPHA`, or at rest, :func:`breakaway_proven_at_rest`, :func:`breakaway_resolved_at_rest`) or presliding bristles wider than
+    the search's first point (one encoder count); position_friction: its angle harmonics by the Wald test.
+    A stiction law that resolves neither is a Coulomb law with a bump or presliding the log does not carry,
+    whether or not the Coulomb law itself counts.
 
     Parameters
     ----------
@@ -462,8 +414,6 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
     s = richer.structure
     names = [c.name for c in s.coefs] if s is not None else []
     if "dF" in names:
-        if not breakaway_beyond_level(data, richer, simpler):
-            return False
         at_rest = at_rest or (lambda: breakaway_proven_at_rest(data, simpler)
                               or breakaway_resolved_at_rest(data, richer, simpler))
         stribeck = stribeck or (lambda: terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA)
