@@ -54,8 +54,9 @@ probability or scales with the information in the log; none is tuned to one gene
    prefers (the BIC weighs every row alike, a breakaway acts on a few). A friction law keeps a level
    per direction of motion only where that lowers the held-out gap and the two levels are within a
    factor 3 (else one level for both, stated in a caveat); the same rule applies to the two-effect
-   path and to the second effect. Where ``coulomb`` does not count, a richer law must still beat it if it is resolved but weak, and name only what it resolves
-   (:func:`.heldout.richer_law_resolved`); else the next candidate that counts, or the weak grade.
+   path and to the second effect. Where ``coulomb`` does not count, a richer law must still beat it if
+   it is resolved but weak, and name only what it resolves (:func:`.heldout.richer_law_resolved`); else
+   the next candidate that counts, or the weak grade.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
    reduction, graded ``weak`` (:mod:`.grading`; it must be told from the re-calibration and have a parameter on
    a direction the log resolves, :func:`.grading.weak_is_distinct`), or ``none`` when there is none.
