@@ -841,18 +841,35 @@ def test_a_dead_band_the_motion_crosses_quickly_is_read_where_it_is_physical(ind
 
 @pytest.mark.slow
 def test_an_effect_withheld_by_the_torque_accuracy_is_reported_with_what_it_explains():
-    # an open-loop 0.25 Hz sweep into an environment whose inertia is 2.3 x the declared one: the mismatch removes
-    # 69 % of the gap at p = 1e-51, but the torque it explains, 2 mN m RMS, is below 0.1 % of the RMS command.
-    # The verdict none stays; the ranking and a caveat now say what was withheld and why (it said nothing)
-    log = ind.make_independent_log("environment_mismatch", 7, 71)
+    # an effect-free open-loop multisine with a torque sensor: an environment mismatch passes the held-out test
+    # (p = 4e-8) but removes 7 % of its equation, 0.3 mN m RMS, below the accuracy of the spring torque. The
+    # verdict is none; the ranking and a caveat say what was withheld and why
+    log = ind.make_independent_log("none", 2, 0)
     d = diagnose(log.experiment, joint=False)
     env = next(r for r in d.ranking if r.effect is Effect.ENVIRONMENT_MISMATCH)
     assert d.effect is Effect.NONE
     assert env.withheld_by_accuracy and env.explained_rms < env.accuracy == d.data.environment_torque_accuracy
-    assert env.reduction_own >= d.data.options.min_reduction and not env.significant and not env.weak
+    assert 0.0 < env.reduction_own < d.data.options.min_reduction and not env.significant and not env.weak
     entry = next(r for r in d.to_mapping()["ranking"] if r["effect"] == "environment_mismatch")
     assert entry["below_accuracy"] and entry["explained_rms_N_m"] == pytest.approx(env.explained_rms)
     assert any(c.startswith("Below accuracy: 'environment_mismatch'") for c in d.caveats)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index, seed", [(7, 71), (6, 120)])
+def test_an_environment_mismatch_that_is_its_equations_gap_counts_below_the_torque_accuracy(index, seed):
+    # open-loop 0.25 Hz sweeps into outputs 2.3 and 0.46 x the declared inertia: the mismatch removes 99 and 100 %
+    # of the environment equation at p < 1e-35, but the torque it explains (2.2 and 0.9 mN m RMS) is below 0.1 %
+    # of the RMS spring torque: named none while every effect was held to that accuracy. A sensor's error in that
+    # equation is a scale (a re-calibration) or noise, which no inertia explains: what removes most of the
+    # equation's gap is its gap
+    log = ind.make_independent_log("environment_mismatch", index, seed)
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.ENVIRONMENT_MISMATCH
+    env = d.ranking[0]
+    assert env.explained_rms < env.accuracy and env.reduction_own >= d.data.options.min_reduction
+    status = d.to_mapping()["verdict"]["status"]["J_scale"]
+    assert abs(status["value"] - log.case.effect_params["J_factor"]) <= 1.96 * status["std"]
 
 
 @pytest.mark.slow

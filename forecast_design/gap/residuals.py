@@ -350,7 +350,8 @@ class GapData:
         torque accuracy withheld true output inertias of 0.40-0.88 x, 84-100 % of their equation, on light outputs).
         A torque sensor's scale is calibrated against the motor's command, so its torque is known no better than
         the motor's: :attr:`torque_accuracy` (an effect-free open-loop log whose sensor read 0.924 x: J and d
-        both 0.955 x, the calibrated scale's error, 7.6 % of the equation).
+        both 0.955 x, the calibrated scale's error, 7.6 % of the equation). A mismatch removing at least
+        ``options.min_reduction`` of its equation's gap is not held to it (:class:`.grading.OwnReduction`).
         """
         if self.tau_s_measured:
             return self.torque_accuracy
