@@ -110,6 +110,28 @@ def test_held_out_test_matches_scipy_one_sided_t_test_on_log_ratios(rng):
     assert held_out_test(fit(a), fit(b), held) == pytest.approx(expected, rel=1e-10)
 
 
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2 ** 32 - 1), n_units=st.integers(3, 40), shift=st.floats(-0.5, 1.5))
+def test_units_test_by_ranks_is_simes_over_scipys_signed_rank_and_t_tests(seed, n_units, shift):
+    from forecast_design.gap.heldout import units_test
+
+    rng = np.random.default_rng(seed)
+    units = np.repeat(np.arange(n_units), 8)
+    ref = rng.normal(0.0, 1.0, units.size) * rng.uniform(0.2, 3.0, units.size)
+    cand = ref * np.exp(-shift * rng.lognormal(0.0, 1.5, units.size)) + rng.normal(0.0, 0.05, units.size)
+    floor = np.full(units.size, 0.02)
+    a = np.bincount(units, weights=ref ** 2)
+    b = np.bincount(units, weights=cand ** 2)
+    lr = np.log(np.maximum(a, 1e-6 * a.mean()) / np.maximum(b, 1e-6 * a.mean()))
+    apart = np.bincount(units, weights=(ref - cand) ** 2) >= np.bincount(units, weights=floor)
+    p_all = stats.wilcoxon(lr, alternative="greater").pvalue
+    p_apart = stats.ttest_1samp(lr[apart], 0.0, alternative="greater").pvalue if apart.sum() >= 2 else 1.0
+    lo, hi = sorted((p_all, p_apart))
+    p, k = units_test(ref, cand, units, floor, rank=True)
+    assert k == int(apart.sum())
+    assert p == pytest.approx(min(1.0, 2.0 * lo, hi), rel=1e-9, abs=1e-300)
+
+
 def test_nominal_response_locked_is_second_order_lag():
     exp = _log(env="locked", duration_s=2.0)
     data = prepare_gap_data(exp)

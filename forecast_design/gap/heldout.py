@@ -38,7 +38,7 @@ __all__ = ["held_out_test", "effect_held_out_test", "units_test", "correlation_l
 
 
 def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks: np.ndarray, *,
-                  units: np.ndarray | None = None, floor: np.ndarray | None = None) -> float:
+                  units: np.ndarray | None = None, floor: np.ndarray | None = None, rank: bool = False) -> float:
     """One-sided paired t-test that ``candidate`` lowers the squared error of the held-out data.
 
     The test statistic is the per-unit log ratio ``log(SSE_reference / SSE_candidate)``:
@@ -60,6 +60,8 @@ def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks:
         Quantisation floor of every stacked row (:func:`.grading.noise_floor`) [N m^2]; with ``units``,
         the test is also run on the units where the two fits' predictions differ by at least the
         floor, and the two p-values combined (:func:`units_test`).
+    rank : bool
+        With ``units`` and ``floor``: the test over every unit by signed ranks (:func:`units_test`).
 
     Returns
     -------
@@ -68,11 +70,11 @@ def held_out_test(reference: CandidateFit, candidate: CandidateFit, held_blocks:
     """
     if units is None:
         return _log_ratio_p(reference.block_sse[held_blocks], candidate.block_sse[held_blocks])
-    return units_test(reference.residual, candidate.residual, units, floor)[0]
+    return units_test(reference.residual, candidate.residual, units, floor, rank=rank)[0]
 
 
 def units_test(reference: np.ndarray, candidate: np.ndarray, units: np.ndarray,
-               floor: np.ndarray | None) -> tuple[float, int]:
+               floor: np.ndarray | None, *, rank: bool = False) -> tuple[float, int]:
     """Paired test over held-out units that ``candidate`` predicts better, on every unit and where the fits differ.
 
     Two one-sided t-tests on the per-unit log ratios ``log(SSE_reference / SSE_candidate)``: over every
@@ -84,7 +86,12 @@ def units_test(reference: np.ndarray, candidate: np.ndarray, units: np.ndarray,
     few units (a delay, which acts only at the edges of a slow square wave: 98 % of the gap removed,
     in 5 of 20 units). The p-values are combined by Simes' rule, ``min(2 p_(1), p_(2))``, a valid level
     for tests that are positively dependent, as two tests on the same units are (Sarkar, Ann. Statist.
-    26, 1998).
+    26, 1998). With ``rank`` the test over every unit is Wilcoxon's signed-rank test instead of the t-test:
+    where an improvement spans decades across the units (a delay on a square's edges: 10 of 10 units
+    better, the log ratios 0.01-9.4), their spread takes the t-test's power (p = 0.0095) and not the
+    ranks' (0.001). It is asked for candidates of a clear verdict's size only: the ranks also prove an
+    improvement of a few percent in most units, which on an effect-free log is the nominal model's
+    small error, not an effect (a torque gain removing 1.5 % of the gap: ranks p = 1e-12, t 0.025).
 
     Parameters
     ----------
@@ -95,6 +102,8 @@ def units_test(reference: np.ndarray, candidate: np.ndarray, units: np.ndarray,
     floor : ndarray or None
         Quantisation floor of every stacked row (:func:`.grading.noise_floor`) [N m^2]; None: the test over
         every unit alone.
+    rank : bool
+        The test over every unit by signed ranks (with ``floor``).
 
     Returns
     -------
@@ -116,8 +125,18 @@ def units_test(reference: np.ndarray, candidate: np.ndarray, units: np.ndarray,
     informative = (apart >= np.bincount(u, weights=floor[use], minlength=n)) & (apart > 0.0)
     k = int(np.count_nonzero(informative))
     p_apart = _log_ratio_p(a[informative], b[informative]) if k >= 2 else 1.0
-    lo, hi = sorted((p_apart, _log_ratio_p(a, b)))
+    p_all = _signed_rank_p(a, b) if rank else _log_ratio_p(a, b)
+    lo, hi = sorted((p_apart, p_all))
     return min(1.0, 2.0 * lo, hi), k
+
+
+def _signed_rank_p(a: np.ndarray, b: np.ndarray) -> float:
+    """One-sided Wilcoxon signed-rank p-value that ``log(a / b)`` over the units lies above zero."""
+    floor = max(1e-6 * float(np.mean(a)), 1e-300) if a.size else 1e-300
+    d = np.log(np.maximum(a, floor) / np.maximum(b, floor))
+    if np.count_nonzero(d) < 2:
+        return _log_ratio_p(a, b)
+    return float(stats.wilcoxon(d, alternative="greater").pvalue)
 
 
 def _log_ratio_p(a: np.ndarray, b: np.ndarray) -> float:
@@ -140,7 +159,8 @@ def _log_ratio_p(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def effect_held_out_test(data: GapData, reference: CandidateFit, candidate: CandidateFit, *,
-                         units: np.ndarray | None = None, floor: np.ndarray | None = None) -> float:
+                         units: np.ndarray | None = None, floor: np.ndarray | None = None,
+                         rank: bool = False) -> float:
     """:func:`held_out_test` of ``candidate`` on the held-out units of the equations where its effect acts.
 
     Parameters
@@ -153,6 +173,8 @@ def effect_held_out_test(data: GapData, reference: CandidateFit, candidate: Cand
         The candidate's test units over every stacked row (:func:`test_units`); None: computed here.
     floor : ndarray or None
         The quantisation floor of every stacked row (:func:`.grading.noise_floor`); None: computed here.
+    rank : bool
+        The test over every unit by signed ranks (:func:`units_test`).
 
     Returns
     -------
@@ -162,7 +184,7 @@ def effect_held_out_test(data: GapData, reference: CandidateFit, candidate: Cand
     units = test_units(data, candidate) if units is None else units
     floor = noise_floor(data) if floor is None else floor
     return held_out_test(reference, candidate, np.arange(1, data.options.n_blocks, 2),
-                         units=np.where(effect_rows(data, candidate), units, -1), floor=floor)
+                         units=np.where(effect_rows(data, candidate), units, -1), floor=floor, rank=rank)
 
 
 def correlation_length(residual: np.ndarray) -> int:
