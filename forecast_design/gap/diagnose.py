@@ -490,11 +490,9 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
         mine = own_reduction(data, base, fit, floor)
         red_own, explained, accuracy, counted = mine.reduction, mine.explained_rms, mine.accuracy, mine.counted
         all_units = test_units(data, fit)
-        p = effect_held_out_test(data, base, fit, units=all_units, floor=floor)
-        if counted >= opts.min_reduction:
-            # a clear verdict's size: its improvement may span decades across the units (an effect at a square's
-            # edges), which takes the t-test's power and not the ranks' (.heldout.units_test)
-            p = effect_held_out_test(data, base, fit, units=all_units, floor=floor, rank=True)
+        # a clear verdict's size is tested by signed ranks: its improvement may span decades across the units (an
+        # effect at a square's edges), which takes the t-test's power and not the ranks' (.heldout.units_test)
+        p = effect_held_out_test(data, base, fit, units=all_units, floor=floor, rank=counted >= opts.min_reduction)
         # and the total gap, all equations, must drop by the same test (an environment mismatch explaining its quiet
         # equation next to a motor equation full of stiction is no verdict); one removing min_reduction of the total
         # is asked there at the unsplit level, its own test keeping its share (J x 0.44: 82 %, p 0.0076 > 0.005)

@@ -130,11 +130,18 @@ def units_test(reference: np.ndarray, candidate: np.ndarray, units: np.ndarray,
     return min(1.0, 2.0 * lo, hi), k
 
 
+def _log_ratios(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per-unit ``log(a / b)`` of two non-empty arrays of unit SSEs [-]."""
+    # A unit explained to (numerically) zero, e.g. a stuck motor under a static-friction
+    # model, would give an infinite log ratio whose spread hides a consistent improvement:
+    # squared errors below 1e-6 of the reference's mean unit are treated as equal.
+    floor = max(1e-6 * float(np.mean(a)), 1e-300)
+    return np.log(np.maximum(a, floor) / np.maximum(b, floor))
+
+
 def _signed_rank_p(a: np.ndarray, b: np.ndarray) -> float:
     """One-sided Wilcoxon signed-rank p-value that ``log(a / b)`` over the units lies above zero."""
-    floor = max(1e-6 * float(np.mean(a)), 1e-300) if a.size else 1e-300
-    d = np.log(np.maximum(a, floor) / np.maximum(b, floor))
-    if np.count_nonzero(d) < 2:
+    if a.size == 0 or np.count_nonzero(d := _log_ratios(a, b)) < 2:
         return _log_ratio_p(a, b)
     return float(stats.wilcoxon(d, alternative="greater").pvalue)
 
@@ -143,13 +150,7 @@ def _log_ratio_p(a: np.ndarray, b: np.ndarray) -> float:
     """One-sided t-test p-value that the mean of ``log(a / b)`` over the units is > 0 (see :func:`held_out_test`)."""
     if a.size == 0:   # no held-out unit (a log too short or too still to test on): no evidence of improvement
         return 1.0
-    # A unit explained to (numerically) zero, e.g. a stuck motor under a static-friction
-    # model, would give an infinite log ratio whose spread hides a consistent improvement:
-    # squared errors below 1e-6 of the reference's mean unit are treated as equal.
-    floor = max(1e-6 * float(np.mean(a)), 1e-300)
-    a = np.maximum(a, floor)
-    b = np.maximum(b, floor)
-    d = np.log(a / b)
+    d = _log_ratios(a, b)
     n = d.size
     sd = float(np.std(d, ddof=1)) if n > 1 else 0.0
     mean = float(np.mean(d))
