@@ -901,6 +901,35 @@ def test_stiction_whose_levels_the_log_does_not_separate_is_named_on_a_proven_br
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("index,seed,path", [
+    (3, 163, "stribeck"),   # closed-loop square, 2e6 counts: dF 0.06 % of F_c, its Wald test at p = 0.002
+    (2, 131, "bristles"),   # closed-loop square, 16 bits: bristles a grid point wider than a count, F_s 3 % above
+])
+def test_a_breakaway_within_the_margin_of_a_coulomb_level_is_not_stiction(index, seed, path):
+    # Coulomb friction with true sticking, named stiction: the stiction fit's breakaway stands within
+    # BREAKAWAY_MARGIN (the Coulomb level's own error) of a Coulomb level, which is not F_s > F_c
+    from forecast_design.gap.heldout import BREAKAWAY_MARGIN, NESTED_ALPHA, richer_law_resolved
+    from forecast_design.gap.identifiability import terms_wald_p
+
+    log = ind.make_independent_log("coulomb", index, seed)
+    d = diagnose(log.experiment, joint=False)
+    st, coul = d.fits["stiction"], d.fits["coulomb"]
+    level = max(st.params["F_c"], st.params["F_c_neg"])
+    breakaway = st.params["F_s"] - st.params["F_c"] + level
+    if path == "stribeck":
+        assert terms_wald_p(d.data, st, ["dF"]) < NESTED_ALPHA and breakaway < (1 + BREAKAWAY_MARGIN) * level
+    else:
+        x_p = next(g for g in st.structure.grid if g[0] == "x_p")
+        assert x_p[1] > x_p[2] and breakaway < (1 + BREAKAWAY_MARGIN) * max(coul.params["F_c"], coul.params["F_c_neg"])
+    assert not richer_law_resolved(d.data, st, coul)
+    assert d.effect is Effect.COULOMB
+    status = d.to_mapping()["verdict"]["status"]
+    for name in ("F_c", "F_c_neg"):
+        truth = log.case.effect_params.get(name, log.case.effect_params["F_c"])
+        assert abs(status[name]["value"] - truth) <= 1.96 * status[name]["std"]
+
+
+@pytest.mark.slow
 def test_an_effect_withheld_by_the_torque_accuracy_is_reported_with_what_it_explains():
     # an effect-free open-loop multisine with a torque sensor: an environment mismatch passes the held-out test
     # (p = 4e-8) but removes 7 % of its equation, 0.3 mN m RMS, below the accuracy of the spring torque. The

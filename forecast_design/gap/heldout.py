@@ -330,7 +330,8 @@ def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: Can
 
 #: Share of the Coulomb level a torque held at rest must exceed it by, beyond the allowances of
 #: :func:`breakaway_proven_at_rest`, to prove a breakaway [-]: what is left of the level's own error
-#: (Coulomb logs of twenty-two seeds proved at most 1.024 of their fitted level, stiction logs up to F_s / F_c).
+#: (Coulomb logs of twenty-two seeds proved at most 1.024 of their fitted level, stiction logs up to F_s / F_c);
+#: a fitted breakaway must stand as far above its Coulomb level (:func:`richer_law_resolved`).
 BREAKAWAY_MARGIN = 0.05
 
 
@@ -415,10 +416,14 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
     """Whether a richer friction law resolves what it adds to coulomb (part (a) of :func:`richer_law_justified`).
 
     Stiction: a breakaway above the Coulomb level (its Stribeck coefficient ``dF`` by the Wald test at
-    :data:`NESTED_ALPHA`, or at rest, :func:`breakaway_proven_at_rest`, :func:`breakaway_resolved_at_rest`) or presliding bristles wider than
-    the search's first point (one encoder count); position_friction: its angle harmonics by the Wald test.
-    A stiction law that resolves neither is a Coulomb law with a bump or presliding the log does not carry,
-    whether or not the Coulomb law itself counts.
+    :data:`NESTED_ALPHA` and more than :data:`BREAKAWAY_MARGIN` of its own level, or at rest,
+    :func:`breakaway_proven_at_rest`, :func:`breakaway_resolved_at_rest`) or presliding bristles wider than
+    the search's first point (one encoder count) whose breakaway ``max(F_c, F_c_neg) + dF`` stands
+    :data:`BREAKAWAY_MARGIN` above the Coulomb law's level (a presliding law reads its levels through the
+    bristles); position_friction: its angle harmonics by the Wald test. A stiction law that resolves neither
+    is a Coulomb law with a bump or presliding the log does not carry, whether or not the Coulomb law itself
+    counts: the vocabulary's stiction is ``F_s > F_c``, and a breakaway within the Coulomb level's own error
+    is not that.
 
     Parameters
     ----------
@@ -441,7 +446,16 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
                               or breakaway_resolved_at_rest(data, richer, simpler))
         stribeck = stribeck or (lambda: terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA)
         bristles = next(((value, lo) for nm, value, lo, _ in s.grid if nm == "x_p"), None)
-        return (bristles is not None and bristles[0] > bristles[1] * (1.0 + 1e-9)) or at_rest() or stribeck()
+        wide = bristles is not None and bristles[0] > bristles[1] * (1.0 + 1e-9)
+        # a breakaway within BREAKAWAY_MARGIN of a Coulomb level is that level's own error, not F_s > F_c: above
+        # the law's own level for its bump (a closed-loop Coulomb square: dF 0.06 % of F_c at Wald p = 0.002);
+        # presliding reads its levels through the bristles, so there above the Coulomb law's (16-bit Coulomb
+        # squares: one-count-wider bristles, F_s within 0-4 % of coulomb's F_c; a 14-bit stiction log: 17 % above)
+        level = max(float(richer.params["F_c"]), float(richer.params.get("F_c_neg", richer.params["F_c"])))
+        breakaway = float(richer.params["F_s"]) - float(richer.params["F_c"]) + level
+        coulomb = max(float(simpler.params["F_c"]), float(simpler.params.get("F_c_neg", simpler.params["F_c"])))
+        return (wide and breakaway > (1.0 + BREAKAWAY_MARGIN) * coulomb) or at_rest() \
+            or (breakaway > (1.0 + BREAKAWAY_MARGIN) * level and stribeck())
     harmonics = [nm for nm in names if len(nm) > 1 and nm[0] in "ab" and nm[1:].isdigit()]
     return terms_wald_p(data, richer, harmonics) < NESTED_ALPHA
 
@@ -452,9 +466,11 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     The richer law must (a) resolve what it adds to coulomb: for position_friction the angle
     harmonics of the level, for stiction either a breakaway above the Coulomb level (the Stribeck
     coefficient ``dF``: the vocabulary's stiction is ``F_s > F_c``; by its Wald test, or at rest above the
-    encoders' noise, :func:`breakaway_proven_at_rest` or :func:`breakaway_resolved_at_rest`) or presliding bristles wider
+    encoders' noise, :func:`breakaway_proven_at_rest` or :func:`breakaway_resolved_at_rest`; a bump within
+    :data:`BREAKAWAY_MARGIN` of the level is none) or presliding bristles wider
     than the log's resolution (the presliding displacement above the grid's first point, one
-    encoder count: LuGre stiction is told from coulomb by its bristles when the Stribeck bump is not
+    encoder count, with the breakaway above the Coulomb law's level by the same margin:
+    LuGre stiction is told from coulomb by its bristles when the Stribeck bump is not
     resolved, as on the bundled Fig. 7 scenario, ``dF`` at Wald p = 0.24, stiction removing 99 % of
     the gap against 77 %); coefficients are judged by the Wald test of
     :func:`.identifiability.terms_wald_p` at :data:`NESTED_ALPHA`. A stiction fit with neither is a

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .heldout import NESTED_ALPHA
+from .heldout import BREAKAWAY_MARGIN, NESTED_ALPHA
 from .replicas import N_REPLICAS, REPLICA_MARGIN
 from .residuals import GapData
 
@@ -43,7 +43,7 @@ def metric_text(data: GapData) -> str:
             f"within its plausible range; an environment mismatch, a delay, a torque gain or a Coulomb level near the quantisation also persists in half the band; a delay "
             f"short against the band is read where coefficient x delay leaves the coefficient's bound, an output J "
             f"shrunk below a tenth of the declared one is held at it); an environment mismatch counts only where no motor-equation candidate removes more of the total gap; the winner minimises the held-out BIC; stiction/position_friction must "
-            f"resolve what they add to coulomb (stiction F_s > F_c or bristles wider than one count) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
+            f"resolve what they add to coulomb (stiction F_s more than {100 * BREAKAWAY_MARGIN:g} % above its Coulomb level, or bristles wider than one count holding more than coulomb's level by as much) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
             f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway at rest, above the "
             f"Coulomb level on rows of two stays; this rule, not the BIC, decides between the two laws (a stiction it "
             f"justifies is the verdict over a coulomb the BIC prefers, and so is one whose levels the log does not separate "
