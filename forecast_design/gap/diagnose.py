@@ -40,9 +40,9 @@ probability or scales with the information in the log; none is tuned to one gene
 4. Among the candidates that count, the winner minimises a held-out BIC,
    ``n log(SSE / n) + p log(n)`` (p = number of effect parameters). A winner (clear or weak) that a torque gain within
    the datasheet tolerance (a re-calibration) explains as well is no verdict, nor a periodic one over less than a
-   period that another candidate explains as well (:func:`.heldout.verdict_ties`). An environment mismatch, which
-   acts in the environment equation alone, counts only where no motor-equation candidate that passes the held-out
-   test removes more of the total gap.
+   period that another candidate explains as well (:func:`.heldout.verdict_ties`). An effect outside the motor
+   equation (an environment mismatch; backlash in the coupling read by a torque sensor) counts only where no
+   motor-equation candidate that passes the held-out test removes more of the total gap.
 5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
    ``stiction`` or ``position_friction`` wins over ``coulomb`` only if it resolves what it adds
    (stiction: ``F_s`` 5 % above a Coulomb level, or bristles wider than one count holding it; position_friction: its
@@ -519,13 +519,14 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                                       explained_rms=explained, accuracy=accuracy,
                                       withheld_by_accuracy=passes and red_own > 0.0 and counted == 0.0,
                                       level=alpha_fit, n_units=int(all_units.max()) + 1))
-    # an environment mismatch acts in the environment equation alone: where a motor-equation candidate passing the test
-    # removes more of the total gap, it lies in the motor equation (six verdicts: 47-95 % of a quiet equation, 0.3-10 %
-    # of the total, beside a friction, gain or cogging removing 11-37 %)
-    motor = max((r.reduction for r in ranked if r.p_value < alpha and "environment" not in r.equations), default=0.0)
-    demoted = [r for r in ranked if r.effect is Effect.ENVIRONMENT_MISMATCH and r.significant and r.reduction < motor]
+    # an effect outside the motor equation (an environment mismatch; backlash read by a torque sensor, in the coupling):
+    # where a motor-equation candidate passing the test removes more of the total gap, it lies in the motor equation
+    # (six environment verdicts: 47-95 % of a quiet equation, 0.3-10 % of the total, beside a friction, gain or cogging
+    # removing 11-37 %; a backlash: 59 % of the coupling, 0.6 % of the total, beside a torque gain removing 37 %)
+    motor = max((r.reduction for r in ranked if r.p_value < alpha and "motor" in r.equations), default=0.0)
+    demoted = [r for r in ranked if "motor" not in r.equations and r.significant and r.reduction < motor]
     ranked = [dataclasses.replace(r, significant=False) if r in demoted else r for r in ranked]
-    caveats: list[str] = [f"Not counted: 'environment_mismatch' explains {100 * r.reduction_own:.0f} % of the environment "
+    caveats: list[str] = [f"Not counted: '{r.effect}' explains {100 * r.reduction_own:.0f} % of the {' and '.join(r.equations)} "
                           f"equation but {100 * r.reduction:.0f} % of the total gap, less than a motor-equation "
                           f"candidate ({100 * motor:.0f} %): the gap lies in the motor equation." for r in demoted]
     ranked.sort(key=lambda r: (not r.significant, r.bic))

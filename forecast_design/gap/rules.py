@@ -42,7 +42,7 @@ def metric_text(data: GapData) -> str:
             f"distinguishable from zero by a Wald test with autocorrelation-corrected covariance, every parameter "
             f"within its plausible range; an environment mismatch, a delay, a torque gain or a Coulomb level near the quantisation also persists in half the band; a delay "
             f"short against the band is read where coefficient x delay leaves the coefficient's bound, an output J "
-            f"shrunk below a tenth of the declared one is held at it); an environment mismatch counts only where no motor-equation candidate removes more of the total gap; the winner minimises the held-out BIC; stiction/position_friction must "
+            f"shrunk below a tenth of the declared one is held at it); an effect outside the motor equation (an environment mismatch, backlash in the coupling) counts only where no motor-equation candidate removes more of the total gap; the winner minimises the held-out BIC; stiction/position_friction must "
             f"resolve what they add to coulomb (stiction F_s more than {100 * BREAKAWAY_MARGIN:g} % above its Coulomb level, or bristles wider than one count holding more than coulomb's level by as much) and beat coulomb by the same test at level {NESTED_ALPHA:g} on the held-out units where their predictions differ by more "
             f"than the floor and on all of them (Simes' combination), or (stiction) show the breakaway at rest, above the "
             f"Coulomb level on rows of two stays; this rule, not the BIC, decides between the two laws (a stiction it "
