@@ -947,6 +947,22 @@ def test_a_breakaway_within_the_margin_of_a_coulomb_level_is_not_stiction(index,
 
 
 @pytest.mark.slow
+def test_presliding_on_the_searchs_upper_end_is_no_stiction_on_an_effect_free_log():
+    # an effect-free closed-loop square (2e6 counts, tau_s printed to 4 decimals): the stiction fit put its bristles on
+    # the search's widest point (10 mrad) with every level's interval holding zero, coulomb unresolved, and was the
+    # clear verdict. A width on the bound is not found (item 13): no evidence of presliding, no false alarm
+    from forecast_design.gap.heldout import richer_law_resolved
+
+    log = ind.make_independent_log("none", 8, 172, magnitude_scale=0.25)
+    d = diagnose(log.experiment, joint=False)
+    st = d.fits["stiction"]
+    _, x_p, _, x_hi = next(g for g in st.structure.grid if g[0] == "x_p")
+    assert x_p == x_hi
+    assert not richer_law_resolved(d.data, st, d.fits["coulomb"])
+    assert d.effect is Effect.NONE
+
+
+@pytest.mark.slow
 def test_an_effect_withheld_by_the_torque_accuracy_is_reported_with_what_it_explains():
     # an effect-free open-loop multisine with a torque sensor: an environment mismatch passes the held-out test
     # (p = 4e-8) but removes 7 % of its equation, 0.3 mN m RMS, below the accuracy of the spring torque. The

@@ -418,7 +418,7 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
     Stiction: a breakaway above the Coulomb level (its Stribeck coefficient ``dF`` by the Wald test at
     :data:`NESTED_ALPHA` and more than :data:`BREAKAWAY_MARGIN` of its own level, or at rest,
     :func:`breakaway_proven_at_rest`, :func:`breakaway_resolved_at_rest`) or presliding bristles wider than
-    the search's first point (one encoder count) whose breakaway ``max(F_c, F_c_neg) + dF`` stands
+    the search's first point (one encoder count) and short of its last (a bound hit finds no width) whose breakaway ``max(F_c, F_c_neg) + dF`` stands
     :data:`BREAKAWAY_MARGIN` above the Coulomb law's level (a presliding law reads its levels through the
     bristles); position_friction: its angle harmonics by the Wald test. A stiction law that resolves neither
     is a Coulomb law with a bump or presliding the log does not carry, whether or not the Coulomb law itself
@@ -445,8 +445,10 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
         at_rest = at_rest or (lambda: breakaway_proven_at_rest(data, simpler)
                               or breakaway_resolved_at_rest(data, richer, simpler))
         stribeck = stribeck or (lambda: terms_wald_p(data, richer, ["dF"]) < NESTED_ALPHA)
-        bristles = next(((value, lo) for nm, value, lo, _ in s.grid if nm == "x_p"), None)
-        wide = bristles is not None and bristles[0] > bristles[1] * (1.0 + 1e-9)
+        bristles = next(((value, lo, hi) for nm, value, lo, hi in s.grid if nm == "x_p"), None)
+        # presliding on the search's upper end has found no width (an effect-free closed-loop square: 10 mrad of
+        # "bristles", every level's interval holding zero): no evidence, as any bound hit
+        wide = bristles is not None and bristles[1] * (1.0 + 1e-9) < bristles[0] < bristles[2] * (1.0 - 1e-9)
         # a breakaway within BREAKAWAY_MARGIN of a Coulomb level is that level's own error, not F_s > F_c: above
         # the law's own level for its bump (a closed-loop Coulomb square: dF 0.06 % of F_c at Wald p = 0.002);
         # presliding reads its levels through the bristles, so there above the Coulomb law's (16-bit Coulomb
