@@ -418,9 +418,9 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
     Stiction: a breakaway above the Coulomb level (its Stribeck coefficient ``dF`` by the Wald test at
     :data:`NESTED_ALPHA` and more than :data:`BREAKAWAY_MARGIN` of its own level, or at rest,
     :func:`breakaway_proven_at_rest`, :func:`breakaway_resolved_at_rest`) or presliding bristles wider than
-    the search's first point (one encoder count) and short of its last (a bound hit finds no width) whose breakaway ``max(F_c, F_c_neg) + dF`` stands
-    :data:`BREAKAWAY_MARGIN` above the Coulomb law's level (a presliding law reads its levels through the
-    bristles); position_friction: its angle harmonics by the Wald test. A stiction law that resolves neither
+    the search's first point (one encoder count) and short of its last (a bound hit finds no width) whose
+    breakaway ``max(F_c, F_c_neg) + dF`` stands :data:`BREAKAWAY_MARGIN` above the Coulomb law's level (a
+    presliding law reads its levels through the bristles); position_friction: its angle harmonics by the Wald test. A stiction law that resolves neither
     is a Coulomb law with a bump or presliding the log does not carry, whether or not the Coulomb law itself
     counts: the vocabulary's stiction is ``F_s > F_c``, and a breakaway within the Coulomb level's own error
     is not that.
