@@ -940,6 +940,10 @@ def test_a_breakaway_within_the_margin_of_a_coulomb_level_is_not_stiction(index,
         assert x_p[1] > x_p[2] and breakaway < (1 + BREAKAWAY_MARGIN) * max(coul.params["F_c"], coul.params["F_c_neg"])
     assert not richer_law_resolved(d.data, st, coul)
     assert d.effect is Effect.COULOMB
+    ranked = {r.effect: r for r in d.ranking}
+    # the law set aside removed more of the gap: the output says so
+    assert ranked[Effect.STICTION].significant and ranked[Effect.STICTION].reduction > ranked[Effect.COULOMB].reduction
+    assert any(c.startswith("Parsimony: 'stiction' removes") for c in d.to_mapping()["caveats"])
     status = d.to_mapping()["verdict"]["status"]
     for name in ("F_c", "F_c_neg"):
         truth = log.case.effect_params.get(name, log.case.effect_params["F_c"])

@@ -1,7 +1,7 @@
 """Caveats a diagnosis computes from its log: what the verdict cannot tell apart, and what it did not count.
 
 Each caveat is one sentence of the diagnosis JSON's ``caveats``, starting with its kind (``Caution``,
-``Assumed``, ``Not identified``, ``Not proven``, ``Below accuracy``, ``Note``).
+``Assumed``, ``Not identified``, ``Not proven``, ``Below accuracy``, ``Parsimony``, ``Note``).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import numpy as np
 from ..effects import Effect
 from .candidates import CandidateFit, fit_constant_torque, levels_shared
 from .grading import CONSTANT_TORQUE_SHARE
+from .heldout import BREAKAWAY_MARGIN
 from .identifiability import calibration_status
 from .isolability import CALIBRATION, Isolability
 from .residuals import GapData, GapOptions, gap_log_scales
@@ -74,7 +75,16 @@ def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso:
         out.append("Assumed: the environment's J at its declared value, not estimated: fitted, it came out below a "
                    "tenth of it, the output encoder's quantisation in q'' (errors in variables), so only d and k_e "
                    "are fitted.")
+    named = next((r for r in ranked if r.effect is verdict), None)
     for r in ranked:
+        if verdict is Effect.COULOMB and named is not None and r.effect in (Effect.STICTION, Effect.POSITION_FRICTION) \
+                and r.significant and r.reduction > named.reduction:
+            # the nested-law rule (.heldout.richer_law_justified) chose the simpler law: say what it set aside
+            out.append(f"Parsimony: '{r.effect}' removes {100 * r.reduction:.0f} % of the gap against coulomb's "
+                       f"{100 * named.reduction:.0f} %, but the nested-law rule does not justify it (it must resolve "
+                       f"what it adds: a breakaway more than {100 * BREAKAWAY_MARGIN:g} % above the Coulomb level, "
+                       "bristles wider than one count holding it, or angle harmonics; and beat coulomb on the held-out "
+                       "units, or show its breakaway at rest): the verdict is the simpler law.")
         if r.effect is not verdict and r.assessment is not None and not r.assessment.identified \
                 and r.reduction >= opts.min_reduction:
             out.append(f"Not identified: '{r.effect}' would remove {100 * r.reduction:.0f} % of the gap but "
