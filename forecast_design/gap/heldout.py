@@ -375,7 +375,7 @@ def _breakaway_proven(data: GapData, simpler: CandidateFit) -> bool:
     sig, tb = exp.signals, exp.design.testbed
     if not set(simpler.params) <= {"F_c", "F_c_neg"}:
         return False    # a pair's second effect acts at rest too, which the net torque below leaves in
-    levels = (float(simpler.params["F_c"]), float(simpler.params.get("F_c_neg", simpler.params["F_c"])))
+    levels = _levels(simpler.params)
     if min(levels) <= 0.0:
         return False
     cal = simpler.calibration
@@ -405,6 +405,11 @@ def _breakaway_proven(data: GapData, simpler: CandidateFit) -> bool:
     return len(proven) >= 2
 
 
+def _levels(params: Any) -> tuple[float, float]:
+    """A friction fit's Coulomb levels ``(F_c, F_c_neg)`` [N m] (one shared level: both the same)."""
+    return float(params["F_c"]), float(params.get("F_c_neg", params["F_c"]))
+
+
 def _window_sums(x: np.ndarray, h: int) -> np.ndarray:
     """Sums of ``h`` consecutive samples of ``x`` (``np.convolve(x, ones(h), 'valid')`` in O(n))."""
     c = np.concatenate([[0.0], np.cumsum(x)])
@@ -420,10 +425,10 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
     :func:`breakaway_proven_at_rest`, :func:`breakaway_resolved_at_rest`) or presliding bristles wider than
     the search's first point (one encoder count) and short of its last (a bound hit finds no width) whose
     breakaway ``max(F_c, F_c_neg) + dF`` stands :data:`BREAKAWAY_MARGIN` above the Coulomb law's level (a
-    presliding law reads its levels through the bristles); position_friction: its angle harmonics by the Wald test. A stiction law that resolves neither
-    is a Coulomb law with a bump or presliding the log does not carry, whether or not the Coulomb law itself
-    counts: the vocabulary's stiction is ``F_s > F_c``, and a breakaway within the Coulomb level's own error
-    is not that.
+    presliding law reads its levels through the bristles); position_friction: its angle harmonics by the Wald
+    test. A stiction law that resolves neither is a Coulomb law with a bump or presliding the log does not
+    carry, whether or not the Coulomb law itself counts: the vocabulary's stiction is ``F_s > F_c``, and a
+    breakaway within the Coulomb level's own error is not that.
 
     Parameters
     ----------
@@ -453,9 +458,8 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
         # the law's own level for its bump (a closed-loop Coulomb square: dF 0.06 % of F_c at Wald p = 0.002);
         # presliding reads its levels through the bristles, so there above the Coulomb law's (16-bit Coulomb
         # squares: one-count-wider bristles, F_s within 0-4 % of coulomb's F_c; a 14-bit stiction log: 17 % above)
-        level = max(float(richer.params["F_c"]), float(richer.params.get("F_c_neg", richer.params["F_c"])))
+        level, coulomb = max(_levels(richer.params)), max(_levels(simpler.params))
         breakaway = float(richer.params["F_s"]) - float(richer.params["F_c"]) + level
-        coulomb = max(float(simpler.params["F_c"]), float(simpler.params.get("F_c_neg", simpler.params["F_c"])))
         return (wide and breakaway > (1.0 + BREAKAWAY_MARGIN) * coulomb) or at_rest() \
             or (breakaway > (1.0 + BREAKAWAY_MARGIN) * level and stribeck())
     harmonics = [nm for nm in names if len(nm) > 1 and nm[0] in "ab" and nm[1:].isdigit()]
