@@ -951,6 +951,29 @@ def test_a_breakaway_within_the_margin_of_a_coulomb_level_is_not_stiction(index,
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("index,seed", [(7, 113), (2, 90)])   # closed loop, 2e6 counts: a multisine and a square
+def test_a_stribeck_bump_narrower_than_the_stick_velocity_is_no_breakaway(index, seed):
+    # Coulomb friction named stiction: the Stribeck bump sat on the search's lowest width (1-1.3 mrad/s, below the
+    # 2 mrad/s under which a row may be at rest) at 2.5-4 x F_c, its coefficient at Wald p < 1e-7. A bump that
+    # narrow acts only on rows the law at rest holds; only the rows at rest could prove it, and they do not
+    from forecast_design.gap.heldout import (BREAKAWAY_MARGIN, NESTED_ALPHA, breakaway_proven_at_rest,
+                                             breakaway_resolved_at_rest, richer_law_resolved)
+    from forecast_design.gap.identifiability import terms_wald_p
+
+    log = ind.make_independent_log("coulomb", index, seed)
+    d = diagnose(log.experiment, joint=False)
+    st, coul = d.fits["stiction"], d.fits["coulomb"]
+    v_s, v_lo = next(g[1:3] for g in st.structure.grid if g[0] == "v_s")
+    assert v_s == v_lo < d.data.options.stick_velocity
+    assert st.params["F_s"] > (1 + BREAKAWAY_MARGIN) * st.params["F_c"] and terms_wald_p(d.data, st, ["dF"]) < NESTED_ALPHA
+    assert not (breakaway_proven_at_rest(d.data, coul) or breakaway_resolved_at_rest(d.data, st, coul))
+    assert not richer_law_resolved(d.data, st, coul)
+    assert d.effect is Effect.COULOMB
+    status = d.to_mapping()["verdict"]["status"]
+    assert abs(status["F_c"]["value"] - log.case.effect_params["F_c"]) <= 1.96 * status["F_c"]["std"]
+
+
+@pytest.mark.slow
 def test_presliding_on_the_searchs_upper_end_is_no_stiction_on_an_effect_free_log():
     # an effect-free closed-loop square (2e6 counts, tau_s printed to 4 decimals): the stiction fit put its bristles on
     # the search's widest point (10 mrad) with every level's interval holding zero, coulomb unresolved, and was the

@@ -421,7 +421,8 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
     """Whether a richer friction law resolves what it adds to coulomb (part (a) of :func:`richer_law_justified`).
 
     Stiction: a breakaway above the Coulomb level (its Stribeck coefficient ``dF`` by the Wald test at
-    :data:`NESTED_ALPHA` and more than :data:`BREAKAWAY_MARGIN` of its own level, or at rest,
+    :data:`NESTED_ALPHA` and more than :data:`BREAKAWAY_MARGIN` of its own level, for a bump no narrower than
+    ``GapOptions.stick_velocity``, below which a row may be at rest; or at rest,
     :func:`breakaway_proven_at_rest`, :func:`breakaway_resolved_at_rest`) or presliding bristles wider than
     the search's first point (one encoder count) and short of its last (a bound hit finds no width) whose
     breakaway ``max(F_c, F_c_neg) + dF`` stands :data:`BREAKAWAY_MARGIN` above the Coulomb law's level (a
@@ -460,8 +461,13 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
         # squares: one-count-wider bristles, F_s within 0-4 % of coulomb's F_c; a 14-bit stiction log: 17 % above)
         level, coulomb = max(_levels(richer.params)), max(_levels(simpler.params))
         breakaway = float(richer.params["F_s"]) - float(richer.params["F_c"]) + level
+        # a bump narrower than the stick velocity acts only on rows that may be at rest, which the law at rest
+        # already holds: its coefficient tells sticking from sticking, not a Stribeck decay (2e6-count closed-loop
+        # Coulomb logs: v_s on the search's 1 mrad/s end, F_s 2.5-4 x F_c at Wald p < 1e-7), so only the rows at
+        # rest can prove it
+        decay = float(richer.params.get("v_s", math.inf)) >= data.options.stick_velocity
         return (wide and breakaway > (1.0 + BREAKAWAY_MARGIN) * coulomb) or at_rest() \
-            or (breakaway > (1.0 + BREAKAWAY_MARGIN) * level and stribeck())
+            or (decay and breakaway > (1.0 + BREAKAWAY_MARGIN) * level and stribeck())
     harmonics = [nm for nm in names if len(nm) > 1 and nm[0] in "ab" and nm[1:].isdigit()]
     return terms_wald_p(data, richer, harmonics) < NESTED_ALPHA
 
@@ -473,7 +479,8 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     harmonics of the level, for stiction either a breakaway above the Coulomb level (the Stribeck
     coefficient ``dF``: the vocabulary's stiction is ``F_s > F_c``; by its Wald test, or at rest above the
     encoders' noise, :func:`breakaway_proven_at_rest` or :func:`breakaway_resolved_at_rest`; a bump within
-    :data:`BREAKAWAY_MARGIN` of the level is none) or presliding bristles wider
+    :data:`BREAKAWAY_MARGIN` of the level is none, and one narrower than the stick velocity counts at rest only)
+    or presliding bristles wider
     than the log's resolution (the presliding displacement above the grid's first point, one
     encoder count, with the breakaway above the Coulomb law's level by the same margin:
     LuGre stiction is told from coulomb by its bristles when the Stribeck bump is not
