@@ -18,7 +18,8 @@ written for one generator (which effects the log can tell apart is :mod:`.isolab
   parameters is implausible (a bristle stiffness by its presliding displacement
   ``F_s / sigma0``; collinear harmonics by the torque they make together); an
   environment scaled alike in J, d and k_e within the datasheet tolerance is the
-  spring torque's re-calibration, not a mismatch.
+  spring torque's re-calibration, not a mismatch; a friction law counts only when one
+  of its levels stands above the motor's torque accuracy by its 95 % noise interval.
 * **Does the re-calibration sit at its bound?** ``J_m`` and the spring scale may
   move within the datasheet tolerance; a value on that bound means the nominal
   model is off by more than the datasheet allows *or* an effect in the same
@@ -612,12 +613,22 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
                        f"differ by more than a factor {ASYMMETRY_MAX_RATIO:g}: a constant torque, not friction")
     if "F_c" in base:
         level = max(float(base["F_c"]), float(base.get("F_c_neg", 0.0)))
+        # the lower end of the friction's 95 % noise interval (as the Wald test against zero reads it, without
+        # the bounded biases): the highest of its levels' (each direction's, and the breakaway's, which a
+        # stiction law resolves where its sliding level trades against the bump)
+        low = max(float(base[k]) - 1.96 * (float(std[names.index(k)]) if math.isfinite(std[names.index(k)]) else 0.0)
+                  for k in ("F_c", "F_c_neg", "F_s") if k in base)
         accuracy = data.torque_accuracy
         if level < accuracy:
             # the threshold an effect's explained torque must pass (diagnose), on the friction level itself:
             # a 0.1 mN m Coulomb level with 3 mrad bristles fitted an effect-free closed-loop square
             reasons.append(f"friction level {level:.3g} N m is below the motor's torque accuracy ({accuracy:.3g} N m, "
                            f"{100 * data.options.min_effect_fraction:g} % of the RMS command): not resolved as friction")
+        elif low < accuracy:
+            # a level whose interval reaches below the accuracy is not resolved above it either: an effect-free
+            # closed-loop chirp fitted 0.31 +- 0.53 mN m against an accuracy of 0.30 mN m, named a weak coulomb
+            reasons.append(f"friction level {level:.3g} N m is not resolved above the motor's torque accuracy "
+                           f"({accuracy:.3g} N m): its 95 % interval reaches down to {low:.2g} N m")
     n_before = len(reasons)
     if "gain" in base and abs(base["gain"] - 1.0) <= data.options.calibration_tolerance and not any(
             st_.status == "at_bound" for st_ in calibration_status(data, fit).values()):
