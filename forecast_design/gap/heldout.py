@@ -462,9 +462,9 @@ def richer_law_resolved(data: GapData, richer: CandidateFit, simpler: CandidateF
         level, coulomb = max(_levels(richer.params)), max(_levels(simpler.params))
         breakaway = float(richer.params["F_s"]) - float(richer.params["F_c"]) + level
         # a bump narrower than the stick velocity acts only on rows that may be at rest, which the law at rest
-        # already holds: its coefficient tells sticking from sticking, not a Stribeck decay (2e6-count closed-loop
-        # Coulomb logs: v_s on the search's 1 mrad/s end, F_s 2.5-4 x F_c at Wald p < 1e-7), so only the rows at
-        # rest can prove it
+        # already holds: its coefficient measures how those rows are read, not a Stribeck decay (2e6-count
+        # closed-loop Coulomb logs: v_s on the search's 1 mrad/s end, F_s 2.5-4 x F_c at Wald p < 1e-7), so only
+        # the rows at rest can prove it
         decay = float(richer.params.get("v_s", math.inf)) >= data.options.stick_velocity
         return (wide and breakaway > (1.0 + BREAKAWAY_MARGIN) * coulomb) or at_rest() \
             or (decay and breakaway > (1.0 + BREAKAWAY_MARGIN) * level and stribeck())
