@@ -1006,6 +1006,22 @@ def test_a_friction_level_whose_interval_reaches_below_the_torque_accuracy_is_no
 
 
 @pytest.mark.slow
+def test_a_friction_law_fitted_on_fewer_moving_rows_than_coefficients_reports_no_interval():
+    # a closed-loop Coulomb square (2e6 counts, tau_s omitted) at rest on every decimated row but one: the friction
+    # laws are fitted on the moving rows, and one row for four coefficients read F_c = 0.170 N m (truth 0.325)
+    # "identified" +- 0.005 %, its covariance zero. Not determined is the answer: no finite interval
+    from forecast_design.gap.candidates import _fit_rows
+
+    log = ind.make_independent_log("coulomb", 4, 113)
+    d = diagnose(log.experiment, joint=False)
+    fit = d.fits["coulomb"]
+    assert int(_fit_rows(d.data, fit.structure).sum()) < len(fit.coef)
+    status = next(r for r in d.ranking if r.effect is Effect.COULOMB).assessment.status
+    assert all(status[k].status == "not_identifiable" and math.isinf(status[k].std) for k in ("F_c", "F_c_neg"))
+    assert d.effect is Effect.NONE
+
+
+@pytest.mark.slow
 def test_an_effect_withheld_by_the_torque_accuracy_is_reported_with_what_it_explains():
     # an effect-free open-loop multisine with a torque sensor: an environment mismatch passes the held-out test
     # (p = 4e-8) but removes 7 % of its equation, 0.3 mN m RMS, below the accuracy of the spring torque. The

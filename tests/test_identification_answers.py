@@ -174,6 +174,20 @@ def test_a_near_singular_design_gets_infinite_not_zero_variance():
     assert assess("cos1", p[1], std=std[1]).status == "not_identifiable"
 
 
+def test_fewer_rows_than_free_coefficients_give_infinite_not_zero_variance():
+    # least squares with more unknowns than equations determines none of them, whatever its residual
+    rng = np.random.default_rng(1)
+    W = rng.standard_normal((3, 5))
+    p = np.linalg.lstsq(W, W @ rng.standard_normal(5), rcond=None)[0]
+    free = np.array([True, True, True, True, False])
+    for keep in (np.array([True, True, False]), np.array([True, False, False])):
+        hac = hac_covariance(W, np.zeros(3), free=free, keep=keep)
+        assert np.all(np.isinf(np.diag(hac.covariance)[free])) and hac.covariance[4, 4] == 0.0
+        assert np.all(np.isinf(np.diag(hac.iid_covariance)[free]))
+        assert all(assess("p", v, std=math.sqrt(c)).status == "not_identifiable"
+                   for v, c in zip(p[free], np.diag(hac.covariance)[free]))
+
+
 def test_an_offset_collinear_with_the_harmonics_is_not_identified_on_a_closed_loop_log():
     # PD force control of a multisine against the soft environment: the motor turns through 2 rad, so
     # cos(theta) and an offset are nearly one column (before: cos1 -1.236 N m for 0.03, std exactly 0,

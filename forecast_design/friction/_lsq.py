@@ -267,7 +267,13 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
     cov_iid = np.zeros((p, p))
     k = int(free_mask.sum())
     m = int(keep_mask.sum())
-    if k == 0 or m <= k:
+    if k == 0:
+        return HacResult(cov, 0, cov_iid, 1.0)
+    if m <= k:
+        # fewer rows than free coefficients determine none of them: no variance, not a zero one (a
+        # closed-loop square at rest but for one decimated row read a Coulomb level +-0 from it)
+        for C in (cov, cov_iid):
+            C[np.ix_(free_mask, free_mask)] = np.inf
         return HacResult(cov, 0, cov_iid, 1.0)
     # the n x k intermediates are made in place where the numbers are the same (a long log's diagnosis
     # holds several of these designs at its peak memory)
