@@ -258,7 +258,9 @@ def hac_covariance(W: np.ndarray, residual: np.ndarray, free: Sequence[bool] | N
     Returns
     -------
     HacResult
-        Covariance, bandwidth and the i.i.d. covariance of the same fit.
+        Covariance, bandwidth and the i.i.d. covariance of the same fit; infinite for the free parameters
+        when the kept rows are no more than them (nothing is determined), and in directions the data do
+        not determine.
     """
     n, p = W.shape
     free_mask = np.ones(p, dtype=bool) if free is None else np.asarray(free, dtype=bool)
