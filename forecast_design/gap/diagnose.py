@@ -45,8 +45,8 @@ probability or scales with the information in the log; none is tuned to one gene
    motor-equation candidate that passes the held-out test removes more of the total gap.
 5. Parsimony between nested friction laws (:func:`.heldout.richer_law_justified`):
    ``stiction`` or ``position_friction`` wins over ``coulomb`` only if it resolves what it adds
-   (stiction: ``F_s`` 5 % above a Coulomb level, or bristles wider than one count holding it; position_friction: its
-   harmonics) and beats ``coulomb`` by the
+   (stiction: ``F_s`` 5 % above a Coulomb level with a bump no narrower than the stick velocity, or bristles wider
+   than one count holding it; position_friction: its harmonics) and beats ``coulomb`` by the
    held-out test at :data:`.heldout.NESTED_ALPHA` (one planned comparison between two laws that
    both count) on the held-out units where the two laws' predictions differ by more than the
    floor and on all of them (Simes' combination of the two), or, for stiction, shows its breakaway

@@ -616,8 +616,8 @@ def assess_fit(data: GapData, fit: CandidateFit) -> EffectAssessment:
         # the lower end of the friction's 95 % noise interval (as the Wald test against zero reads it, without
         # the bounded biases): the highest of its levels' (each direction's, and the breakaway's, which a
         # stiction law resolves where its sliding level trades against the bump)
-        low = max(float(base[k]) - 1.96 * (float(std[names.index(k)]) if math.isfinite(std[names.index(k)]) else 0.0)
-                  for k in ("F_c", "F_c_neg", "F_s") if k in base)
+        noise = {k: float(std[names.index(k)]) for k in ("F_c", "F_c_neg", "F_s") if k in base}
+        low = max(float(base[k]) - 1.96 * (sd if math.isfinite(sd) else 0.0) for k, sd in noise.items())
         accuracy = data.torque_accuracy
         if level < accuracy:
             # the threshold an effect's explained torque must pass (diagnose), on the friction level itself:
