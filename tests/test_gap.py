@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 
 import numpy as np
 import pytest
@@ -628,6 +629,30 @@ def test_bristle_stiffness_at_the_grid_end_is_judged_by_the_fitted_breakaway_lev
     # the friction level, F_s / sigma0 is
     d = diagnose(_gain_log(fx.Stiction(), "exp-soft", 2.0, 0.3, "square").to_experiment(), joint=False)
     assert d.effect is Effect.STICTION
+
+
+@pytest.mark.parametrize("jitter, counts", [(0.0, 65_536), (0.3, 65_536), (0.8, 65_536), (0.6, 16_384)])
+def test_an_encoders_jitter_is_read_from_how_often_its_readings_toggle(jitter, counts):
+    # the replicas read their angles with the jitter of the log's encoders (noise before the quantiser): the one
+    # whose readings of the replica's own motion undo a count change on the next sample as often as the log's do
+    from forecast_design.gap.replicas import read_encoders, toggle_share
+    from forecast_design.simulation import Square, simulate
+
+    design, ref = Design.nominal("exp-soft"), Square(high=0.4, low=-0.4, period_s=0.5)
+    exact = simulate(design, reference=ref, duration_s=4.0, encoder_counts=None, closed_loop=False, seed=5)
+    step = 2.0 * math.pi / counts
+    theta, q = np.asarray(exact.theta, dtype=float), np.asarray(exact.q, dtype=float)
+    # the "log": another noise draw than the replica's
+    log_theta = np.round((theta + jitter * step * np.random.default_rng(11).standard_normal(theta.size)) / step) * step
+    read_theta, read_q, found = read_encoders(theta, q, step, toggle_share(log_theta), seed=3)
+    assert found == pytest.approx(jitter, abs=0.1)
+    if jitter == 0.0:
+        # no jitter: the simulator's own quantiser, reading for reading
+        quantised = simulate(design, reference=ref, duration_s=4.0, encoder_counts=counts, closed_loop=False, seed=5)
+        assert np.array_equal(read_theta, np.asarray(quantised.theta))
+        assert np.array_equal(read_q, np.asarray(quantised.q))
+    else:
+        assert toggle_share(np.round(theta / step) * step) < toggle_share(log_theta) <= toggle_share(read_theta)
 
 
 @pytest.mark.parametrize("std, counts", [(1e-3, 2_000_000), (4e-3, 16_384)])
