@@ -210,18 +210,17 @@ def read_encoders(theta: np.ndarray, q: np.ndarray, step: float, share: float,
     True
     """
     noise = np.random.default_rng([int(seed), 0x71773]).standard_normal((2, theta.size)) * step
-    sigma = 0.0
-    if share > toggle_share(np.round(theta / step) * step):
-        for level in JITTER_GRID_COUNTS[1:]:
-            sigma = float(level)
-            if toggle_share(np.round((theta + sigma * noise[0]) / step) * step) >= share:
-                break
-    return (np.round((theta + sigma * noise[0]) / step) * step, np.round((q + sigma * noise[1]) / step) * step,
-            sigma)
+    sigma, reading = 0.0, np.round(theta / step) * step
+    for level in JITTER_GRID_COUNTS[1:]:
+        if toggle_share(reading) >= share:
+            break
+        sigma = float(level)
+        reading = np.round((theta + sigma * noise[0]) / step) * step
+    return reading, np.round((q + sigma * noise[1]) / step) * step, sigma
 
 
 def _replica_statistic(data: GapData, cal: dict[str, float], effect: Effect, seed: int, sensor_std: float | None,
-                       encoder_counts: int) -> tuple[float, float]:
+                       encoder_counts: int, share: float) -> tuple[float, float]:
     """Torque the candidate explains on one effect-free replica [N m], and the encoders' jitter it used [counts]."""
     from ..experiment import experiment_from_arrays
     from ..simulation import TorqueSensor, simulate
@@ -246,9 +245,9 @@ def _replica_statistic(data: GapData, cal: dict[str, float], effect: Effect, see
     if after:
         step = 2.0 * math.pi / encoder_counts
         theta, q, jitter = read_encoders(np.asarray(run.theta, dtype=float), np.asarray(run.q, dtype=float), step,
-                                         toggle_share(np.asarray(exp.signals.theta, dtype=float)), seed)
+                                         share, seed)
         if sensor is None:
-            tau_s = exp.design.testbed.k * (theta - q)
+            tau_s = exp.design.testbed.spring_torque(theta, q)
     # the declared design, as the log's: the replica's gap is measured against the same nominal model
     rexp = experiment_from_arrays(exp.design, exp.rate_hz, run.t, run.tau_m, theta, q,
                                   tau_s=tau_s if exp.signals.tau_s is not None else None,
@@ -284,8 +283,10 @@ def replica_check(data: GapData, base: CandidateFit, fit: CandidateFit, *, n: in
     observed = own_reduction(data, base, fit, noise_floor(data))
     counts = int(round(2.0 * math.pi / encoder_step_of(np.asarray(data.experiment.signals.theta, dtype=float))))
     sensor = sensor_noise_std(data)
+    share = toggle_share(np.asarray(data.experiment.signals.theta, dtype=float))     # the log's, once for every replica
     try:
-        reps = [_replica_statistic(data, base.calibration, fit.effect, seed + i, sensor, counts) for i in range(n)]
+        reps = [_replica_statistic(data, base.calibration, fit.effect, seed + i, sensor, counts, share)
+                for i in range(n)]
     except (ForecastError, ValueError, FloatingPointError):
         return None
     return ReplicaCheck(effect=fit.effect, observed_N_m=float(observed.explained_rms),
