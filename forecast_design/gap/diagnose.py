@@ -111,12 +111,14 @@ from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
 from .replicas import ReplicaCheck, replica_check
+from .reversals import ReversalTest, reversal_test
 from .rules import metric_text
 from ..plausibility import ParameterStatus
 from .grading import explained_rms, noise_floor, own_reduction, weak_is_distinct
 from .structures import _FRICTION
 from .heldout import (breakaway_proven_at_rest, candidate_levels, correlation_length, effect_held_out_test,
-                      held_out_test, verdict_ties, richer_law_justified, richer_law_resolved, test_units)
+                      held_out_test, verdict_ties, richer_law_justified, richer_law_resolved, simplest_tied,
+                      test_units)
 from .motion import creeping
 from .residuals import GapData, GapOptions, TauSSource, prepare_gap_data
 
@@ -285,6 +287,9 @@ class Diagnosis:
         A weak verdict's candidate, or a clear one removing less than ``min_reduction`` of the total
         gap, against effect-free replicas of the log (:func:`.replicas.replica_check`; JSON
         ``verdict.replicas``); None when none was made.
+    reversals : ReversalTest or None
+        A Coulomb verdict's laws compared on the trajectory around the reversals (:func:`.reversals.reversal_test`;
+        JSON ``verdict.reversals``); None when not made (another verdict, encoders fine enough, too few reversals).
     """
 
     effect: Effect
@@ -309,10 +314,12 @@ class Diagnosis:
     method_shift: Mapping[str, float] = field(default_factory=dict)
     calibration_freedom: Mapping[str, float] = field(default_factory=dict)
     replicas: ReplicaCheck | None = None
+    reversals: ReversalTest | None = None
 
     @property
     def identified(self) -> bool:
-        """False when the verdict names an effect that is not identified (never for a returned verdict)."""
+        """False when the verdict's parameters are not all identified (levels a log does not separate, named by a
+        breakaway at rest; a stiction named by its trajectories, whose two folds disagree): read their statuses."""
         return self.effect is Effect.NONE or bool(self.ranking and self.ranking[0].identified)
 
     @property
@@ -345,7 +352,7 @@ class Diagnosis:
             ``gap_before``; null when no second effect counts) and ``calibration`` (the
             re-calibrated nominal values with ``at_bound`` flags; without an interval, so never ``identified``).
             ``replicas``: a small verdict's torque against effect-free replicas of the log (also one it
-            dropped), or null.
+            dropped), or null; ``reversals``: a Coulomb verdict's laws compared around the reversals, or null.
         """
         loc = self.location.to_mapping()
         loc["summary"] = self.summary
@@ -365,6 +372,7 @@ class Diagnosis:
         verdict["std_method"] = {k: float(v) for k, v in self.method_shift.items()}
         verdict["std_calibration_bound"] = {k: float(v) for k, v in self.calibration_freedom.items()}
         verdict["replicas"] = None if self.replicas is None else self.replicas.to_mapping()
+        verdict["reversals"] = None if self.reversals is None else self.reversals.to_mapping()
         verdict["calibration"] = {k: {**v.to_mapping(), "at_bound": v.status == "at_bound"}
                                   for k, v in self.calibration.items()}
         out = {
@@ -562,7 +570,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             ranked.sort(key=lambda r: (not r.significant, r.bic))
             winner = ranked[0] if ranked[0].significant else None
     if winner is not None:
-        simpler, extra = _simplest_tied(data, winner, [r for r in ranked if r.significant], by_effect)
+        simpler, extra = simplest_tied(data, winner, [r for r in ranked if r.significant], by_effect)
         if simpler is not winner:
             n_s, n_w = by_effect[str(simpler.effect)].n_params, by_effect[str(winner.effect)].n_params
             caveats.append(f"Tied: fitted on top of '{simpler.effect}' ({n_s} parameters), '{winner.effect}' "
@@ -670,13 +678,23 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                            + ("." if replicas is None else ", explaining torque no effect-free replica of the log "
                               "explains." if math.isinf(replicas.ratio) else f", explaining {replicas.ratio:.3g} times "
                               "the torque it explains on effect-free replicas of the log."))
+    # a Coulomb verdict on encoders too coarse for the equation errors to see a Stribeck bump: the trajectory around
+    # the reversals decides between the laws (.reversals; 10 of 72 stiction logs named coulomb there, no Coulomb log)
+    reversals = reversal_test(data, by_effect[str(Effect.COULOMB)]) if winner is not None and secondary is None \
+        and winner.effect is Effect.COULOMB and st is not None else None
+    if reversals is not None and reversals.names_stiction:
+        caveats.append(reversals.caveat())
+        ranked.remove(st)
+        winner = dataclasses.replace(st, params=reversals.params, assessment=reversals.assessment())
+        ranked.insert(0, winner)
     if winner is not None and winner.effect is Effect.STICTION and str(Effect.COULOMB) in by_effect \
             and breakaway_proven_at_rest(data, by_effect[str(Effect.COULOMB)]):
         caveats.append("Stiction over coulomb: while the encoder read one count the motor held net torques that would "
                        "have moved it by more under any Coulomb level (a breakaway proven at the raw rate).")
     shift: dict[str, float] = {}
     freed: dict[str, float] = {}
-    if winner is not None and winner.assessment is not None:
+    by_trajectory = reversals is not None and reversals.names_stiction     # its intervals are the folds' (.reversals)
+    if winner is not None and winner.assessment is not None and not by_trajectory:
         # the verdict's intervals carry the analysis' own error (the filter's), as the friction fit's do
         shift = method_shift(data, by_effect[str(winner.effect)])
         # and what a re-calibration held on its bounds hid of them (a level traded with viscous friction)
@@ -708,44 +726,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                      metric=metric_text(data), location=location, ranking=tuple(ranked), joint=jt,
                      caveats=tuple(caveats), baseline=base, fits=by_effect, data=data, secondary=secondary,
                      replay=replay, isolability=iso, calibration=calibration_status(data, base, viscous=True), grade=grade,
-                     method_shift=shift, calibration_freedom=freed, replicas=replicas)
-
-
-def _simplest_tied(data: GapData, winner: RankedCandidate, contenders: list[RankedCandidate],
-                   by_effect: Mapping[str, CandidateFit]) -> tuple[RankedCandidate, float]:
-    """Parsimony between candidates that are not nested: the simplest that leaves the winner nothing to add.
-
-    The ranking's BIC counts every decimated row as independent, while filtered equation errors are
-    correlated over many rows, and a many-parameter candidate also soaks up part of whatever else the
-    nominal model misses: over the fraction of a revolution a force-control log turns through, eight
-    cogging harmonics make any smooth function of the angle, and where the angle follows the command
-    they mimic a torque gain (cogging 0.894 of the gap against the true torque gain's 0.890, "better"
-    by the held-out t-test at p = 2e-35). The question the data can answer is the forward selection's:
-    fitted on top of a simpler significant candidate, does the winner add what a second effect must
-    (``GapOptions.min_reduction`` of what is left, :func:`_second_effect`)? If not, the simpler one
-    (fewest parameters first) explains the log and is the verdict. The nested friction laws have
-    their own rule (:func:`.heldout.richer_law_justified`).
-
-    Returns
-    -------
-    (RankedCandidate, float)
-        The verdict, and the share of what the simpler candidate leaves that the winner removes on top
-        of it (NaN when the winner stays) [-].
-    """
-    w_fit = by_effect[str(winner.effect)]
-    simpler = sorted((r for r in contenders if r is not winner
-                      and by_effect[str(r.effect)].n_params < w_fit.n_params
-                      and not (r.effect in _FRICTION and winner.effect in _FRICTION)),
-                     key=lambda r: by_effect[str(r.effect)].n_params)
-    for r in simpler:
-        s_fit = by_effect[str(r.effect)]
-        pair = fit_pair(data, s_fit, winner.effect)
-        if pair is None or s_fit.gap_held_out <= 0.0:
-            continue
-        extra = 1.0 - pair.gap_held_out / s_fit.gap_held_out
-        if extra < data.options.min_reduction:
-            return r, float(extra)
-    return winner, float("nan")
+                     method_shift=shift, calibration_freedom=freed, replicas=replicas, reversals=reversals)
 
 
 def _second_effect(data: GapData, first: CandidateFit, fits: list[CandidateFit], gap0: float, n_held: int,

@@ -131,6 +131,11 @@ class DiagnosisViews:
         The held-out stretch shown in the before/after overlay (``window_s`` long).
     replay : dict of ndarray or None
         :func:`~forecast_design.gap.replay.replay_trace` over the nominal model's worst window.
+    reversals : dict or None
+        A Coulomb verdict's laws around the reversals (:class:`~forecast_design.gap.reversals.ReversalTest`): the up
+        to four windows where the two laws' predictions differ most, ``t_s`` (L,) from the reversal [s],
+        ``theta_counts``, ``coulomb_counts``, ``bump_counts`` (n, L) [counts], ``window_start_s`` (n,) [s],
+        ``rms_counts`` (Coulomb, bump) over all windows, ``p_value``, ``names_stiction``.
     time_windows_s, frequency_band_hz, speed_band_rad_s, angle_span_rad
         Where the gap lies (the diagnosis' location) [s], [Hz], [rad/s], [rad].
     gap_before, gap_after : float
@@ -157,6 +162,7 @@ class DiagnosisViews:
     angle_span_rad: float = math.nan
     gap_before: float = math.nan
     gap_after: float = math.nan
+    reversals: dict | None = None
 
     @property
     def has_after(self) -> bool:
@@ -248,6 +254,15 @@ def diagnosis_views(diag: Any, *, window_s: float = 2.0, coherence_threshold: fl
     if rc is not None:
         start = rc.worst_windows_s[0][0] if rc.worst_windows_s else float(data.t[0])
         replay = replay_trace(data, fit, start, window_s=rc.window_s)
+    rv = diag.reversals
+    reversals = None
+    if rv is not None and rv.traces:
+        tr = rv.traces
+        # where the laws' predictions differ most, whichever the log sides with
+        show = np.argsort(np.abs(tr["coulomb_counts"] - tr["bump_counts"]).max(axis=1))[::-1][:4]
+        reversals = {"t_s": tr["t_s"], **{k: tr[k][show] for k in ("theta_counts", "coulomb_counts", "bump_counts",
+                                                                   "window_start_s")},
+                     "rms_counts": rv.held_out_rms_counts, "p_value": rv.p_value, "names_stiction": rv.names_stiction}
     return DiagnosisViews(effect=effect, t=data.t, equations=eqs, dropped=dropped, before=keep,
                           after={eq: after_all[eq] for eq in eqs if eq in after_all},
                           prediction={eq: pred_all[eq] for eq in eqs if eq in pred_all},
@@ -257,4 +272,4 @@ def diagnosis_views(diag: Any, *, window_s: float = 2.0, coherence_threshold: fl
                           frequency_band_hz=tuple(diag.location.frequency_band_hz),
                           speed_band_rad_s=tuple(diag.location.speed_band_rad_s),
                           angle_span_rad=float(diag.location.angle_span_rad),
-                          gap_before=float(diag.gap_before), gap_after=float(diag.gap_after))
+                          gap_before=float(diag.gap_before), gap_after=float(diag.gap_after), reversals=reversals)

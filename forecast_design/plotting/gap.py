@@ -254,3 +254,49 @@ def plot_replay(views, path: str | Path) -> Path:
     ax1.set_title("Output-error replay from the recorded tau_m, started from the measured state "
                   "(worst window of the nominal model)", fontsize=9)
     return save_figure(fig, path)
+
+
+def plot_reversals(views, path: str | Path) -> Path:
+    """The friction laws around the motor's reversals: logged angle against each law's held-out prediction.
+
+    Parameters
+    ----------
+    views : DiagnosisViews
+        From :func:`forecast_design.gap.views.diagnosis_views`, with ``reversals``.
+    path : str or Path
+        PNG file to write.
+
+    Returns
+    -------
+    Path
+        The file written.
+
+    Raises
+    ------
+    ParameterError
+        If the views hold no reversal windows.
+    """
+    if views.reversals is None:
+        raise ParameterError("the diagnosis compared no friction laws around reversals", name="reversals")
+    plt = _pyplot()
+    rv = views.reversals
+    n = len(rv["window_start_s"])
+    fig, axes = plt.subplots(1, n, figsize=(3.2 * n + 1, 3.6), squeeze=False, sharey=False)
+    t_ms = 1e3 * np.asarray(rv["t_s"])
+    for i, ax in enumerate(axes[0]):
+        ax.step(t_ms, rv["theta_counts"][i], where="post", color=MEASURED_COLOUR, lw=1.2, label="logged",
+                gid=f"measured|{i}")
+        ax.plot(t_ms, rv["coulomb_counts"][i], color=BEFORE_COLOUR, lw=1.0, label="Coulomb", gid=f"coulomb|{i}")
+        ax.plot(t_ms, rv["bump_counts"][i], "--", color=AFTER_COLOUR, lw=1.0, label="Coulomb + Stribeck bump",
+                gid=f"bump|{i}")
+        ax.axvline(0.0, color="0.6", lw=0.8)
+        ax.set_title(f"reversal at {rv['window_start_s'][i] - rv['t_s'][0]:.2f} s", fontsize=9)
+        ax.set_xlabel("t from the reversal [ms]")
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].set_ylabel("motor angle [encoder counts]")
+    axes[0, 0].legend(fontsize=8, loc="best", framealpha=0.9)
+    c, b = rv["rms_counts"]
+    fig.suptitle(f"Held-out windows around reversals (each law fitted on the other fold): RMS {c:.2f} counts "
+                 f"(Coulomb) vs {b:.2f} (bump), signed-rank p = {rv['p_value']:.2g}"
+                 + (": stiction" if rv["names_stiction"] else ": no verdict change"), fontsize=9)
+    return save_figure(fig, path)

@@ -64,6 +64,8 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
     }
     if views.replay is not None:
         plots["replay"] = gp.plot_replay(views, out / "replay.png")
+    if views.reversals is not None:
+        plots["reversals"] = gp.plot_reversals(views, out / "reversals.png")
     mapping = diagnosis.to_mapping()
     atomic_write(out / "diagnosis.json", json.dumps(mapping, indent=2) + "\n")
     d = diagnosis
@@ -131,6 +133,22 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
         lines += ["", f"{rc.n_windows} windows of {rc.window_s:g} s; worst windows for the nominal model: "
                   + ", ".join(f"{a:.2f}-{b:.2f} s" for a, b in rc.worst_windows_s) + ".", "",
                   "![output-error replay](replay.png)"]
+    if d.reversals is not None:
+        rv = d.reversals
+        p = rv.params
+        lines += ["", "### Third view: the friction laws around the reversals", "",
+                  f"On encoders this coarse a Stribeck bump passes a reversal within a few samples; the motor equation "
+                  f"was simulated around {rv.n_windows} reversals with a Coulomb level per direction and with a bump on "
+                  "top of it, each law fitted on one half of the windows and predicting the other (the logged command "
+                  "and spring torque as input; each window's initial speed and J_m fitted).", "",
+                  "| law | held-out angle error [counts RMS] | parameters |", "|---|---|---|",
+                  f"| Coulomb | {rv.held_out_rms_counts[0]:.3g} | F_c = {rv.coulomb_N_m[0]:.3g} / "
+                  f"{rv.coulomb_N_m[1]:.3g} N m |",
+                  f"| Coulomb + bump | {rv.held_out_rms_counts[1]:.3g} | F_c = {_fmt(p['F_c'])} / {_fmt(p['F_c_neg'])}, "
+                  f"F_s = {_fmt(p['F_s'])} / {_fmt(p['F_s_neg'])} N m, v_s = {_fmt(p['v_s'])} rad/s |", "",
+                  f"Mean squared error ratio {rv.ratio:.3g}, signed-rank p = {rv.p_value:.2g}: "
+                  + ("the bump names stiction." if rv.names_stiction else "no change to the verdict."), "",
+                  "![friction laws around the reversals](reversals.png)"]
     lines += ["", "![residual over time](residual_time.png)", "",
               "Residual spectrum (top) and the measured response from motor torque to spring torque against "
               "the nominal model (bottom left), beside the coherence of that measurement (bottom right; grey: "
