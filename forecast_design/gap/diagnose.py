@@ -679,7 +679,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                               "explains." if math.isinf(replicas.ratio) else f", explaining {replicas.ratio:.3g} times "
                               "the torque it explains on effect-free replicas of the log."))
     # a Coulomb verdict on encoders too coarse for the equation errors to see a Stribeck bump: the trajectory around
-    # the reversals decides between the laws (.reversals; 10 of 72 stiction logs named coulomb there, no Coulomb log)
+    # the reversals decides between the laws (.reversals; 9 of 72 stiction logs named coulomb there, no Coulomb log)
     reversals = reversal_test(data, by_effect[str(Effect.COULOMB)]) if winner is not None and secondary is None \
         and winner.effect is Effect.COULOMB and st is not None else None
     if reversals is not None and reversals.names_stiction:
