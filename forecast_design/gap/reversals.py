@@ -272,9 +272,8 @@ def simulate_windows(u: np.ndarray, theta0: np.ndarray, v0: np.ndarray, *, F_pos
 
 @dataclass(frozen=True)
 class _Windows:
-    """Inputs of a set of windows: rows into the log, the input torque, the logged angle, initial speed guesses."""
+    """Inputs of a set of windows: the input torque, the logged angle, initial speed guesses."""
 
-    rows: np.ndarray       # (W, L) sample indices
     u: np.ndarray          # (W, L) [N m]
     theta: np.ndarray      # (W, L) [rad]
     v0: np.ndarray         # (W,) [rad/s]
@@ -411,7 +410,7 @@ def reversal_test(data: GapData, coulomb: CandidateFit, *, min_windows: int = 6,
     F_neg = float(coulomb.params.get("F_c_neg", F_pos))
 
     def pick(idx: np.ndarray) -> _Windows:
-        return _Windows(rows=rows[idx], u=u_all[rows[idx]], theta=theta[rows[idx]], v0=v0[idx])
+        return _Windows(u=u_all[rows[idx]], theta=theta[rows[idx]], v0=v0[idx])
 
     def simulator(win: _Windows) -> Any:
         def simulate(g: np.ndarray, v0s: np.ndarray) -> np.ndarray:
