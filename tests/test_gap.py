@@ -684,7 +684,7 @@ def test_a_sliding_motor_under_a_constant_torque_follows_the_parabola(u, F, v0, 
     one = np.ones(1)
     dt, n = 5e-4, 60
     th = simulate_windows(np.full((1, n), u), 0.1 * one, v0 * one, F_pos=F * one, F_neg=F * one, r=one,
-                          v_s=0.01 * one, d_pos=0 * one, d_neg=0 * one, J_m=J, k=0.0, dt=dt)[0]
+                          v_s=0.01 * one, d_m=0.0, J_m=J, k=0.0, dt=dt)[0]
     t = np.arange(n) * dt
     np.testing.assert_allclose(th, 0.1 + v0 * t + 0.5 * (u - F) / J * t ** 2, rtol=1e-10, atol=1e-13)
 
@@ -696,7 +696,7 @@ def test_a_motor_at_rest_breaks_away_only_above_its_breakaway(net, F, r):
     from forecast_design.gap.reversals import simulate_windows
     one = np.ones(1)
     th = simulate_windows(np.full((1, 10), -net), 0 * one, 0 * one, F_pos=F * one, F_neg=F * one, r=r * one,
-                          v_s=0.01 * one, d_pos=0 * one, d_neg=0 * one, J_m=1e-3, k=0.0, dt=5e-4)[0]
+                          v_s=0.01 * one, d_m=0.0, J_m=1e-3, k=0.0, dt=5e-4)[0]
     if net <= r * F * (1 - 1e-9):
         assert np.all(th == 0.0)
     elif net > r * F * (1 + 1e-6):
@@ -721,7 +721,7 @@ def test_the_window_simulation_agrees_with_scipy_through_a_reversal():
                     max_step=dt / 20).y[0]
     assert np.sign(np.diff(ref)).min() < 0 < np.sign(np.diff(ref)).max()      # it does reverse
     err = [np.abs(simulate_windows(np.full((1, n), u), 0.0 * one, -0.8 * one, F_pos=Fc * one, F_neg=Fc * one,
-                                   r=r * one, v_s=vs * one, d_pos=d * one, d_neg=d * one, J_m=J, k=k, dt=dt,
+                                   r=r * one, v_s=vs * one, d_m=d, J_m=J, k=k, dt=dt,
                                    substeps=m)[0] - ref).max() for m in (10, 640)]
     assert err[0] < 0.1 * 2 * np.pi / 65536
     assert err[1] < err[0] / 10

@@ -24,6 +24,7 @@ trajectories stepped together (numpy), so a fit costs a few dozen batched simula
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from collections.abc import Mapping
@@ -55,11 +56,11 @@ ALPHA = 0.01
 #: 0.31 with r = 1.07 (16 bits) and 0.14-0.31 with r = 1.00-1.17 (2,000,000 counts); stiction's r is 1.3-2.
 MIN_BREAKAWAY_RATIO = 1.2
 
-# columns of a parameter set: levels (positive, negative) [N m], breakaway / level, v_s [rad/s], viscous (positive,
-# negative) [N m s/rad], J_m [kg m^2]; free in each law: the levels and the inertia (the equation errors' calibration
+# columns of a parameter set: levels (positive, negative) [N m], breakaway / level, v_s [rad/s], J_m [kg m^2]; free in
+# each law: the levels and the inertia (the equation errors' calibration
 # of J_m is no calibration of a trajectory: a Coulomb law with it fitted a bump on an open-loop square), and r
-_FREE_COULOMB = (0, 1, 6)
-_FREE_BUMP = (0, 1, 2, 6)
+_FREE_COULOMB = (0, 1, 4)
+_FREE_BUMP = (0, 1, 2, 4)
 # t(1 dof) over normal 97.5 % quantiles: the spread of two folds' estimates as a standard deviation whose 1.96 x is the
 # 95 % half-width of their mean
 _TWO_FOLD = 12.706 / 1.96
@@ -197,7 +198,7 @@ def reversal_windows(theta: np.ndarray, rate_hz: float, step_rad: float, *, befo
 
 
 def simulate_windows(u: np.ndarray, theta0: np.ndarray, v0: np.ndarray, *, F_pos: np.ndarray, F_neg: np.ndarray,
-                     r: np.ndarray, v_s: np.ndarray, d_pos: np.ndarray, d_neg: np.ndarray, J_m: float, k: float,
+                     r: np.ndarray, v_s: np.ndarray, d_m: float, J_m: float, k: float,
                      dt: float, substeps: int = 10) -> np.ndarray:
     """Motor angle of a batch of windows under a Coulomb level per direction with a Stribeck bump.
 
@@ -214,8 +215,8 @@ def simulate_windows(u: np.ndarray, theta0: np.ndarray, v0: np.ndarray, *, F_pos
     F_pos, F_neg, r, v_s : ndarray, shape (B,)
         Coulomb level in the positive and negative direction [N m], breakaway over Coulomb level [-], Stribeck
         velocity [rad/s].
-    d_pos, d_neg : ndarray, shape (B,)
-        Viscous damping in the positive and negative direction [N m s/rad].
+    d_m : float
+        Viscous damping [N m s/rad].
     J_m : float or ndarray, shape (B,)
         Motor inertia [kg m^2].
     k : float
@@ -236,7 +237,7 @@ def simulate_windows(u: np.ndarray, theta0: np.ndarray, v0: np.ndarray, *, F_pos
 
     >>> one = np.ones(1)
     >>> th = simulate_windows(np.full((1, 20), 0.3), 0 * one, 0 * one, F_pos=0.2 * one, F_neg=0.2 * one,
-    ...                       r=2 * one, v_s=0.01 * one, d_pos=0 * one, d_neg=0 * one, J_m=1e-3, k=0.0, dt=5e-4)
+    ...                       r=2 * one, v_s=0.01 * one, d_m=0.0, J_m=1e-3, k=0.0, dt=5e-4)
     >>> float(np.abs(th).max())
     0.0
     """
@@ -251,10 +252,9 @@ def simulate_windows(u: np.ndarray, theta0: np.ndarray, v0: np.ndarray, *, F_pos
     for i in range(L - 1):
         ui = u[:, i]
         for _ in range(substeps):
-            pos = v > 0.0
-            net = ui - k * x - np.where(pos, d_pos, d_neg) * v
+            net = ui - k * x - d_m * v
             moving = v != 0.0
-            level = np.where(pos, F_pos, F_neg)
+            level = np.where(v > 0.0, F_pos, F_neg)
             friction = np.sign(v) * level * (1.0 + bump * np.exp(-(v * v) * inv_vs2))
             vn = v + (h * inv_J) * (net - friction)
             vn[moving & (np.sign(vn) != np.sign(v))] = 0.0        # a reversal stops first
@@ -283,9 +283,9 @@ def _fit(win: _Windows, g0: np.ndarray, simulate: Any, *, free: tuple[int, ...],
          rate: float, iters: int = 12, dv0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Levenberg-Marquardt on the free law parameters and one initial speed per window, for several sets at once.
 
-    ``simulate(g, v0)`` maps parameter sets (B, 7; the columns of ``_FREE_COULOMB``'s comment) and initial speeds
-    (B,) to angles (B, L). Every set of ``g0`` (n_sets, 7), and every perturbation of the finite-difference Jacobian,
-    runs in one batch; ``free`` columns are fitted, each at least ``lower``. Returns the parameters (n_sets, 7), the
+    ``simulate(g, v0)`` maps parameter sets (B, 5; the columns of ``_FREE_COULOMB``'s comment) and initial speeds
+    (B,) to angles (B, L). Every set of ``g0`` (n_sets, 5), and every perturbation of the finite-difference Jacobian,
+    runs in one batch; ``free`` columns are fitted, each at least ``lower``. Returns the parameters (n_sets, 5), the
     per-window mean squared angle error [counts^2] (n_sets, W) and the fitted change
     of each window's initial speed [rad/s] (n_sets, W), which ``dv0`` (1 or n_sets, W) starts from (default 0).
     """
@@ -398,7 +398,7 @@ def reversal_test(data: GapData, coulomb: CandidateFit, *, min_windows: int = 6,
     else:
         k = scale * tb.k
         q = np.zeros_like(theta) if data.locked else np.asarray(sig.q, dtype=float)
-        tau_s = k * (theta - q)
+        tau_s = dataclasses.replace(tb, k=k).spring_torque(theta, q)
     u_all = tau_m - tau_s + k * theta
     L = int(round((before_s + after_s) * rate))
     rows = starts[:, None] + np.arange(L)[None, :]
@@ -416,15 +416,15 @@ def reversal_test(data: GapData, coulomb: CandidateFit, *, min_windows: int = 6,
         def simulate(g: np.ndarray, v0s: np.ndarray) -> np.ndarray:
             m = g.shape[0] // win.v0.size
             return simulate_windows(np.tile(win.u, (m, 1)), np.tile(win.theta[:, 0], m), v0s, F_pos=g[:, 0],
-                                    F_neg=g[:, 1], r=g[:, 2], v_s=g[:, 3], d_pos=g[:, 4], d_neg=g[:, 5], J_m=g[:, 6],
+                                    F_neg=g[:, 1], r=g[:, 2], v_s=g[:, 3], d_m=d_m, J_m=g[:, 4],
                                     k=k, dt=dt, substeps=substeps)
         return simulate
 
-    common = dict(lower=np.array([0.0, 0.0, 1.0, 0.1 * V_S_GRID_RAD_S[0], 0.0, 0.0, 0.1 * J_m]), step=step, rate=rate)
+    common = dict(lower=np.array([0.0, 0.0, 1.0, 0.1 * V_S_GRID_RAD_S[0], 0.1 * J_m]), step=step, rate=rate)
 
     def laws_on(win: _Windows) -> tuple[np.ndarray, np.ndarray]:
         # Coulomb: r = 1 held; the bump: r fitted at each trial v_s, the best on these windows kept
-        g_c, mse_c, dv_c = _fit(win, np.array([[F_pos, F_neg, 1.0, V_S_GRID_RAD_S[0], d_m, d_m, J_m]]),
+        g_c, mse_c, dv_c = _fit(win, np.array([[F_pos, F_neg, 1.0, V_S_GRID_RAD_S[0], J_m]]),
                                 simulator(win), free=_FREE_COULOMB, iters=20, **common)
         # the bump starts from Coulomb's solution, which stays among its trials: nested, it can only fit better, and
         # a bump of r ~ 1 predicts what Coulomb predicts (fitted apart, two such fits found different inertias)
@@ -468,7 +468,7 @@ def reversal_test(data: GapData, coulomb: CandidateFit, *, min_windows: int = 6,
               "window_start_s": starts / rate}
     return ReversalTest(n_windows=int(starts.size), params=dict(zip(names, map(float, mean))),
                         std=dict(zip(names, map(float, spread))), coulomb_N_m=(float(coul[0]), float(coul[1])),
-                        J_m=float(np.mean([b[0, 6] for _, b in fitted])),
+                        J_m=float(np.mean([b[0, 4] for _, b in fitted])),
                         held_out_rms_counts=(math.sqrt(float(mse_c.mean())), math.sqrt(float(mse_s.mean()))),
                         ratio=ratio, p_value=p, r_folds=(float(fitted[0][1][0, 2]), float(fitted[1][1][0, 2])),
                         traces=traces)
