@@ -37,8 +37,9 @@ def main() -> None:
     load1 = os.getloadavg()
     print(res.format_confusion())
     secs = [c.seconds for c in res.cases]
+    joint = "not run" if res.joint_accuracy is None else f"{100 * res.joint_accuracy:.1f} %"
     print(f"logs {len(res.cases)}  accuracy {100 * res.accuracy:.1f} %  joint accuracy "
-          f"{100 * res.joint_accuracy:.1f} %  false alarms {res.false_alarms}  "
+          f"{joint}  false alarms {res.false_alarms}  "
           f"min true-effect reduction {res.min_true_reduction:.3f}")
     ok = res.accuracy >= 0.98 and res.false_alarms == 0 and res.min_true_reduction >= 0.5
     print(f"target: accuracy >= 98 %, no false alarm, true-effect reduction >= 0.5 -> {'met' if ok else 'NOT met'}")

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from forecast_design.effects import Effect
-from forecast_design.gap.bench import ANGLE_EFFECTS, BENCH_WORDS, benchmark, draw_case, identifiability, make_log
+from forecast_design.gap.bench import (ANGLE_EFFECTS, BENCH_WORDS, BenchCase, BenchResult, benchmark, draw_case,
+                                     identifiability, make_log)
 
 
 def test_draw_case_is_deterministic_and_keeps_truth_apart():
@@ -50,3 +51,20 @@ def test_small_benchmark_names_every_withheld_effect():
                and set(c["design"]) >= {"testbed", "environment"} for c in m["cases"])
     assert set(m["definitions"]) == {"accuracy", "joint_accuracy", "false_alarms", "min_true_reduction",
                                      "hard_honesty"}
+
+
+def _case(truth, verdict, joint):
+    return BenchCase(truth=truth, verdict=verdict, joint=joint, reduction=0.5, true_reduction=0.5,
+                     environment="soft", excitation="ol-chirp", effect_params={}, seconds=0.1)
+
+
+def test_joint_accuracy_counts_only_logs_where_the_attribution_ran():
+    # the independent generator diagnoses without the group lasso: no joint score, not 1 in 9 (its none logs)
+    skipped = BenchResult(cases=(_case(Effect.NONE, Effect.NONE, None), _case(Effect.DELAY, Effect.DELAY, None)),
+                          per_effect=1, seed=0, elapsed_s=1.0, generator="independent")
+    assert skipped.accuracy == 1.0 and skipped.joint_accuracy is None
+    m = json.loads(json.dumps(skipped.to_mapping()))
+    assert m["joint_accuracy"] is None and all(c["joint"] is None for c in m["cases"])
+    ran = BenchResult(cases=(_case(Effect.NONE, Effect.NONE, ()), _case(Effect.DELAY, Effect.DELAY, (Effect.COULOMB,)),
+                             _case(Effect.COULOMB, Effect.COULOMB, None)), per_effect=1, seed=0, elapsed_s=1.0)
+    assert ran.joint_accuracy == pytest.approx(0.5)

@@ -115,8 +115,9 @@ class BenchCase:
         The withheld effect (the first one for the pairs suite).
     verdict : Effect
         The diagnosis's verdict.
-    joint : tuple of Effect
-        Effects named by the joint (group-lasso) attribution.
+    joint : tuple of Effect or None
+        Effects named by the joint (group-lasso) attribution; None where it was not run (the independent
+        generator's logs, diagnosed without it).
     reduction : float
         Held-out reduction of the verdict [-].
     true_reduction : float
@@ -144,7 +145,7 @@ class BenchCase:
 
     truth: Effect
     verdict: Effect
-    joint: tuple[Effect, ...]
+    joint: tuple[Effect, ...] | None
     reduction: float
     true_reduction: float
     environment: str
@@ -171,8 +172,10 @@ class BenchCase:
         return frozenset(e for e in (self.verdict, self.secondary) if e is not Effect.NONE)
 
     @property
-    def joint_correct(self) -> bool:
-        """True when the joint attribution names exactly the withheld effect (nothing for none)."""
+    def joint_correct(self) -> bool | None:
+        """True when the joint attribution names exactly the withheld effect (nothing for none); None if not run."""
+        if self.joint is None:
+            return None
         if self.truth is Effect.NONE:
             return len(self.joint) == 0
         if self.suite == "pairs":
@@ -183,7 +186,7 @@ class BenchCase:
         """JSON-ready mapping."""
         return {"suite": self.suite, "truth": str(self.truth), "truths": [str(e) for e in self.truths],
                 "verdict": str(self.verdict), "secondary": str(self.secondary),
-                "joint": [str(e) for e in self.joint], "reduction": self.reduction,
+                "joint": None if self.joint is None else [str(e) for e in self.joint], "reduction": self.reduction,
                 "true_reduction": None if math.isnan(self.true_reduction) else self.true_reduction,
                 "environment": self.environment, "excitation": self.excitation, "attempts": self.attempts,
                 "effect_params": self.effect_params, "caveats": list(self.caveats), "seconds": self.seconds,
@@ -236,10 +239,11 @@ class BenchResult:
         return sum(c.correct for c in m) / max(1, len(m))
 
     @property
-    def joint_accuracy(self) -> float:
-        """Share of main-suite joint attributions naming exactly the withheld effect first [-]."""
-        m = self.main
-        return sum(c.joint_correct for c in m) / max(1, len(m))
+    def joint_accuracy(self) -> float | None:
+        """Share of main-suite joint attributions naming exactly the withheld effect first, over the logs where the
+        attribution ran (None where it ran on none: the independent generator) [-]."""
+        ran = [c.joint_correct for c in self.main if c.joint is not None]
+        return sum(ran) / len(ran) if ran else None
 
     @property
     def false_alarms(self) -> int:
@@ -259,17 +263,19 @@ class BenchResult:
         h = self.suite("hard")
         return sum(c.correct for c in h) / len(h) if h else float("nan")
 
-    def pairs_scores(self) -> dict[str, float]:
-        """Pairs suite: exact two-effect recovery by forward selection and by the group lasso [-]."""
+    def pairs_scores(self) -> dict[str, float | None]:
+        """Pairs suite: exact two-effect recovery by forward selection and by the group lasso (None where not run) [-]."""
         p = self.suite("pairs")
         if not p:
             return {}
         n = len(p)
+        ran = [c for c in p if c.joint is not None]
         return {"n_logs": n,
                 "forward_exact": sum(c.named == frozenset(c.truths) for c in p) / n,
                 "forward_verdict_in_truth": sum(c.verdict in c.truths for c in p) / n,
-                "joint_exact": sum(frozenset(c.joint) == frozenset(c.truths) for c in p) / n,
-                "joint_first_in_truth": sum(bool(c.joint) and c.joint[0] in c.truths for c in p) / n}
+                "joint_exact": sum(frozenset(c.joint) == frozenset(c.truths) for c in ran) / len(ran) if ran else None,
+                "joint_first_in_truth":
+                    sum(bool(c.joint) and c.joint[0] in c.truths for c in ran) / len(ran) if ran else None}
 
     def confusion(self) -> dict[str, dict[str, int]]:
         """``confusion[truth][verdict]`` counts over the vocabulary (main suite)."""
@@ -627,7 +633,7 @@ def _independent_case(job: tuple) -> BenchCase:
     seconds = time.perf_counter() - t0
     true_red = next((r.reduction for r in diag.ranking if r.effect == word), float("nan"))
     loop = "cl" if case.closed_loop else "ol"
-    return BenchCase(truth=word, verdict=diag.effect, joint=(), reduction=diag.reduction, true_reduction=true_red,
+    return BenchCase(truth=word, verdict=diag.effect, joint=None, reduction=diag.reduction, true_reduction=true_red,
                      environment=case.environment_name, excitation=f"{loop}-{case.excitation.kind}",
                      effect_params=_jsonable_params(case.effect_params), seconds=seconds, suite=suite,
                      truths=(word,), secondary=diag.secondary.effect if diag.secondary else Effect.NONE,
