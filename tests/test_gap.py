@@ -296,7 +296,7 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     assert set(m["verdict"]) == {"effect", "grade", "gap_before", "gap_after", "reduction", "params", "status",
                                  "secondary", "calibration", "std_method",
                                  "std_calibration_bound", "replicas", "reversals"}
-    assert m["verdict"]["grade"] in ("clear", "weak", "none")
+    assert m["verdict"]["grade"] in ("clear", "weak", "probable", "none")
     assert set(m["location"]) == {"time_windows_s", "frequency_band_hz", "speed_band_rad_s", "summary"}
     assert m["verdict"]["effect"] in VOCAB and 0.0 <= m["verdict"]["reduction"] <= 1.0
     assert m["verdict"]["gap_after"] <= m["verdict"]["gap_before"]
@@ -313,7 +313,9 @@ def test_json_contract_exact_keys_and_types(tmp_path):
     for r in m["ranking"]:
         assert {"effect", "gap_after", "reduction", "params", "p_value", "counts", "weak", "identified",
                 "not_identified", "status", "reasons", "equations", "reduction_in_equations", "explained_rms_N_m",
-                "below_accuracy", "level", "n_units"} == set(r)
+                "below_accuracy", "level", "n_units", "short_of_level"} == set(r)
+        # a candidate short of its level is one whose test did not reach it
+        assert not r["short_of_level"] or (not r["counts"] and r["p_value"] >= r["level"])
         assert r["effect"] in VOCAB - {"none"} and 0.0 <= r["reduction"] <= 1.0
         assert r["counts"] <= r["identified"]
         assert 0.0 < r["level"] <= 0.01 and r["n_units"] >= 1 and (not r["counts"] or r["p_value"] < r["level"])

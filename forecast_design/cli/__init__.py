@@ -544,7 +544,8 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         _write_json(args.json, mapping)
     if args.json != "-":
         v = mapping["verdict"]
-        print(f"verdict: {v['effect']} (gap {v['gap_before']:.4g} -> {v['gap_after']:.4g}, "
+        graded = f", graded {v['grade']}" if v["grade"] in ("weak", "probable") else ""
+        print(f"verdict: {v['effect']}{graded} (gap {v['gap_before']:.4g} -> {v['gap_after']:.4g}, "
               f"reduction {100 * v['reduction']:.1f} %)")
         if v["status"]:
             # the numbers with their 95 % intervals and statuses: an `uncertain` one is to be read by its interval

@@ -60,7 +60,9 @@ probability or scales with the information in the log; none is tuned to one gene
    the next candidate that counts, or the weak grade.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
    reduction, graded ``weak`` (:mod:`.grading`; it must be told from the re-calibration and have a parameter on
-   a direction the log resolves, :func:`.grading.weak_is_distinct`), or ``none`` when there is none.
+   a direction the log resolves, :func:`.grading.weak_is_distinct`); else one of a clear verdict's size whose
+   held-out test stops short of its level (below :data:`.replicas.PROBABLE_P`) and that no effect-free replica of
+   the log produces, graded ``probable`` (:func:`.replicas.probable_verdict`); or ``none`` when there is none.
 7. A second effect (forward selection, one step): every other candidate is fitted
    *together with* the winner; the best one by held-out BIC is reported as a
    secondary effect when it passes the same test against the winner alone, is
@@ -110,7 +112,7 @@ from .isolability import Isolability, isolability
 from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
-from .replicas import ReplicaCheck, replica_check
+from .replicas import PROBABLE_P, ReplicaCheck, probable_caveat, probable_verdict, replica_check
 from .reversals import ReversalTest, reversal_test
 from .rules import metric_text
 from ..plausibility import ParameterStatus
@@ -167,6 +169,9 @@ class RankedCandidate:
         The level its held-out test must reach (:func:`.heldout.candidate_levels`) [-]; NaN where not set.
     n_units : int
         Held-out test units of that test (:func:`.heldout.test_units`) [-].
+    short_of_level : bool
+        A clear verdict's size whose held-out p lies between ``level`` and :data:`.replicas.PROBABLE_P`
+        (:func:`.replicas.probable_verdict`).
     """
 
     effect: Effect
@@ -185,6 +190,7 @@ class RankedCandidate:
     withheld_by_accuracy: bool = False
     level: float = float("nan")
     n_units: int = 0
+    short_of_level: bool = False
 
     @property
     def identified(self) -> bool:
@@ -200,7 +206,7 @@ class RankedCandidate:
             ``effect``, ``gap_after`` [N m], ``reduction``, ``params``, ``p_value``, ``counts``
             (passes every test), ``weak``, ``equations``, ``reduction_in_equations``, ``explained_rms_N_m``,
             ``below_accuracy`` (withheld by the accuracy alone), ``level`` (the level ``p_value`` must reach,
-            null where not set), ``n_units`` (held-out test units), and ``identified``, ``not_identified``,
+            null where not set), ``n_units`` (held-out test units), ``short_of_level``, and ``identified``, ``not_identified``,
             ``status``, ``reasons`` from the assessment.
         """
         out = {"effect": str(self.effect), "gap_after": float(self.gap_after),
@@ -210,7 +216,8 @@ class RankedCandidate:
                "reduction_in_equations": None if math.isnan(self.reduction_own) else float(self.reduction_own),
                "explained_rms_N_m": None if math.isnan(self.explained_rms) else float(self.explained_rms),
                "below_accuracy": bool(self.withheld_by_accuracy),
-               "level": None if math.isnan(self.level) else float(self.level), "n_units": int(self.n_units)}
+               "level": None if math.isnan(self.level) else float(self.level), "n_units": int(self.n_units),
+               "short_of_level": bool(self.short_of_level)}
         if self.assessment is not None:
             out.update(self.assessment.to_mapping())
         return out
@@ -274,7 +281,9 @@ class Diagnosis:
         and ``reduction``, and the reading ``chosen`` (JSON ``tau_s.alternative``).
     grade : str
         ``clear`` (the effect removes ``min_reduction`` of the explainable gap), ``weak`` (it passes
-        every other test but removes less) or ``none`` (:mod:`.grading`).
+        every other test but removes less), ``probable`` (it removes ``min_reduction`` but its held-out test stops
+        short of its level, below :data:`.replicas.PROBABLE_P`, and no effect-free replica of the log produces it:
+        :func:`.replicas.probable_verdict`) or ``none`` (:mod:`.grading`).
     method_shift : Mapping[str, float]
         How far the verdict's parameters move when the analysis is repeated with the position filter's
         cut-off halved (:func:`.identifiability.method_shift`), in their units; already in their
@@ -517,6 +526,12 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             if not assessment.identified:
                 in_band_only.add(fit.effect)
         passes = bool(p < alpha_fit and assessment.identified and lowers_total)
+        # a clear verdict's size whose held-out test stops short of its level: replicas may name it (.replicas)
+        short = bool(not passes and counted >= opts.min_reduction and red > 0.0 and max(p, p_total) < PROBABLE_P
+                     and assessment.identified)
+        if short and fit.effect in HALF_BAND_CHECKED:
+            assessment = persists_in_half_band(data, fit, assessment)
+            short = assessment.identified
         ranked.append(RankedCandidate(effect=fit.effect, gap_after=fit.gap_held_out,
                                       reduction=float(min(max(red, 0.0), 1.0)), params=fit.params,
                                       p_value=p, bic=bic, assessment=assessment, reduction_own=red_own,
@@ -526,7 +541,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                                       weak=passes and 0.0 < counted < opts.min_reduction,
                                       explained_rms=explained, accuracy=accuracy,
                                       withheld_by_accuracy=passes and red_own > 0.0 and counted == 0.0,
-                                      level=alpha_fit, n_units=int(all_units.max()) + 1))
+                                      level=alpha_fit, n_units=int(all_units.max()) + 1, short_of_level=short))
     # an effect outside the motor equation (an environment mismatch; backlash read by a torque sensor, in the coupling):
     # where a motor-equation candidate passing the test removes more of the total gap, it lies in the motor equation
     # (six environment verdicts: 47-95 % of a quiet equation, 0.3-10 % of the total, beside a friction, gain or cogging
@@ -678,6 +693,11 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                            + ("." if replicas is None else ", explaining torque no effect-free replica of the log "
                               "explains." if math.isinf(replicas.ratio) else f", explaining {replicas.ratio:.3g} times "
                               "the torque it explains on effect-free replicas of the log."))
+        probable = None if winner is not None else probable_verdict(data, ranked, base, by_effect, span)
+        if probable is not None:
+            (winner, replicas), grade = probable, "probable"
+            ranked.insert(0, ranked.pop(ranked.index(winner)))
+            caveats.append(probable_caveat(winner, replicas))
     # a Coulomb verdict on encoders too coarse for the equation errors to see a Stribeck bump: the trajectory around
     # the reversals decides between the laws (.reversals; 9 of 72 stiction logs named coulomb there, no Coulomb log)
     reversals = reversal_test(data, by_effect[str(Effect.COULOMB)]) if winner is not None and secondary is None \

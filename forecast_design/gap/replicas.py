@@ -43,9 +43,11 @@ from ..effects import Effect
 from ..errors import ForecastError
 from .candidates import CandidateFit, fit_baseline, fit_candidate
 from .grading import noise_floor, own_reduction
+from .heldout import richer_law_justified, verdict_ties
 from .residuals import GapData, prepare_gap_data
 
-__all__ = ["ReplicaCheck", "closed_loop", "read_encoders", "replica_check", "sensor_noise_std", "toggle_share"]
+__all__ = ["ReplicaCheck", "PROBABLE_P", "closed_loop", "probable_caveat", "probable_verdict", "read_encoders",
+           "replica_check", "sensor_noise_std", "toggle_share"]
 
 #: Replicas simulated per check [-].
 N_REPLICAS = 19
@@ -55,6 +57,8 @@ N_REPLICAS = 19
 #: and wrong verdicts the replicas reproduce stood at 0.30-1.06 times the replicas' torque, the true effects at
 #: 1.58 and above.
 REPLICA_MARGIN = 1.5
+#: Largest held-out p-value of a candidate the replicas may name, graded ``probable`` (:func:`probable_verdict`) [-].
+PROBABLE_P = 0.05
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
@@ -293,3 +297,58 @@ def replica_check(data: GapData, base: CandidateFit, fit: CandidateFit, *, n: in
                         replicas_N_m=tuple(float(r) for r, _ in reps), encoder_counts=counts,
                         sensor_noise_std_N_m=sensor, closed_loop=closed_loop(data),
                         encoder_jitter_counts=float(np.median([j for _, j in reps])))
+
+
+def probable_verdict(data: GapData, ranked: list, base: CandidateFit, fits: dict[str, CandidateFit],
+                     span: dict[str, Any]) -> tuple[Any, ReplicaCheck] | None:
+    """A clear verdict's size that the held-out test leaves short of its level, named where no replica produces it.
+
+    A candidate that removes ``min_reduction`` of its equations' gap, lowers the total gap and is identified, but
+    whose held-out test gives a p-value between its level and :data:`PROBABLE_P` (``short_of_level``), is
+    short of units rather than of effect: a delay acting on the edges of a slow square wave (20 units, 45 % of
+    the gap, p = 0.012 at a level of 0.005). Its evidence is then asked of the replicas (:func:`replica_check`): it
+    must explain :data:`REPLICA_MARGIN` times the torque it explains on every effect-free replica of the log (the
+    delay above: 37 times). The first such candidate by held-out BIC that no other reading explains as well
+    (:func:`.heldout.verdict_ties`), and for ``stiction`` or ``position_friction`` that the nested-law rule justifies
+    over ``coulomb``, is checked; the one check decides.
+
+    Parameters
+    ----------
+    data : GapData
+        The prepared log.
+    ranked : list of RankedCandidate
+        The diagnosis's ranking (no candidate counts, none is weak).
+    base : CandidateFit
+        The calibrated nominal model.
+    fits : dict of str to CandidateFit
+        Every candidate's fit by effect word.
+    span : dict
+        ``angle_span_rad`` and ``n_harmonics`` of :func:`.heldout.verdict_ties`.
+
+    Returns
+    -------
+    (RankedCandidate, ReplicaCheck) or None
+        The candidate and its replicas, or None where none is short of its level or the replicas produce it (or
+        cannot be simulated).
+    """
+    short = sorted((r for r in ranked if r.short_of_level and not verdict_ties(ranked, r, **span)),
+                   key=lambda r: r.bic)
+    coulomb = fits.get(str(Effect.COULOMB))
+    for r in short:
+        if r.effect in (Effect.STICTION, Effect.POSITION_FRICTION) and coulomb is not None \
+                and not richer_law_justified(data, fits[str(r.effect)], coulomb):
+            continue
+        check = replica_check(data, base, fits[str(r.effect)])
+        return (r, check) if check is not None and check.distinct else None
+    return None
+
+
+def probable_caveat(winner: Any, check: ReplicaCheck) -> str:
+    """What a ``probable`` verdict rests on (:func:`probable_verdict`)."""
+    top = max(check.replicas_N_m, default=0.0)
+    times = "more than any" if math.isinf(check.ratio) else f"{check.ratio:.3g} times the most of"
+    return (f"Probable: '{winner.effect}' is identified and removes {100 * winner.reduction:.0f} % of the gap, but its "
+            f"held-out test over {winner.n_units} units gives p = {winner.p_value:.2g}, above its level "
+            f"{winner.level:.2g} (below {PROBABLE_P:g}); it explains {1e3 * check.observed_N_m:.3g} mN m, {times} "
+            f"{len(check.replicas_N_m)} effect-free replicas of this log ({1e3 * top:.3g} mN m; a verdict needs "
+            f"{REPLICA_MARGIN:g} times): named, graded probable (a longer log would prove or refute it).")

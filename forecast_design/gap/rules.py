@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .heldout import BREAKAWAY_MARGIN, NESTED_ALPHA
-from .replicas import N_REPLICAS, REPLICA_MARGIN
+from .replicas import N_REPLICAS, PROBABLE_P, REPLICA_MARGIN
 from .residuals import GapData
 
 __all__ = ["metric_text"]
@@ -51,4 +51,7 @@ def metric_text(data: GapData) -> str:
             f"the winner alone. A weak verdict, or a clear one removing less than {100 * o.min_reduction:g} % of the "
             f"total gap, must also explain {REPLICA_MARGIN:g} times the torque it explains on any of {N_REPLICAS} "
             f"effect-free replicas of the log (its re-calibrated nominal model, controller and reference or motor "
-            f"command, encoders' step and torque sensor simulated; the candidate refitted on each).")
+            f"command, encoders' step and torque sensor simulated; the candidate refitted on each). Where no candidate "
+            f"counts and none is weak, one that passes every test of a clear verdict but whose held-out p lies between "
+            f"its level and {PROBABLE_P:g} is the verdict graded probable when it explains {REPLICA_MARGIN:g} times the "
+            f"torque of every replica.")

@@ -73,7 +73,10 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
     env = experiment.design.environment
     setup = "locked output" if env.locked else f"environment J = {env.J:.4g} kg m^2, d = {env.d:.4g} N m s/rad, " \
                                              f"k_e = {env.k_e:.4g} N m/rad"
-    loop = "closed loop (PD)" if experiment.design.controller is not None else "open loop"
+    ctrl, comp = experiment.design.controller, experiment.design.compensator
+    observer = "" if comp is None or comp.kind == "none" else \
+        f", {comp.kind}" + (f" w_q = {comp.w_q_hz:g} Hz" if comp.is_observer else "")
+    loop = "open loop" if ctrl is None else f"closed loop ({ctrl.label}{observer})"
     src = experiment.source.name if experiment.source is not None else "(in memory)"
     lines = [
         "# Sim-to-real gap diagnosis",
@@ -83,7 +86,8 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
         "",
         "## Verdict",
         "",
-        f"**{d.effect}**: {_EXPLAIN[str(d.effect)]}.",
+        f"**{d.effect}**" + (f" (graded {d.grade})" if d.grade in ("weak", "probable") else "")
+        + f": {_EXPLAIN[str(d.effect)]}.",
         "",
         f"- Gap before (nominal model, re-calibrated within tolerance): **{d.gap_before:.4g} N m**",
         f"- Gap after adding `{d.effect}`: **{d.gap_after:.4g} N m** ({100 * d.reduction:.1f} % reduction)",
