@@ -21,7 +21,7 @@ from forecast_design.gap import diagnose
 from forecast_design.experiment import experiment_from_arrays
 from forecast_design.gap.halfband import persists_in_half_band
 from forecast_design.gap.candidates import fit_baseline
-from forecast_design.gap.replicas import PROBABLE_P, probable_verdict
+from forecast_design.gap.replicas import PROBABLE_P, probable_verdict, replica_check
 from forecast_design.gap.residuals import classify_tau_s, significant_digits
 from forecast_design.controllers import PD
 from forecast_design.params import environment_preset
@@ -259,6 +259,29 @@ def test_a_candidate_short_of_its_level_that_effect_free_replicas_produce_is_no_
     span = dict(angle_span_rad=d.location.angle_span_rad, n_harmonics=d.data.options.n_harmonics)
     short = [dataclasses.replace(coulomb, short_of_level=True)]
     assert probable_verdict(d.data, short, fit_baseline(d.data), d.fits, span) is None
+
+
+def test_a_pair_of_effects_the_replicas_produce_is_no_verdict():
+    # an effect-free 2,000,000-count closed loop on a locked output with a torque sensor: no effect counts alone, and a
+    # stiction of 0.9 mN m with a torque gain of 0.958 together removed 65 % of a 1.4 mN m gap, named stiction with a
+    # second effect (the stiction alone was not even resolved above the torque accuracy); the replicas of its chain
+    # (the sensor's noise fed back) make each explain as much
+    log = ind.make_independent_log("none", 7, 238)
+    assert log.case.closed_loop and log.case.environment_name == "locked" and log.case.tau_s_logging == "sensor"
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.NONE and d.secondary is None
+    said = [c for c in d.caveats if c.startswith("Not distinct from the sensors")]
+    assert len(said) == 1 and "nor the pair with" in said[0]
+
+
+def test_replicas_of_a_locked_output_read_it_at_zero_and_run():
+    # an open-loop 16-bit log on a locked output whose angles jitter: the replicas' jittered q failed the format's
+    # q == 0 on every replica, so a weak verdict there went unchecked
+    log = ind.make_independent_log("none", 3, 238, magnitude_scale=0.25)
+    assert log.case.environment_name == "locked" and not log.case.closed_loop
+    d = diagnose(log.experiment, joint=False)
+    check = replica_check(d.data, fit_baseline(d.data), d.fits["torque_gain"], n=3)
+    assert check is not None and check.encoder_jitter_counts > 0.0 and len(check.replicas_N_m) == 3
 
 
 def test_the_report_says_the_grade_and_the_controller_the_log_declares(tmp_path):

@@ -112,7 +112,7 @@ from .isolability import Isolability, isolability
 from .halfband import HALF_BAND_CHECKED, persists_in_half_band
 from .locate import Location, locate_gap
 from .replay import ReplayCheck, replay_check
-from .replicas import PROBABLE_P, ReplicaCheck, probable_caveat, probable_verdict, replica_check
+from .replicas import PROBABLE_P, ReplicaCheck, probable_caveat, probable_verdict, replica_check, weak_caveat
 from .reversals import ReversalTest, reversal_test
 from .rules import metric_text
 from ..plausibility import ParameterStatus
@@ -653,15 +653,17 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
                 # forward selection may only reach the pair from the smaller effect (the larger one
                 # leaves too little for the smaller to add): the verdict names the larger
                 winner, secondary = alone, dataclasses.replace(secondary, effect=winner.effect)
-            ranked.remove(winner)
-            ranked.insert(0, winner)
+            ranked.insert(0, ranked.pop(ranked.index(winner)))
     replicas = None
-    if winner is not None and secondary is None and winner.reduction < opts.min_reduction:
-        # clear only above the encoders' floor: it must stand above what the sensors alone produce (.replicas)
+    if winner is not None and (not winner.significant or secondary is None and winner.reduction < opts.min_reduction):
+        # clear only above the encoders' floor, or a pair no single effect made: it must stand above what the sensors
+        # alone produce (.replicas; an effect-free closed loop with a torque sensor: stiction of 0.9 mN m, not
+        # resolved alone, with a gain of 0.958, the stiction 0.96 times its replicas')
         replicas = replica_check(data, base, by_effect[str(winner.effect)])
         if replicas is not None and not replicas.distinct:
-            caveats.append(replicas.caveat())
-            winner = None
+            caveats.append(replicas.caveat() if secondary is None else
+                           replicas.caveat(f"neither it nor the pair with {secondary.effect} is named"))
+            winner = secondary = None
     grade = "none" if winner is None else "clear"
     if winner is None:
         # an effect the log resolves (held-out test, identified, the torque accuracy, the total gap lowered)
@@ -685,14 +687,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             caveats.append(replicas.caveat())
         elif weak:
             winner, grade = weak[0], "weak"
-            ranked.remove(winner)
-            ranked.insert(0, winner)
-            caveats.append(f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above "
-                           f"the encoders' noise floor, below the {100 * opts.min_reduction:g} % of a clear verdict, "
-                           f"but passes the held-out test (p = {winner.p_value:.2g}) and is identified"
-                           + ("." if replicas is None else ", explaining torque no effect-free replica of the log "
-                              "explains." if math.isinf(replicas.ratio) else f", explaining {replicas.ratio:.3g} times "
-                              "the torque it explains on effect-free replicas of the log."))
+            ranked.insert(0, ranked.pop(ranked.index(winner)))
+            caveats.append(weak_caveat(winner, replicas, opts.min_reduction))
         probable = None if winner is not None else probable_verdict(data, ranked, base, by_effect, span)
         if probable is not None:
             (winner, replicas), grade = probable, "probable"

@@ -47,7 +47,7 @@ from .heldout import richer_law_justified, verdict_ties
 from .residuals import GapData, prepare_gap_data
 
 __all__ = ["ReplicaCheck", "PROBABLE_P", "closed_loop", "probable_caveat", "probable_verdict", "read_encoders",
-           "replica_check", "sensor_noise_std", "toggle_share"]
+           "replica_check", "sensor_noise_std", "toggle_share", "weak_caveat"]
 
 #: Replicas simulated per check [-].
 N_REPLICAS = 19
@@ -110,8 +110,8 @@ class ReplicaCheck:
         """The log's candidate explains :data:`REPLICA_MARGIN` times the torque of every replica's."""
         return self.ratio >= REPLICA_MARGIN
 
-    def caveat(self) -> str:
-        """Why a candidate that does not stand above the replicas is no verdict."""
+    def caveat(self, named: str = "no effect is named") -> str:
+        """Why a candidate that does not stand above the replicas is no verdict (``named``: what follows)."""
         chain = (f"{self.encoder_counts}-count encoders"
                  + (f" jittering {self.encoder_jitter_counts:.2g} counts" if self.encoder_jitter_counts > 0 else "")
                  + ("" if self.sensor_noise_std_N_m is None else
@@ -120,7 +120,7 @@ class ReplicaCheck:
         return (f"Not distinct from the sensors: '{self.effect}' explains {1e3 * self.observed_N_m:.2g} mN m, but on "
                 f"effect-free replicas of this log ({loop}; {chain}) it explains up to "
                 f"{1e3 * max(self.replicas_N_m):.2g} mN m (a ratio of {self.ratio:.2f}, where a verdict needs "
-                f"{REPLICA_MARGIN:g}): no effect is named.")
+                f"{REPLICA_MARGIN:g}): {named}.")
 
     def to_mapping(self) -> dict[str, Any]:
         """JSON: the effect, the torque it explains on the log and on each replica [N m], their ratio (null when no
@@ -250,6 +250,10 @@ def _replica_statistic(data: GapData, cal: dict[str, float], effect: Effect, see
         step = 2.0 * math.pi / encoder_counts
         theta, q, jitter = read_encoders(np.asarray(run.theta, dtype=float), np.asarray(run.q, dtype=float), step,
                                          share, seed)
+        if exp.design.environment.locked:
+            # a locked output reads zero, jitter or not (the format asks q == 0; a jittered q failed every replica,
+            # which left a weak verdict on an effect-free locked log unchecked)
+            q = np.zeros_like(q)
         if sensor is None:
             tau_s = exp.design.testbed.spring_torque(theta, q)
     # the declared design, as the log's: the replica's gap is measured against the same nominal model
@@ -341,6 +345,16 @@ def probable_verdict(data: GapData, ranked: list, base: CandidateFit, fits: dict
         check = replica_check(data, base, fits[str(r.effect)])
         return (r, check) if check is not None and check.distinct else None
     return None
+
+
+def weak_caveat(winner: Any, check: ReplicaCheck | None, min_reduction: float) -> str:
+    """What a ``weak`` verdict rests on: the held-out test, and the replicas where they ran."""
+    said = ("." if check is None else ", explaining torque no effect-free replica of the log explains."
+            if math.isinf(check.ratio) else f", explaining {check.ratio:.3g} times the torque it explains on "
+            "effect-free replicas of the log.")
+    return (f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above the encoders' "
+            f"noise floor, below the {100 * min_reduction:g} % of a clear verdict, but passes the held-out test "
+            f"(p = {winner.p_value:.2g}) and is identified" + said)
 
 
 def probable_caveat(winner: Any, check: ReplicaCheck) -> str:
