@@ -274,7 +274,7 @@ def test_a_pair_of_effects_the_replicas_produce_is_no_verdict():
     assert len(said) == 1 and "nor the pair with" in said[0]
 
 
-def test_replicas_of_a_locked_output_read_it_at_zero_and_run():
+def test_replicas_of_a_locked_output_read_it_at_zero_and_run_the_declared_inertia_where_the_log_held_its_bound():
     # an open-loop 16-bit log on a locked output whose angles jitter: the replicas' jittered q failed the format's
     # q == 0 on every replica, so a weak verdict there went unchecked
     log = ind.make_independent_log("none", 3, 238, magnitude_scale=0.25)
@@ -282,6 +282,11 @@ def test_replicas_of_a_locked_output_read_it_at_zero_and_run():
     d = diagnose(log.experiment, joint=False)
     check = replica_check(d.data, fit_baseline(d.data), d.fits["torque_gain"], n=3)
     assert check is not None and check.encoder_jitter_counts > 0.0 and len(check.replicas_N_m) == 3
+    # and its weak torque gain of 0.965 (J_m's re-calibration on its -3 % bound, pushed there by the encoders' 0.75
+    # counts of jitter) is what replicas run with the declared J_m produce too: no effect is named
+    assert d.effect is Effect.NONE and d.calibration["J_m"].status == "at_bound"
+    said = [c for c in d.caveats if c.startswith("Not distinct from the sensors: 'torque_gain'")]
+    assert len(said) == 1 and "jittering" in said[0]
 
 
 def test_the_report_says_the_grade_and_the_controller_the_log_declares(tmp_path):

@@ -11,8 +11,8 @@ next to a spring whose k may move only within its datasheet tolerance, leaves a 
 floor, 3 % of the total, a clear verdict). That part grows with the noise and the sensor's
 errors, not with any effect, so no held-out test on the log itself can tell it from one.
 
-A parametric bootstrap can: the nominal model (the log's design with its re-calibrated ``J_m`` and
-``d_m``; with a torque sensor, the re-calibrated ``k`` and the sensor's scale and zero) is
+A parametric bootstrap can: the nominal model (the log's design with its re-calibrated ``J_m`` -- the declared one
+where the re-calibration sits on its datasheet bound, which is the bound's value, not the motor's -- and ``d_m``; with a torque sensor, the re-calibrated ``k`` and the sensor's scale and zero) is
 simulated with the log's own measurement chain (the encoders' step read from the log; a torque
 sensor's white noise read from ``tau_s``), effect-free, ``n`` times with other noise draws: in
 closed loop under the log's controller, compensator and force reference, open loop under its
@@ -44,6 +44,7 @@ from ..errors import ForecastError
 from .candidates import CandidateFit, fit_baseline, fit_candidate
 from .grading import noise_floor, own_reduction
 from .heldout import richer_law_justified, verdict_ties
+from .identifiability import calibration_on_bound
 from .residuals import GapData, prepare_gap_data
 
 __all__ = ["ReplicaCheck", "PROBABLE_P", "closed_loop", "probable_caveat", "probable_verdict", "read_encoders",
@@ -130,8 +131,9 @@ class ReplicaCheck:
                 "distinct": self.distinct, "encoder_counts": self.encoder_counts,
                 "sensor_noise_std_N_m": self.sensor_noise_std_N_m, "closed_loop": self.closed_loop,
                 "encoder_jitter_counts": self.encoder_jitter_counts,
-                "assumed": "the log's design with its re-calibrated J_m and d_m (and, with a torque sensor, k and the "
-                           "sensor's scale and zero); in closed loop its controller, compensator and force reference, "
+                "assumed": "the log's design with its re-calibrated J_m (the declared one where the re-calibration "
+                           "sits on its datasheet bound) and d_m (and, with a torque sensor, k and the sensor's scale "
+                           "and zero); in closed loop its controller, compensator and force reference, "
                            "open loop its motor command; effect-free; the encoders' step, their jitter (where the "
                            "loop does not feed the angles back) and the sensor's white noise read from the log; no "
                            "process noise, no torque limit"}
@@ -292,9 +294,15 @@ def replica_check(data: GapData, base: CandidateFit, fit: CandidateFit, *, n: in
     counts = int(round(2.0 * math.pi / encoder_step_of(np.asarray(data.experiment.signals.theta, dtype=float))))
     sensor = sensor_noise_std(data)
     share = toggle_share(np.asarray(data.experiment.signals.theta, dtype=float))     # the log's, once for every replica
+    cal = dict(base.calibration)
+    if "J_m" in calibration_on_bound(data, base):
+        # a re-calibration on its datasheet bound is the bound's value, not the motor's: the replicas run the declared
+        # J_m, so that whatever pushed the log's onto the bound (the encoders' jitter in the filtered acceleration:
+        # an effect-free 16-bit sweep, J_m on its -3 % bound and a gain of 0.965 taking up the rest, 7.4 times its
+        # replicas' at the bound's J_m, 1.3 times at the declared one) pushes theirs too
+        cal["J_m"] = data.experiment.design.testbed.J_m
     try:
-        reps = [_replica_statistic(data, base.calibration, fit.effect, seed + i, sensor, counts, share)
-                for i in range(n)]
+        reps = [_replica_statistic(data, cal, fit.effect, seed + i, sensor, counts, share) for i in range(n)]
     except (ForecastError, ValueError, FloatingPointError):
         return None
     return ReplicaCheck(effect=fit.effect, observed_N_m=float(observed.explained_rms),
