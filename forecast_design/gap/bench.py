@@ -264,7 +264,7 @@ class BenchResult:
         return sum(c.correct for c in h) / len(h) if h else float("nan")
 
     def pairs_scores(self) -> dict[str, float | None]:
-        """Pairs suite: exact two-effect recovery by forward selection and by the group lasso (None where not run) [-]."""
+        """Pairs suite: exact two-effect recovery by forward selection and by the group lasso (None: not run) [-]."""
         p = self.suite("pairs")
         if not p:
             return {}

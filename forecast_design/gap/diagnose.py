@@ -206,8 +206,8 @@ class RankedCandidate:
             ``effect``, ``gap_after`` [N m], ``reduction``, ``params``, ``p_value``, ``counts``
             (passes every test), ``weak``, ``equations``, ``reduction_in_equations``, ``explained_rms_N_m``,
             ``below_accuracy`` (withheld by the accuracy alone), ``level`` (the level ``p_value`` must reach,
-            null where not set), ``n_units`` (held-out test units), ``short_of_level``, and ``identified``, ``not_identified``,
-            ``status``, ``reasons`` from the assessment.
+            null where not set), ``n_units`` (held-out test units), ``short_of_level``, and ``identified``,
+            ``not_identified``, ``status``, ``reasons`` from the assessment.
         """
         out = {"effect": str(self.effect), "gap_after": float(self.gap_after),
                "reduction": float(self.reduction), "params": _jsonable(self.params),

@@ -12,9 +12,10 @@ floor, 3 % of the total, a clear verdict). That part grows with the noise and th
 errors, not with any effect, so no held-out test on the log itself can tell it from one.
 
 A parametric bootstrap can: the nominal model (the log's design with its re-calibrated ``J_m`` -- the declared one
-where the re-calibration sits on its datasheet bound, which is the bound's value, not the motor's -- and ``d_m``; with a torque sensor, the re-calibrated ``k`` and the sensor's scale and zero) is
-simulated with the log's own measurement chain (the encoders' step read from the log; a torque
-sensor's white noise read from ``tau_s``), effect-free, ``n`` times with other noise draws: in
+where the re-calibration sits on its datasheet bound, which is the bound's value, not the motor's -- and ``d_m``;
+with a torque sensor, the re-calibrated ``k`` and the sensor's scale and zero) is simulated with the log's own
+measurement chain (the encoders' step read from the log; a torque sensor's white noise read from ``tau_s``),
+effect-free, ``n`` times with other noise draws: in
 closed loop under the log's controller, compensator and force reference, open loop under its
 logged command. The candidate is fitted on each replica as on the log; the torque it explains on
 the log must be :data:`REPLICA_MARGIN` times the most it explains on a replica. What it explains

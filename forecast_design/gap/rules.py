@@ -49,10 +49,11 @@ def metric_text(data: GapData) -> str:
             f"justifies is the verdict over a coulomb the BIC prefers, and so is one whose levels the log does not separate "
             f"where it removes more of the gap and the breakaway is proven at the raw rate); a second effect fitted together with the winner is reported when it passes the test against "
             f"the winner alone. A weak verdict, a clear one removing less than {100 * o.min_reduction:g} % of the "
-            f"total gap, or one named with a second effect where no single effect counts, must also explain {REPLICA_MARGIN:g} times the torque it explains on any of {N_REPLICAS} "
+            f"total gap, or one named with a second effect where no single effect counts, must also explain "
+            f"{REPLICA_MARGIN:g} times the torque it explains on any of {N_REPLICAS} "
             f"effect-free replicas of the log (its re-calibrated nominal model, J_m declared where on its bound, "
             f"controller and reference or motor "
             f"command, encoders' step and torque sensor simulated; the candidate refitted on each). Where no candidate "
             f"counts and none is weak, one that passes every test of a clear verdict but whose held-out p lies between "
-            f"its level and {PROBABLE_P:g} is the verdict graded probable when it explains {REPLICA_MARGIN:g} times the "
-            f"torque of every replica.")
+            f"its level and {PROBABLE_P:g} is the verdict graded probable when it explains {REPLICA_MARGIN:g} "
+            f"times the torque of every replica.")
