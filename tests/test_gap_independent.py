@@ -293,6 +293,7 @@ def test_the_report_says_the_grade_and_the_controller_the_log_declares(tmp_path)
     # a weak or probable verdict is said where the verdict is, and the loop by the controller the log declares
     # (the report called every closed loop "PD")
     from forecast_design.controllers import PID
+    from forecast_design.gap.views import diagnosis_views
     from forecast_design.reporting import write_report
 
     log = ind.make_independent_log("delay", 8, 151)
@@ -300,6 +301,7 @@ def test_the_report_says_the_grade_and_the_controller_the_log_declares(tmp_path)
     assert (d.effect, d.grade) == (Effect.DELAY, "probable")
     text = write_report(d, log.experiment, tmp_path / "pd").read_text()
     assert "**delay** (graded probable)" in text and "closed loop (PD P=" in text
+    assert diagnosis_views(d).grade == "probable"      # the before/after plot's title says it too
     pid = dataclasses.replace(log.experiment, design=dataclasses.replace(log.experiment.design,
                                                                           controller=PID(P=4.0, I=2.0, D=0.05)))
     text = write_report(d, pid, tmp_path / "pid").read_text()

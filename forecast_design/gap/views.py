@@ -140,6 +140,8 @@ class DiagnosisViews:
         Where the gap lies (the diagnosis' location) [s], [Hz], [rad/s], [rad].
     gap_before, gap_after : float
         Held-out gap before and after [N m].
+    grade : str
+        The verdict's grade (``clear``, ``weak``, ``probable``, ``none``).
     """
 
     effect: str
@@ -163,6 +165,7 @@ class DiagnosisViews:
     gap_before: float = math.nan
     gap_after: float = math.nan
     reversals: dict | None = None
+    grade: str = "clear"
 
     @property
     def has_after(self) -> bool:
@@ -272,4 +275,5 @@ def diagnosis_views(diag: Any, *, window_s: float = 2.0, coherence_threshold: fl
                           frequency_band_hz=tuple(diag.location.frequency_band_hz),
                           speed_band_rad_s=tuple(diag.location.speed_band_rad_s),
                           angle_span_rad=float(diag.location.angle_span_rad),
-                          gap_before=float(diag.gap_before), gap_after=float(diag.gap_after), reversals=reversals)
+                          gap_before=float(diag.gap_before), gap_after=float(diag.gap_after), reversals=reversals,
+                          grade=str(diag.grade))
