@@ -531,6 +531,7 @@ def _configure_diagnose(p: argparse.ArgumentParser) -> None:
 def _cmd_diagnose(args: argparse.Namespace) -> int:
     from ..experiment import load_experiment
     from ..gap import diagnose
+    from ..gap.grading import QUALIFIED_GRADES
     from ..reporting import write_report
 
     from ..limits import limit_of
@@ -544,7 +545,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
         _write_json(args.json, mapping)
     if args.json != "-":
         v = mapping["verdict"]
-        graded = f", graded {v['grade']}" if v["grade"] in ("weak", "probable") else ""
+        graded = f", graded {v['grade']}" if v["grade"] in QUALIFIED_GRADES else ""
         print(f"verdict: {v['effect']}{graded} (gap {v['gap_before']:.4g} -> {v['gap_after']:.4g}, "
               f"reduction {100 * v['reduction']:.1f} %)")
         if v["status"]:

@@ -35,12 +35,16 @@ from .identifiability import calibration_status
 from .isolability import CALIBRATION, Isolability
 from .residuals import GapData
 
-__all__ = ["noise_floor", "floor_rms", "held_at_rest", "explainable_reduction", "explained_rms", "GRADES", "weak_is_distinct",
+__all__ = ["noise_floor", "floor_rms", "held_at_rest", "explainable_reduction", "explained_rms", "GRADES", "QUALIFIED_GRADES",
+           "weak_is_distinct",
            "CONSTANT_TORQUE_SHARE", "OwnReduction", "own_reduction"]
 
 #: Grades of a verdict: an effect that removes ``min_reduction`` of the explainable gap, one the log
-#: resolves but that explains less, or no effect.
-GRADES = ("clear", "weak", "none")
+#: resolves but that explains less, one of a clear verdict's size whose held-out test stops short of its level and
+#: that no effect-free replica produces (:func:`.replicas.probable_verdict`), or no effect.
+GRADES = ("clear", "weak", "probable", "none")
+#: The grades every output says beside the verdict (a clear one goes without saying).
+QUALIFIED_GRADES = ("weak", "probable")
 
 
 def noise_floor(data: GapData) -> np.ndarray:

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from .grading import QUALIFIED_GRADES
 from .locate import measured_response, residual_psd
 from .replay import replay_trace
 from .residuals import significant_digits
@@ -166,6 +167,11 @@ class DiagnosisViews:
     gap_after: float = math.nan
     reversals: dict | None = None
     grade: str = "clear"
+
+    @property
+    def qualified(self) -> bool:
+        """Whether the verdict's grade is said beside it (:data:`.grading.QUALIFIED_GRADES`)."""
+        return self.grade in QUALIFIED_GRADES
 
     @property
     def has_after(self) -> bool:

@@ -208,7 +208,7 @@ def plot_before_after(views, path: str | Path) -> Path:
         ax.grid(True, alpha=0.3)
     axes[0, 0].legend(fontsize=8, loc="best", framealpha=0.9)
     reduction = 1.0 - views.gap_after / views.gap_before if views.gap_before > 0 else 0.0
-    graded = f"; {views.effect} graded {views.grade}" if views.grade in ("weak", "probable") else ""
+    graded = f"; {views.effect} graded {views.grade}" if views.qualified else ""
     axes[0, 0].set_title(f"Held-out data: gap {views.gap_before:.3g} -> {views.gap_after:.3g} N m "
                          f"({100 * reduction:.0f} % less{graded})")
     axes[-1, 0].set_xlabel("t [s]")

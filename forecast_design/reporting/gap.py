@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..experiment import Experiment
+from ..gap.grading import QUALIFIED_GRADES
 from ..fileio import atomic_write
 
 __all__ = ["write_report"]
@@ -86,7 +87,7 @@ def write_report(diagnosis: Any, experiment: Experiment, out_dir: str | os.PathL
         "",
         "## Verdict",
         "",
-        f"**{d.effect}**" + (f" (graded {d.grade})" if d.grade in ("weak", "probable") else "")
+        f"**{d.effect}**" + (f" (graded {d.grade})" if d.grade in QUALIFIED_GRADES else "")
         + f": {_EXPLAIN[str(d.effect)]}.",
         "",
         f"- Gap before (nominal model, re-calibrated within tolerance): **{d.gap_before:.4g} N m**",
