@@ -652,3 +652,15 @@ def test_a_python_controller_acts_on_the_torque_sensors_reading_like_the_compile
     assert 1.5e-3 < np.std(code.tau_s - code.truth.tau_s) < 2.5e-3
     np.testing.assert_allclose(code.tau_m, compiled.tau_m, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(code.tau_s, compiled.tau_s, rtol=1e-12, atol=1e-12)
+
+
+def test_a_python_controller_reads_the_encoders_jitter_like_the_compiled_one(tmp_path):
+    # the code loop's readings are the simulator's: a jittered derived tau_s; a P written as code runs as pd:5:0
+    src = _write(tmp_path, "p.py", "class P:\n    def reset(self, *a): pass\n"
+                                   "    def step(self, t, tau_r, tau_s, theta, q): return 5.0 * (tau_r - tau_s)\n")
+    kw = dict(reference=Step(amplitude=0.2), duration_s=0.2, seed=3, encoder_counts=2**16, encoder_jitter_counts=0.8)
+    code = simulate(_design(PythonController(source=str(src), class_name="P")), **kw)
+    compiled = simulate(_design(resolve_controller("pd:5:0")), **kw)
+    assert np.max(np.abs(code.theta - code.truth.theta)) > 2 * np.pi / 2**16
+    np.testing.assert_allclose(code.tau_m, compiled.tau_m, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(code.theta, compiled.theta, rtol=0, atol=0)

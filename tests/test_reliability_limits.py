@@ -417,6 +417,10 @@ def test_a_utf8_bom_toml_is_accepted_everywhere(tmp_path, capsys):
     ([("[reference]", '[[truth.effects]]\neffect = "stiction"\nF_s = 0.5\nF_c = 0.4\n\n[reference]')],
      ["effect 'stiction' is given 2 times"]),
     ([("encoder_counts = 2000000", "encoder_counts = -5")], ["[simulation] encoder_counts"]),
+    ([("encoder_counts = 2000000", "encoder_counts = 2000000\nencoder_jitter_counts = -0.5")],
+     ["[simulation] encoder_jitter_counts", ">= 0"]),
+    ([("encoder_counts = 2000000", "encoder_counts = 0\nencoder_jitter_counts = 0.5")],
+     ["[simulation] encoder_jitter_counts", "needs encoder_counts"]),
     ([('discretization = "tustin"', 'discretization = "euler"')], ["discretization", "tustin"]),
     ([("k_e = 100.0", "k_e = 1e+32")], ["k_e = 1e+32"]),
 ])

@@ -247,6 +247,41 @@ def test_encoder_quantisation_is_2e6_counts_per_rev():
     assert np.max(np.abs(r.theta - r.truth.theta)) <= step / 2 + 1e-15
 
 
+@pytest.mark.parametrize("jitter_counts", [0.3, 0.7])
+def test_an_encoder_jitter_toggles_a_reading_at_rest_as_often_as_the_normal_law_says(jitter_counts):
+    # a motor at rest on a count's centre reads off it when the noise passes half a count: P = 2 (1 - Phi(0.5 / s))
+    kw = dict(reference=np.zeros(8000), duration_s=4.0, closed_loop=False, encoder_counts=2**16, process_noise_std=0.0,
+              seed=5)
+    r = simulate(Design.nominal("locked"), encoder_jitter_counts=jitter_counts, **kw)
+    plain = simulate(Design.nominal("locked"), **kw)
+    step = 2 * np.pi / 2**16
+    assert np.all(r.truth.theta == 0.0) and np.all(plain.theta == 0.0)
+    p = 2.0 * stats.norm.sf(0.5 / jitter_counts)
+    off = np.count_nonzero(r.theta)
+    assert abs(off - p * r.theta.size) <= 5.0 * math.sqrt(r.theta.size * p * (1 - p))
+    assert set(np.unique(np.round(r.theta / step))) <= {-3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0}
+    assert np.all(r.q == 0.0) and r.options["encoder_jitter_counts"] == jitter_counts
+
+
+def test_an_encoder_jitter_in_the_loop_moves_the_motor():
+    # closed loop on a derived tau_s: the P controller acts on k (theta_m - q_m), the jitter included
+    kw = dict(reference=Step(amplitude=0.2), duration_s=0.5, seed=2, process_noise_std=0.0, encoder_counts=2**16)
+    design = Design.nominal("locked", controller=PD(P=5.0, D=0.0))
+    r = simulate(design, encoder_jitter_counts=0.8, **kw)
+    quiet = simulate(design, **kw)
+    k, step = design.testbed.k, 2 * np.pi / 2**16
+    np.testing.assert_allclose(r.tau_m, 5.0 * (r.tau_r - k * r.theta), rtol=1e-12, atol=1e-12)
+    # the readings differ from the quantised true angle by more than the quantiser does (half a count) ...
+    assert np.max(np.abs(r.theta - r.truth.theta)) > step
+    # ... and the motor moves with them: the jitter is in the loop, not added to the log afterwards
+    assert np.max(np.abs(r.truth.theta - quiet.truth.theta)) > 0.0
+    with pytest.raises(ParameterError, match="encoder_jitter_counts needs encoder_counts"):
+        simulate(design, encoder_jitter_counts=0.5, **{**kw, "encoder_counts": None})
+    for bad in (-0.1, float("nan"), 1e3, True):
+        with pytest.raises(ParameterError, match="encoder_jitter_counts must be in"):
+            simulate(design, encoder_jitter_counts=bad, **kw)
+
+
 def test_torque_saturation():
     r = simulate(Design.nominal("stiff"), reference=Square(high=1.0, low=-1.0, period_s=0.5), duration_s=1.0,
                  torque_limit=0.5)

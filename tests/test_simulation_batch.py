@@ -171,3 +171,15 @@ def test_a_batch_with_a_torque_sensor_equals_simulate_bit_for_bit():
                           seed=run.seed, initial_angle=run.initial_angle, torque_sensor=sensor)
         _assert_same(batch.result(i), single)
         assert 1e-3 < np.std(single.tau_s - 0.95 * single.truth.tau_s) < 3e-3
+
+
+def test_a_batch_with_encoder_jitter_equals_simulate_bit_for_bit():
+    runs = _runs()[:3]
+    batch = simulate_batch(runs, duration_s=0.2, reference=REF, encoder_counts=2**16, encoder_jitter_counts=0.6)
+    for i, run in enumerate(runs):
+        single = simulate(run.design, reference=run.reference or REF, duration_s=0.2, effects=run.effects,
+                          seed=run.seed, initial_angle=run.initial_angle, encoder_counts=2**16,
+                          encoder_jitter_counts=0.6)
+        _assert_same(batch.result(i), single)
+        # a reading more than half a count off the true angle: the jitter is there
+        assert np.max(np.abs(single.theta - single.truth.theta)) > 2 * np.pi / 2**16

@@ -42,7 +42,7 @@ __all__ = ["BatchRun", "BatchResult", "simulate_batch", "simulate_scenario", "sc
 #: Options of :func:`~.run.simulate` shared by every run of a batch.
 SHARED_OPTIONS = ("velocity_cutoff_hz", "sfm_deadband", "torque_limit", "encoder_counts",
                   "process_noise_std", "include_nominal_viscous", "sfm_params", "step_timeout_s",
-                  "torque_sensor")
+                  "torque_sensor", "encoder_jitter_counts")
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,7 +146,7 @@ def _pad(arrays: Sequence[np.ndarray], axis: int, dtype: Any = float) -> tuple[n
 
 
 @njit
-def _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM, SENS, SGAIN,
+def _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, JIT, NOISE, KNOM, SENS, SGAIN,
                SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH):
     """Run ``i`` of the batch: ``run._loop`` on row ``i`` of every input (private copies, see the module notes)."""
     p = P[i].copy()
@@ -158,7 +158,7 @@ def _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc
     meas = np.empty((n, MEAS.shape[2]))
     truth = np.empty((n, TRUTH.shape[2]))
     _loop(n, nsub, dsub[i], p, harm, np.zeros(5), closed, REF[i].copy(), OL[i].copy(), torque_limit, enc_step,
-          NOISE[i].copy(), KNOM[i], SENS[i].copy(), SGAIN, sos, np.zeros((sos.shape[0], 2)), meta, gains, FLAGS[i].copy(),
+          JIT[i].copy(), NOISE[i].copy(), KNOM[i], SENS[i].copy(), SGAIN, sos, np.zeros((sos.shape[0], 2)), meta, gains, FLAGS[i].copy(),
           PAR[i].copy(),
           FFC[i].copy(), ffh, np.zeros(5), meas, truth, np.zeros(HL[i]))
     # element loops, not MEAS[i] = meas: a slice assignment makes numba compile its shape-mismatch
@@ -171,20 +171,20 @@ def _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc
 
 
 @njit(parallel=True)
-def _batch_loop(n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM, SENS, SGAIN,
+def _batch_loop(n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, JIT, NOISE, KNOM, SENS, SGAIN,
                 SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH):
     """The runs on numba's thread pool, one run per thread (:func:`_batch_run`)."""
     for i in prange(P.shape[0]):
-        _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM, SENS, SGAIN,
+        _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, JIT, NOISE, KNOM, SENS, SGAIN,
                    SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH)
 
 
 @njit
-def _batch_serial(n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM, SENS, SGAIN,
+def _batch_serial(n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, JIT, NOISE, KNOM, SENS, SGAIN,
                   SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH):
     """The runs one after the other in the calling thread, without numba's thread pool (``threads=1``)."""
     for i in range(P.shape[0]):
-        _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, NOISE, KNOM, SENS, SGAIN,
+        _batch_run(i, n, nsub, dsub, P, HARM, nh, closed, REF, OL, torque_limit, enc_step, JIT, NOISE, KNOM, SENS, SGAIN,
                    SOS, nsos, META, nmeta, GAINS, FLAGS, PAR, FFC, FFH, nffh, HL, MEAS, TRUTH)
 
 
@@ -216,7 +216,8 @@ def simulate_batch(runs: Sequence[BatchRun], *, duration_s: float, reference: An
     **options
         The other options of :func:`~.run.simulate`, shared by every run:
         ``velocity_cutoff_hz``, ``sfm_deadband``, ``torque_limit``,
-        ``encoder_counts``, ``process_noise_std``, ``include_nominal_viscous``, ``sfm_params``.
+        ``encoder_counts``, ``encoder_jitter_counts``, ``process_noise_std``, ``include_nominal_viscous``,
+        ``sfm_params``.
 
     Returns
     -------
@@ -300,7 +301,7 @@ def _compiled_batch(prepared: list[_Prepared], meas_all: np.ndarray, truth_all: 
     meas = meas_all if whole else np.empty((len(prepared), n, len(_MEAS)))
     truth = truth_all if whole else np.empty((len(prepared), n, len(_TRUTH)))
     args = (n, int(substeps), dsub, P, HARM, nh, bool(closed_loop), np.stack(arr("ref")), np.stack(arr("ol")),
-            first.torque_limit, first.enc_step, np.stack(arr("noise")), knom, np.stack(arr("sens")), first.sensor_gain, SOS, nsos, META,
+            first.torque_limit, first.enc_step, np.stack(arr("jit")), np.stack(arr("noise")), knom, np.stack(arr("sens")), first.sensor_gain, SOS, nsos, META,
             nmeta,
             np.ascontiguousarray(GAINS[:, :, 0]), np.stack([a[3] for a in programs]),
             np.stack([a[4] for a in programs]), np.stack([a[5] for a in programs]), FFH, nffh, hl, meas, truth)

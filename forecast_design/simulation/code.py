@@ -292,7 +292,7 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
         The fault that stopped the controller (``period``, ``t_s``, ``reason``), or None.
     """
     from .plant import I_BL, I_BLC, I_K, history_length
-    from .run import _check_kernel_cache, _code_period, _reading, _sensors
+    from .run import _check_kernel_cache, _code_period, _jitter, _reading, _sensors
 
     if not (step_timeout_s > 0 and math.isfinite(step_timeout_s)):
         raise ParameterError(f"step_timeout_s must be > 0 [s], got {step_timeout_s!r}", name="step_timeout_s",
@@ -304,14 +304,15 @@ def run_code_loop(prep: Any, runner: CodeRunner, meas: np.ndarray, truth: np.nda
     x = np.zeros(5)
     # the compiled period's arguments after the controller's output: the plant, the program, the logs
     period_args = (prep.substeps, int(prep.plant.delay_substeps), prep.arrays["p"], prep.arrays["harm"], x,
-                   prep.enc_step, prep.arrays["noise"], prep.k_nominal, prep.arrays["sens"], prep.sensor_gain,
+                   prep.enc_step, prep.arrays["jit"], prep.arrays["noise"], prep.k_nominal, prep.arrays["sens"], prep.sensor_gain,
                    *(np.array(a, order="C") for a in packed.arrays()), state, mem, meas, truth,
                    np.zeros(history_length(prep.substeps, prep.plant.delay_substeps)), np.zeros(2))
     runner.reset(rate, prep.ran.testbed, prep.ran.environment)
-    par, sens = prep.arrays["p"], prep.arrays["sens"]
+    par, sens, jit = prep.arrays["p"], prep.arrays["sens"], prep.arrays["jit"]
 
     def measure(k: int) -> tuple[float, float, float]:      # the readings of period k (the kernel's _sensors)
-        return _sensors(float(x[0]), float(x[2]), prep.enc_step, prep.k_nominal, sens.shape[0] > 0, prep.sensor_gain,
+        return _sensors(float(x[0]), float(x[2]), _jitter(jit, k, 0), _jitter(jit, k, 1), prep.enc_step,
+                        prep.k_nominal, sens.shape[0] > 0, prep.sensor_gain,
                         _reading(sens, k) if sens.shape[0] else 0.0, par[I_K], par[I_BL], par[I_BLC])
     ref = prep.ref.tolist()
     n = prep.n

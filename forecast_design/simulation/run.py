@@ -59,6 +59,8 @@ __all__ = [
 
 #: Encoder resolution of the Forecast testbed (DHO-05) [counts/rev].
 ENCODER_COUNTS = 2_000_000
+#: Largest encoder jitter :func:`simulate` takes [counts] (beyond it the readings are noise, not an encoder).
+MAX_ENCODER_JITTER_COUNTS = 100.0
 #: Default process torque noise (std of a per-period held torque) [N m].
 DEFAULT_PROCESS_NOISE_STD = 1e-3
 
@@ -69,10 +71,10 @@ _TRUTH = ("theta", "omega", "q", "v", "z", "tau_frc", "tau_s", "tau_m_applied")
 
 
 @_njit(inline="always")
-def _sensors(theta, q, enc_step, k_nom, sensor, gain, reading, k_spring, bl, blc):
+def _sensors(theta, q, jt, jq, enc_step, k_nom, sensor, gain, reading, k_spring, bl, blc):
     """Step 1 of a period: the encoder readings ``theta_m``, ``q_m`` [rad] and ``tau_s_m`` [N m] at the true angles.
 
-    ``tau_s_m`` is derived from the encoders, ``k_nom (theta_m - q_m)``, or, with a torque ``sensor``, ``gain``
+    ``jt``, ``jq`` are the encoders' jitter at this sample [rad], added before the quantiser. ``tau_s_m`` is derived from the encoders, ``k_nom (theta_m - q_m)``, or, with a torque ``sensor``, ``gain``
     times the true spring torque (``k_spring``, its backlash ``bl``, ``blc`` included) plus ``reading``, the
     sensor's zero and noise at this sample. Scalars only: numba reference-counts every array an inlined helper
     receives, which would cost more than the arithmetic.
@@ -80,8 +82,8 @@ def _sensors(theta, q, enc_step, k_nom, sensor, gain, reading, k_spring, bl, blc
     th = theta
     qq = q
     if enc_step > 0.0:
-        th = math.floor(theta / enc_step + 0.5) * enc_step
-        qq = math.floor(q / enc_step + 0.5) * enc_step
+        th = math.floor((theta + jt) / enc_step + 0.5) * enc_step
+        qq = math.floor((q + jq) / enc_step + 0.5) * enc_step
     if sensor:
         return th, qq, gain * spring_torque(theta - q, k_spring, bl, blc) + reading
     return th, qq, k_nom * (th - qq)
@@ -93,16 +95,23 @@ def _reading(sens, k):
     return sens[k] if k < sens.shape[0] else 0.0
 
 
+@_njit(inline="always")
+def _jitter(jit, k, c):
+    """The encoders' jitter at sample ``k`` on angle ``c`` (0: theta, 1: q) [rad]; 0 without jitter (shape (0, 2))
+    or past its end (the code loop reads once more)."""
+    return jit[k, c] if k < jit.shape[0] else 0.0
+
+
 @_njit
-def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, noise, k_nom, sens, sens_gain,
+def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, jit, noise, k_nom, sens, sens_gain,
           sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, meas, truth, hist):
     out = np.zeros(2)
     H = hist.shape[0]
     sensor = sens.shape[0] > 0
     k_spring, bl, blc = p[I_K], p[I_BL], p[I_BLC]
     for k in range(n):
-        th, qq, tau_s = _sensors(x[0], x[2], enc_step, k_nom, sensor, sens_gain, sens[k] if sensor else 0.0,
-                                 k_spring, bl, blc)
+        th, qq, tau_s = _sensors(x[0], x[2], _jitter(jit, k, 0), _jitter(jit, k, 1), enc_step, k_nom, sensor,
+                                 sens_gain, sens[k] if sensor else 0.0, k_spring, bl, blc)
         if closed:
             cmd = program_step(sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, ref[k], tau_s, th)
             u = mem[3]
@@ -127,7 +136,8 @@ def _loop(n, nsub, dsub, p, harm, x, closed, ref, ol, torque_limit, enc_step, no
 
 
 @_njit
-def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, enc_step, noise, k_nom, sens, sens_gain,
+def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, enc_step, jit, noise, k_nom, sens,
+                 sens_gain,
                  sos, meta, gains, flags, par, ff_coef, ff_harm, state, mem, meas, truth, hist, out):
     """Period ``k`` of ``_loop`` for a controller written as code (:mod:`.code`), which gave ``u`` [N m].
 
@@ -156,8 +166,8 @@ def _code_period(k, th, qq, tau_s, u, tau_r, stopped, nsub, dsub, p, harm, x, en
     meas[k, 5] = hat
     hist[k % hist.shape[0]] = cmd
     advance_period(x, k, nsub, dsub, hist, p, harm, noise[k] if k < noise.shape[0] else 0.0, out, truth[k])
-    return _sensors(x[0], x[2], enc_step, k_nom, sens.shape[0] > 0, sens_gain, _reading(sens, k + 1), p[I_K], p[I_BL],
-                    p[I_BLC])
+    return _sensors(x[0], x[2], _jitter(jit, k + 1, 0), _jitter(jit, k + 1, 1), enc_step, k_nom, sens.shape[0] > 0,
+                    sens_gain, _reading(sens, k + 1), p[I_K], p[I_BL], p[I_BLC])
 
 
 def _kernel_dependencies() -> list:
@@ -184,6 +194,14 @@ def sensor_noise(seed: int, sensor: TorqueSensor | None, n: int) -> np.ndarray:
     noise = (np.random.default_rng([seed, 0x5E45]).normal(0.0, sensor.noise_std_N_m, n) if sensor.noise_std_N_m > 0
              else np.zeros(n))
     return noise + sensor.offset_N_m
+
+
+def encoder_jitter(seed: int, jitter_counts: float, enc_step: float, n: int) -> np.ndarray:
+    """The encoders' jitter: a white noise on theta and q before the quantiser [rad], shape (n, 2); shape (0, 2)
+    without jitter. Drawn from its own stream: the process and sensor noises are the same either way."""
+    if not jitter_counts > 0.0:
+        return np.zeros((0, 2))
+    return np.random.default_rng([seed, 0xE7C0]).standard_normal((n, 2)) * (jitter_counts * enc_step)
 
 
 def plant_stepper(design: Design, effects: Sequence[Any] = (), *, n: int, rate_hz: float = 2000.0,
@@ -391,7 +409,7 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
              include_nominal_viscous: bool = True, description: str = "",
              step_timeout_s: float | None = None,
-             torque_sensor: TorqueSensor | None = None) -> SimulationResult:
+             torque_sensor: TorqueSensor | None = None, encoder_jitter_counts: float = 0.0) -> SimulationResult:
     """Simulate the testbed: force control (+ compensator) or an open-loop torque profile.
 
     Parameters
@@ -432,6 +450,11 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
         Motor torque saturation |tau_m| <= torque_limit [N m].
     encoder_counts : int or None
         Encoder counts per revolution on theta and q; ``None`` or 0: exact.
+    encoder_jitter_counts : float
+        Standard deviation of a white noise added to both angles before the encoders' quantiser
+        [counts] (default 0): an encoder whose reading toggles between two counts where the motion
+        dwells near an edge. In closed loop the controller reads it (a derived ``tau_s`` carries it).
+        Needs ``encoder_counts``; drawn from the seed's own stream. A locked output's ``q`` reads zero.
     process_noise_std : float
         Std of a motor torque noise held per period [N m].
     torque_sensor : TorqueSensor, optional
@@ -475,7 +498,7 @@ def simulate(design: Design, *, reference: Callable[[np.ndarray], np.ndarray] | 
                     process_noise_std=process_noise_std, initial_angle=initial_angle,
                     include_nominal_viscous=include_nominal_viscous,
                     description=description, step_timeout_s=step_timeout_s,
-                    torque_sensor=torque_sensor)
+                    torque_sensor=torque_sensor, encoder_jitter_counts=encoder_jitter_counts)
     meas = np.empty((prep.n, len(_MEAS)))
     truth = np.empty((prep.n, len(_TRUTH)))
     if prep.is_code:
@@ -539,7 +562,8 @@ class _Prepared:
         sos, meta, gains, flags, par, ff_coef, ff_harm = self.program_arrays()
         state, mem = self.program.pack().new_state()
         return (self.n, self.substeps, int(self.plant.delay_substeps), a["p"], a["harm"], np.zeros(5),
-                self.closed_loop, a["ref"], a["ol"], self.torque_limit, self.enc_step, a["noise"], self.k_nominal,
+                self.closed_loop, a["ref"], a["ol"], self.torque_limit, self.enc_step, a["jit"], a["noise"],
+                self.k_nominal,
                 a["sens"], self.sensor_gain, sos, state, meta, gains, flags, par, ff_coef, ff_harm, mem, meas, truth,
                 np.zeros(history_length(self.substeps, self.plant.delay_substeps)))
 
@@ -577,7 +601,8 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
              torque_limit: float = math.inf, encoder_counts: int | None = ENCODER_COUNTS,
              process_noise_std: float = DEFAULT_PROCESS_NOISE_STD, initial_angle: float = 0.0,
              include_nominal_viscous: bool = True, description: str = "",
-             step_timeout_s: float | None = None, torque_sensor: TorqueSensor | None = None) -> _Prepared:
+             step_timeout_s: float | None = None, torque_sensor: TorqueSensor | None = None,
+             encoder_jitter_counts: float = 0.0) -> _Prepared:
     """Validate :func:`simulate`'s arguments and pack one run for the kernel (no simulation)."""
     if not isinstance(design, Design):
         raise ParameterError(f"simulate needs a Design (e.g. Design.nominal('exp-soft')), got {type(design).__name__}",
@@ -607,6 +632,13 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
                                        or encoder_counts < 0):
         raise ParameterError(f"encoder_counts must be an integer >= 0 [counts/rev], got {encoder_counts!r}",
                              name="encoder_counts", value=encoder_counts)
+    if not (isinstance(encoder_jitter_counts, (int, float, np.floating)) and not isinstance(encoder_jitter_counts, bool)
+            and 0.0 <= encoder_jitter_counts <= MAX_ENCODER_JITTER_COUNTS):
+        raise ParameterError(f"encoder_jitter_counts must be in [0, {MAX_ENCODER_JITTER_COUNTS:g}] [counts], got "
+                             f"{encoder_jitter_counts!r}", name="encoder_jitter_counts", value=encoder_jitter_counts)
+    if encoder_jitter_counts > 0 and not encoder_counts:
+        raise ParameterError("encoder_jitter_counts needs encoder_counts (a jitter before the quantiser of exact "
+                             "angles has no count)", name="encoder_jitter_counts", value=encoder_jitter_counts)
     plant: PlantModel = build_plant(design, effects, rate_hz=rate_hz, substeps=substeps,
                                     initial_angle=initial_angle, include_nominal_viscous=include_nominal_viscous)
     stability = stability_check(plant)
@@ -644,6 +676,7 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
         "closed_loop": bool(closed_loop), "controller": None if controller is None else controller.spelling(),
         "velocity_cutoff_hz": float(velocity_cutoff_hz), "sfm_deadband": float(sfm_deadband),
         "torque_limit": float(torque_limit), "encoder_counts": int(encoder_counts or 0),
+        "encoder_jitter_counts": float(encoder_jitter_counts),
         "process_noise_std": float(process_noise_std),
         "torque_sensor": None if torque_sensor is None else torque_sensor.to_mapping(),
         "sfm_params": comp.friction_params,
@@ -653,7 +686,10 @@ def _prepare(design: Design, *, reference: Any, duration_s: float, effects: Sequ
         "delay_substeps": int(plant.delay_substeps),
     }
     arrays = {"p": rw(plant.params), "harm": rw(plant.harmonics), "ref": rw(ref), "ol": ol, "noise": noise,
-              "sens": sensor_noise(seed, torque_sensor, n)}
+              "sens": sensor_noise(seed, torque_sensor, n),
+              "jit": encoder_jitter(seed, float(encoder_jitter_counts), enc_step, n)}
+    if design.environment.locked:
+        arrays["jit"][:, 1] = 0.0       # a locked output reads zero (the format asks q == 0), jitter or not
     return _Prepared(n=n, substeps=int(substeps), plant=plant, stability=stability, closed_loop=bool(closed_loop),
                      ref=ref, torque_limit=float(torque_limit), enc_step=float(enc_step),
                      k_nominal=float(design.testbed.k), program=program, arrays=arrays, ran=ran,

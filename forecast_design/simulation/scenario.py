@@ -70,6 +70,7 @@ sections, plus the hidden truth, the reference and the simulation options::
     substeps = 10                    # RK4 steps per period
     seed = 0                         # process-noise seed
     encoder_counts = 2000000         # 0: exact angles
+    encoder_jitter_counts = 0.0      # [counts]: white noise before the encoders' quantiser
     process_noise_std = 0.001        # [N m]
     torque_limit = 10.0              # [N m]; omit for none
     velocity_cutoff_hz = 50.0        # SFM velocity filter [Hz]
@@ -105,7 +106,7 @@ from ..params import Compensator, Design
 from ..limits import check_limit, check_physical
 from .references import reference_from_mapping
 from .plant import TorqueSensor
-from .run import SimulationResult, save_simulation, simulate
+from .run import MAX_ENCODER_JITTER_COUNTS, SimulationResult, save_simulation, simulate
 
 __all__ = ["SCENARIO_FORMAT", "Repetition", "Scenario", "Variability", "load_scenario", "scenario_from_mapping", "run_scenario"]
 
@@ -115,7 +116,8 @@ SCENARIO_FORMAT = "forecast-scenario/1"
 _TOP = ("format", "description", "sampling", "testbed", "environment", "controller", "compensator", "sfm",
         "truth", "variability", "reference", "simulation")
 _SIM_KEYS = {
-    "duration_s": float, "substeps": int, "seed": int, "encoder_counts": int, "process_noise_std": float,
+    "duration_s": float, "substeps": int, "seed": int, "encoder_counts": int, "encoder_jitter_counts": float,
+    "process_noise_std": float,
     "torque_limit": float, "velocity_cutoff_hz": float, "sfm_deadband": float, "step_timeout_s": float,
 }
 #: Former [simulation] keys that now belong to the controller: where they went.
@@ -622,8 +624,12 @@ def _check_simulation(options: Mapping[str, Any], rate: float, prefix: str, sour
     if "encoder_counts" in options and not options["encoder_counts"] >= 0:
         raise fail("encoder_counts", f"must be an integer >= 0 [counts/rev] (0: exact angles), got "
                                      f"{options['encoder_counts']!r}")
+    if options.get("encoder_jitter_counts", 0.0) > 0 and not options.get("encoder_counts", 1):
+        raise fail("encoder_jitter_counts", "needs encoder_counts > 0 (a jitter before the quantiser of exact angles "
+                                            "has no count)")
     nyquist = rate / 2.0
     bounds = {"duration_s": (0.0, None, False), "process_noise_std": (0.0, 100.0, True),
+              "encoder_jitter_counts": (0.0, MAX_ENCODER_JITTER_COUNTS, True),
               "torque_limit": (0.0, None, False), "sfm_deadband": (0.0, None, True),
               "step_timeout_s": (0.0, None, False),
               "velocity_cutoff_hz": (0.0, nyquist, False)}
