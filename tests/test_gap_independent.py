@@ -289,6 +289,25 @@ def test_replicas_of_a_locked_output_read_it_at_zero_and_run_the_declared_inerti
     assert len(said) == 1 and "jittering" in said[0]
 
 
+@pytest.mark.slow
+def test_replicas_of_a_closed_loop_on_encoder_angles_feed_the_encoders_jitter_back():
+    # a 16-bit closed-loop square with a 2.7 ms delay and tau_s derived from encoders jittering 0.79 counts: the loop
+    # feeds the jitter back into the motor torque, and a stiction fitted on it (12 mN m) was named, weak, against
+    # replicas whose loop read the angles without jitter (19 copies of one deterministic run, 3.2 mN m); replicas
+    # reading them with the jitter matched to the log's toggles produce as much: no effect is named
+    log = ind.make_independent_log("delay", 8, 132)
+    case = log.case
+    assert case.closed_loop and case.encoder_counts == 2**16 and case.tau_s_logging != "sensor"
+    d = diagnose(log.experiment, joint=False)
+    assert d.effect is Effect.NONE
+    said = [c for c in d.caveats if c.startswith("Not distinct from the sensors: 'stiction'")]
+    assert len(said) == 1 and "its controller and force reference" in said[0] and "jittering" in said[0]
+    check = replica_check(d.data, fit_baseline(d.data), d.fits["stiction"], n=4)
+    # the jitter read from the log's toggles is the generator's, and the replicas are no longer one run
+    assert abs(check.encoder_jitter_counts - case.encoder_noise_counts) <= 0.1 * case.encoder_noise_counts
+    assert len(set(check.replicas_N_m)) == 4
+
+
 def test_the_report_says_the_grade_and_the_controller_the_log_declares(tmp_path):
     # a weak or probable verdict is said where the verdict is, and the loop by the controller the log declares
     # (the report called every closed loop "PD")

@@ -26,9 +26,12 @@ the simulated motion with the jitter the log's own readings show: an encoder who
 between two counts, which a motor's inertia does not, and the jitter is the one whose readings toggle as often
 as the log's (an effect-free closed-loop square with a torque sensor and 0.8 counts of jitter: 55 % of its count
 changes undone on the next sample, a Coulomb level of 67 mN m named clear; replicas without jitter explained
-up to 11 mN m of what it explained, 19 mN m, with it up to 42 mN m). What the replicas leave out (a logger's
-printing of ``tau_m``, the jitter of angles a loop feeds back, process noise, a torque limit) narrows their
-spread, which the margin covers.
+up to 11 mN m of what it explained, 19 mN m, with it up to 42 mN m). A closed loop on a derived ``tau_s`` feeds the
+jitter back into the motor torque, so its replicas read it inside the loop (``simulate``'s ``encoder_jitter_counts``,
+:func:`loop_jitter_counts`): without it the 19 replicas were one deterministic run (a 16-bit square with a 2.7 ms
+delay and 0.79 counts of jitter: a stiction of 12 mN m named weak, 3.7 times that run's; 0.99 times the most of 19
+jittered replicas). What the replicas leave out (a logger's printing of ``tau_m``, process noise, a torque limit)
+narrows their spread, which the margin covers.
 """
 
 from __future__ import annotations
@@ -48,14 +51,13 @@ from .heldout import richer_law_justified, verdict_ties
 from .identifiability import calibration_on_bound
 from .residuals import GapData, prepare_gap_data
 
-__all__ = ["ReplicaCheck", "PROBABLE_P", "closed_loop", "probable_caveat", "probable_verdict", "read_encoders",
-           "replica_check", "sensor_noise_std", "toggle_share", "weak_caveat"]
+__all__ = ["ReplicaCheck", "PROBABLE_P", "closed_loop", "loop_jitter_counts", "probable_caveat", "probable_verdict",
+           "read_encoders", "replica_check", "sensor_noise_std", "toggle_share", "weak_caveat"]
 
 #: Replicas simulated per check [-].
 N_REPLICAS = 19
 #: How many times the torque the chain alone explains a candidate must explain on the log [-]: the replicas
-#: leave out part of the log's noise (a logger's printing, the jitter of angles a loop feeds back, process noise;
-#: without a sensor they are all one), which the margin covers. On 94 logs of twenty-one seeds the false alarms
+#: leave out part of the log's noise (a logger's printing, process noise), which the margin covers. On 94 logs of twenty-one seeds the false alarms
 #: and wrong verdicts the replicas reproduce stood at 0.30-1.06 times the replicas' torque, the true effects at
 #: 1.58 and above.
 REPLICA_MARGIN = 1.5
@@ -89,8 +91,8 @@ class ReplicaCheck:
         The replicas ran the log's controller on its force reference (else its motor command, open loop).
     encoder_jitter_counts : float
         The encoders' jitter the replicas read their angles with (median over the replicas) [counts]: the one
-        that makes them toggle as often as the log's (:func:`read_encoders`); zero where the loop feeds the angles
-        back (a closed loop on a derived ``tau_s``), whose replicas read them without.
+        that makes them toggle as often as the log's (:func:`read_encoders`); inside the loop where it feeds the
+        angles back (a closed loop on a derived ``tau_s``, :func:`loop_jitter_counts`).
     """
 
     effect: Effect
@@ -135,8 +137,8 @@ class ReplicaCheck:
                 "assumed": "the log's design with its re-calibrated J_m (the declared one where the re-calibration "
                            "sits on its datasheet bound) and d_m (and, with a torque sensor, k and the sensor's scale "
                            "and zero); in closed loop its controller, compensator and force reference, "
-                           "open loop its motor command; effect-free; the encoders' step, their jitter (where the "
-                           "loop does not feed the angles back) and the sensor's white noise read from the log; no "
+                           "open loop its motor command; effect-free; the encoders' step, their jitter (inside the "
+                           "loop where it feeds the angles back) and the sensor's white noise read from the log; no "
                            "process noise, no torque limit"}
 
 
@@ -226,11 +228,9 @@ def read_encoders(theta: np.ndarray, q: np.ndarray, step: float, share: float,
     return reading, np.round((q + sigma * noise[1]) / step) * step, sigma
 
 
-def _replica_statistic(data: GapData, cal: dict[str, float], effect: Effect, seed: int, sensor_std: float | None,
-                       encoder_counts: int, share: float) -> tuple[float, float]:
-    """Torque the candidate explains on one effect-free replica [N m], and the encoders' jitter it used [counts]."""
-    from ..experiment import experiment_from_arrays
-    from ..simulation import TorqueSensor, simulate
+def _replica_design(data: GapData, cal: dict[str, float], sensor_std: float | None) -> tuple[Any, Any]:
+    """The replicas' design (the log's with its re-calibration) and torque sensor (None: ``tau_s`` derived)."""
+    from ..simulation import TorqueSensor
 
     exp = data.experiment
     tb = dataclasses.replace(exp.design.testbed, J_m=cal["J_m"], d_m=max(cal["d_m"], 0.0))
@@ -240,15 +240,60 @@ def _replica_statistic(data: GapData, cal: dict[str, float], effect: Effect, see
         scale = cal["spring_scale"]
         tb = dataclasses.replace(tb, k=cal["k"])
         sensor = TorqueSensor(noise_std_N_m=sensor_std, gain=1.0 / scale, offset_N_m=-cal["tau_s_offset_N_m"] / scale)
+    return dataclasses.replace(exp.design, testbed=tb), sensor
+
+
+def _replica_run(data: GapData, design: Any, sensor: Any, seed: int, encoder_counts: int | None,
+                 jitter_counts: float = 0.0) -> Any:
+    """One effect-free simulated run of the log's loop (or command) with its measurement chain."""
+    from ..simulation import simulate
+
+    exp = data.experiment
     closed = closed_loop(data)
     reference = exp.signals.tau_r if closed else exp.signals.tau_m
+    return simulate(design, reference=np.asarray(reference, dtype=float), duration_s=exp.n_samples / exp.rate_hz,
+                    rate_hz=exp.rate_hz, seed=seed, closed_loop=closed, encoder_counts=encoder_counts,
+                    encoder_jitter_counts=jitter_counts, process_noise_std=0.0, torque_sensor=sensor)
+
+
+def loop_jitter_counts(data: GapData, cal: dict[str, float], encoder_counts: int, share: float, seed: int) -> float:
+    """The encoders' jitter a closed loop on a derived ``tau_s`` reads its angles with [counts] (0 elsewhere).
+
+    Such a loop feeds the jitter back, so its replicas must read it inside the loop (``simulate``'s
+    ``encoder_jitter_counts``); its level is the one whose readings of one effect-free run with exact angles
+    toggle as often as the log's (:func:`read_encoders`).
+    """
+    if not closed_loop(data) or data.tau_s_measured or share <= 0.0:
+        return 0.0
+    design, sensor = _replica_design(data, cal, None)
+    theta = np.asarray(_replica_run(data, design, sensor, seed, None).theta, dtype=float)
+    step = 2.0 * math.pi / encoder_counts
+    high = read_encoders(theta, theta, step, share, seed)[2]
+    if high <= 0.0:
+        return 0.0
+    # read_encoders takes the first grid level reaching the share; between it and the one below, the share is
+    # interpolated (a grid step too high lets every replica explain more: 0.85 counts for a log's 0.79)
+    low = high - float(JITTER_GRID_COUNTS[1] - JITTER_GRID_COUNTS[0])
+    noise = np.random.default_rng([int(seed), 0x71773]).standard_normal(theta.size) * step
+    s_low, s_high = (toggle_share(np.round((theta + lvl * noise) / step) * step) for lvl in (low, high))
+    return float(np.interp(share, [s_low, s_high], [low, high])) if s_high > s_low else high
+
+
+def _replica_statistic(data: GapData, cal: dict[str, float], effect: Effect, seed: int, sensor_std: float | None,
+                       encoder_counts: int, share: float, loop_jitter: float = 0.0) -> tuple[float, float]:
+    """Torque the candidate explains on one effect-free replica [N m], and the encoders' jitter it used [counts]."""
+    from ..experiment import experiment_from_arrays
+
+    exp = data.experiment
+    design, sensor = _replica_design(data, cal, sensor_std)
+    closed = closed_loop(data)
     # where the loop does not feed the angles back (open loop, or a torque sensor fed back) the encoders read the
-    # simulated motion after the fact, with the jitter the log's own readings show (read_encoders)
+    # simulated motion after the fact, with the jitter the log's own readings show (read_encoders); a closed loop on
+    # a derived tau_s reads them inside the loop, with the jitter loop_jitter_counts matched
     after = not closed or sensor is not None
-    run = simulate(dataclasses.replace(exp.design, testbed=tb), reference=np.asarray(reference, dtype=float),
-                   duration_s=exp.n_samples / exp.rate_hz, rate_hz=exp.rate_hz, seed=seed, closed_loop=closed,
-                   encoder_counts=None if after else encoder_counts, process_noise_std=0.0, torque_sensor=sensor)
-    theta, q, tau_s, jitter = run.theta, run.q, run.tau_s, 0.0
+    run = _replica_run(data, design, sensor, seed, None if after else encoder_counts,
+                       0.0 if after else loop_jitter)
+    theta, q, tau_s, jitter = run.theta, run.q, run.tau_s, (0.0 if after else loop_jitter)
     if after:
         step = 2.0 * math.pi / encoder_counts
         theta, q, jitter = read_encoders(np.asarray(run.theta, dtype=float), np.asarray(run.q, dtype=float), step,
@@ -303,7 +348,9 @@ def replica_check(data: GapData, base: CandidateFit, fit: CandidateFit, *, n: in
         # replicas' at the bound's J_m, 1.3 times at the declared one) pushes theirs too
         cal["J_m"] = data.experiment.design.testbed.J_m
     try:
-        reps = [_replica_statistic(data, cal, fit.effect, seed + i, sensor, counts, share) for i in range(n)]
+        loop_jitter = loop_jitter_counts(data, cal, counts, share, seed)
+        reps = [_replica_statistic(data, cal, fit.effect, seed + i, sensor, counts, share, loop_jitter)
+                for i in range(n)]
     except (ForecastError, ValueError, FloatingPointError):
         return None
     return ReplicaCheck(effect=fit.effect, observed_N_m=float(observed.explained_rms),
