@@ -1,12 +1,12 @@
 """Diagnosis on the independent generator's set-ups of issue 25, with every candidate's scores.
 
 Run: python benchmarks/bench_gap_issue25.py [--per-effect N] [--scale S ...] [--seed S] [--workers W]
-     [--cache DIR] [--json OUT]
+     [--cache DIR] [--json OUT] [--controllers]
 
 Logs of :func:`forecast_design.independent.make_independent_log` (another SEA, 16/14-bit encoders,
 loggers printing tau_s and the angles with fixed decimals or significant digits, asymmetric friction,
 drawn from their own random stream) are simulated once (cached as pickles under ``--cache``) and
-diagnosed blind; the table gives the accuracy and false alarms per scale, the misses with the
+diagnosed blind (with ``--controllers`` half the closed loops run a PID); the table gives the accuracy and false alarms per scale, the misses with the
 true effect's rank, reduction and identification, and the tau_s decisions.
 """
 
@@ -25,12 +25,13 @@ from forecast_design.effects import Effect
 
 def _summary(case) -> dict:
     return {"encoder_counts": case.encoder_counts, "tau_s": case.tau_s_logging, "angles": case.angle_logging,
+            "controller": None if case.controller is None else case.design.controller.kind,
             "k": case.testbed.k, "closed": case.closed_loop, "env": case.environment_name,
             "excitation": case.excitation.kind, "asymmetric": "F_c_neg" in case.effect_params,
             "params": {k: (list(v) if isinstance(v, tuple) else v) for k, v in case.effect_params.items()}}
 
 
-def _log(word: str, index: int, seed: int, scale: float, cache: str | None):
+def _log(word: str, index: int, seed: int, scale: float, cache: str | None, controllers: bool = False):
     """(experiment, case summary, suite) of one log, simulated once (cached as the experiment's files)."""
     from forecast_design import independent as ind
     from forecast_design.errors import IdentifiabilityError
@@ -41,10 +42,10 @@ def _log(word: str, index: int, seed: int, scale: float, cache: str | None):
         meta = json.loads(stem.with_suffix(".json").read_text())
         return load_experiment(stem.with_suffix(".toml")), meta["case"], meta["suite"]
     try:
-        log = ind.make_independent_log(word, index, seed, magnitude_scale=scale)
+        log = ind.make_independent_log(word, index, seed, magnitude_scale=scale, controllers=controllers)
         exp, case, suite = log.experiment, log.case, "main"
     except IdentifiabilityError:
-        case = ind.draw_independent_case(word, index, seed, magnitude_scale=scale)
+        case = ind.draw_independent_case(word, index, seed, magnitude_scale=scale, controllers=controllers)
         exp, suite = ind.simulate_independent(case)[0], "hard"
     summary = _summary(case)
     if stem is not None:
@@ -61,8 +62,8 @@ def run(job: tuple) -> dict:
 
     from forecast_design.gap import diagnose
 
-    word, index, seed, scale, cache = job
-    exp, case, suite = _log(word, index, seed, scale, cache)
+    word, index, seed, scale, cache, controllers = job
+    exp, case, suite = _log(word, index, seed, scale, cache, controllers)
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -115,8 +116,9 @@ def main() -> None:
     ap.add_argument("--cache", default=None, help="folder for the simulated logs (pickles)")
     ap.add_argument("--words", default=",".join(str(w) for w in Effect))
     ap.add_argument("--json", default=None)
+    ap.add_argument("--controllers", action="store_true", help="half the closed loops run a PID (use its own --cache)")
     args = ap.parse_args()
-    jobs = [(w, i, args.seed, s, args.cache) for s in args.scale for w in args.words.split(",")
+    jobs = [(w, i, args.seed, s, args.cache, args.controllers) for s in args.scale for w in args.words.split(",")
             for i in range(args.per_effect)]
     t0 = time.perf_counter()
     print(f"{len(jobs)} logs, {args.workers} workers; {platform.machine()} {os.cpu_count()} cores; load "

@@ -5,6 +5,7 @@ import math
 
 import control
 import numpy as np
+from scipy import signal
 import pytest
 from scipy.integrate import simpson
 
@@ -25,7 +26,7 @@ from forecast_design.independent import (
     round_significant,
     simulate_independent,
 )
-from forecast_design.controllers import PD
+from forecast_design.controllers import PD, PID
 from forecast_design.params import Testbed, environment_preset
 
 MULTISINE = Excitation(kind="multisine", amplitude=0.6, f_lo_hz=0.2, f_hi_hz=20.0, lines=16)
@@ -262,6 +263,30 @@ def test_closed_loop_command_is_the_filtered_pd_law_of_the_logged_signals():
     assert np.sqrt(np.mean(err ** 2)) < 0.1
 
 
+def test_a_closed_loop_pid_command_is_the_tustin_pid_the_toml_declares_by_scipy():
+    # the log's command against scipy's bilinear discretisation of the continuous PID the TOML declares
+    case = _case(("coulomb",), env="locked", closed_loop=True, controller=PID(P=4.0, I=20.0, D=0.08),
+                 excitation=Excitation(kind="square", amplitude=0.3, period_s=1.0, slew=5.0),
+                 effect_params={"F_c": 0.2}, derivative_filter_hz=80.0, rate_hz=1000.0, tau_m_digits=9)
+    exp, tr = simulate_independent(case)
+    declared = exp.design.controller
+    assert isinstance(declared, PID) and (declared.P, declared.I, declared.D) == (4.0, 20.0, 0.08)
+    assert declared.discretization == "tustin" and declared.T_f == pytest.approx(1 / (2 * math.pi * 80.0))
+    T_f = declared.T_f
+    num = np.polyadd(np.polyadd([4.0 * T_f, 4.0, 0.0], [20.0 * T_f, 20.0]), [0.08, 0.0, 0.0])   # over s (T_f s + 1)
+    b, a, _ = signal.cont2discrete((num, [T_f, 1.0, 0.0]), 1e-3, method="bilinear")
+    sig = exp.signals
+    e = np.asarray(sig.tau_r) - exp.design.testbed.k * (np.asarray(sig.theta) - np.asarray(sig.q))
+    u = signal.lfilter(np.ravel(b), a, e)
+    assert np.max(np.abs(u)) < case.torque_limit
+    # the generator starts its derivative filter at rest on the first error (lfilter from zero): the difference decays
+    # with the filter's pole, (2 T_f - T) / (2 T_f + T) = 0.6 per sample
+    np.testing.assert_allclose(sig.tau_m[60:], u[60:], rtol=1e-7, atol=1e-8)
+    # and the same case under the PD of the same P and D is another log: the integral term acted
+    pd_exp, _ = simulate_independent(dataclasses.replace(case, controller=PD(P=4.0, D=0.08)))
+    assert np.max(np.abs(np.asarray(pd_exp.signals.tau_m) - np.asarray(sig.tau_m))) > 0.01
+
+
 # --- excitations ------------------------------------------------------------------------
 
 
@@ -301,6 +326,24 @@ def test_draws_and_logs_are_deterministic():
     e1, t1 = simulate_independent(dataclasses.replace(a, duration_s=2.0))
     e2, t2 = simulate_independent(dataclasses.replace(a, duration_s=2.0))
     assert e1.signals == e2.signals and np.array_equal(t1.omega, t2.omega)
+
+
+def test_a_draw_with_controllers_runs_a_pid_in_half_the_closed_loops_and_changes_nothing_else():
+    from forecast_design.independent.draw import PID_I_PER_S
+
+    closed = pid = 0
+    for word in ("coulomb", "delay", "none"):
+        for index in range(40):
+            plain = draw_independent_case(word, index, 7)
+            case = draw_independent_case(word, index, 7, controllers=True)
+            assert dataclasses.replace(case, controller=plain.controller) == plain
+            if isinstance(case.controller, PID):
+                assert (case.controller.P, case.controller.D) == (plain.controller.P, plain.controller.D)
+                assert PID_I_PER_S[0] <= case.controller.I <= PID_I_PER_S[1]
+                assert isinstance(case.design.controller, PID) and case.design.controller.I == case.controller.I
+            closed += plain.closed_loop
+            pid += isinstance(case.controller, PID)
+    assert closed > 20 and abs(pid - closed / 2) <= 3 * math.sqrt(closed / 4)
 
 
 def test_draws_respect_the_documented_magnitudes():

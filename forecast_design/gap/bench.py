@@ -610,7 +610,7 @@ def make_logs(requests: Sequence[tuple]) -> list:
 def _independent_case(job: tuple) -> BenchCase:
     """One log of the independent generator (:mod:`forecast_design.independent`), diagnosed blind.
 
-    A word for which no identifiable log is drawn within the generator's attempts (e.g. a
+    Half its closed loops run a PID instead of the PD (``controllers``). A word for which no identifiable log is drawn within the generator's attempts (e.g. a
     torque gain within the datasheet tolerance at a quarter of the typical magnitude) is
     diagnosed on its first draw and scored in the ``hard`` suite (an honest caveat counts).
     """
@@ -622,10 +622,10 @@ def _independent_case(job: tuple) -> BenchCase:
     word = words[0] if words else Effect.NONE
     suite = "main"
     try:
-        log = ind.make_independent_log(word, index, seed, magnitude_scale=scale)
+        log = ind.make_independent_log(word, index, seed, magnitude_scale=scale, controllers=True)
         case, exp, attempts = log.case, log.experiment, log.case.attempt + 1
     except IdentifiabilityError:
-        case = ind.draw_independent_case(word, index, seed, magnitude_scale=scale)
+        case = ind.draw_independent_case(word, index, seed, magnitude_scale=scale, controllers=True)
         exp, _ = ind.simulate_independent(case)
         suite, attempts = "hard", ind.MAX_ATTEMPTS
     t0 = time.perf_counter()

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..effects import Effect
 from ..errors import IdentifiabilityError, ParameterError, SolverError
-from ..controllers import PD
+from ..controllers import PD, PID
 from ..params import Environment, Testbed, environment_preset
 from ..plausibility import DATASHEET_TOLERANCE
 from .model import (ANGLE_WORDS, MAX_ATTEMPTS, RATES_HZ, _WORDS, Excitation, IndependentCase,
@@ -184,7 +184,7 @@ def _draw_excitation(rng: np.random.Generator, word: Effect, closed: bool, tb: T
 
 
 def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitude_scale: float = 1.0,
-                          attempt: int = 0, setups: bool = True) -> IndependentCase:
+                          attempt: int = 0, setups: bool = True, controllers: bool = False) -> IndependentCase:
     """Draw one case for an effect word, deterministically in the arguments.
 
     Parameters
@@ -203,6 +203,10 @@ def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitud
         Also draw the set-ups of :func:`_draw_setup` (another SEA, 16/14-bit encoders, loggers
         printing with fixed decimals, asymmetric friction), from their own random stream: with
         False every case is the one drawn before they existed.
+    controllers : bool
+        Half the closed loops run a PID (the drawn P and D, an integral gain I of
+        :data:`PID_I_PER_S`) instead of the PD, from their own random stream; False (default): every
+        case is the one drawn before.
 
     Returns
     -------
@@ -259,7 +263,17 @@ def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitud
     if setups:
         case = _draw_setup(case, effect, np.random.default_rng(np.random.SeedSequence(
             [int(seed), int(index), int(attempt), _WORDS.index(effect), int(round(scale * 1e6)), 0x25])))
+    if controllers and case.closed_loop:
+        crng = np.random.default_rng(np.random.SeedSequence(
+            [int(seed), int(index), int(attempt), _WORDS.index(effect), int(round(scale * 1e6)), 0x26]))
+        if crng.random() < 0.5:
+            c = case.controller
+            case = replace(case, controller=PID(P=c.P, I=float(crng.uniform(*PID_I_PER_S)), D=c.D))
     return case
+
+
+#: Integral gains of the PID force loops a draw with ``controllers`` runs [1/s] (I/P of 1-10 rad/s with P 3-6).
+PID_I_PER_S = (5.0, 30.0)
 
 
 #: The other SEA of the set-ups (a stiffer spring, a lighter motor) [N m/rad], [kg m^2].
@@ -462,7 +476,7 @@ def _structural_reason(case: IndependentCase, truth: IndependentTruth, word: Eff
 
 
 def make_independent_log(word: Effect | str, index: int, seed: int, *,
-                         magnitude_scale: float = 1.0, setups: bool = True) -> IndependentLog:
+                         magnitude_scale: float = 1.0, setups: bool = True, controllers: bool = False) -> IndependentLog:
     """Draw, simulate and redraw (attempt 0, 1, ...) until the log is identifiable.
 
     Parameters
@@ -477,6 +491,8 @@ def make_independent_log(word: Effect | str, index: int, seed: int, *,
         Fraction of the typical magnitude, > 0 [-].
     setups : bool
         Draw the set-ups of issue 25 too (see :func:`draw_independent_case`).
+    controllers : bool
+        Half the closed loops run a PID (see :func:`draw_independent_case`).
 
     Returns
     -------
@@ -491,7 +507,7 @@ def make_independent_log(word: Effect | str, index: int, seed: int, *,
     rejected: list[str] = []
     for attempt in range(MAX_ATTEMPTS):
         case = draw_independent_case(word, index, seed, magnitude_scale=magnitude_scale, attempt=attempt,
-                                     setups=setups)
+                                     setups=setups, controllers=controllers)
         try:
             exp, truth = simulate_independent(case)
         except SolverError as exc:

@@ -13,7 +13,7 @@ import numpy as np
 from ..effects import Effect
 from ..errors import ParameterError
 from ..experiment import Experiment
-from ..controllers import PD
+from ..controllers import PD, PID
 from ..params import Environment, Design, Testbed
 
 COUNTS_PER_REV = 2_000_000
@@ -135,9 +135,10 @@ class IndependentCase:
     excitation : Excitation
         Open-loop command, or the force reference when `closed_loop`.
     closed_loop : bool
-        PD force control (``controller``) instead of an open-loop command.
-    controller : PD or None
-        Gains of the PD force controller (closed loop).
+        PD or PID force control (``controller``) instead of an open-loop command.
+    controller : PD, PID or None
+        Gains of the force controller (closed loop): ``P``, ``D`` and, for a PID, ``I`` [1/s], whose
+        integrator the generator's own loop runs with the trapezoidal rule, without anti-windup.
     derivative_filter_hz : float
         Cutoff of the controller's first-order derivative filter [Hz].
     torque_limit : float
@@ -206,7 +207,7 @@ class IndependentCase:
     environment_name: str = "custom"
     excitation: Excitation
     closed_loop: bool = False
-    controller: PD | None = None
+    controller: PD | PID | None = None
     derivative_filter_hz: float = 100.0
     torque_limit: float = 5.0
     rate_hz: float = 2000.0
@@ -295,8 +296,10 @@ class IndependentCase:
         the first-order derivative filter and the Tustin discretisation of :func:`~.plant` 's loop)."""
         ran = None
         if self.closed_loop and self.controller is not None:
-            ran = PD(P=self.controller.P, D=self.controller.D, T_f=1.0 / (2.0 * math.pi * self.derivative_filter_hz),
-                     discretization="tustin")
+            T_f = 1.0 / (2.0 * math.pi * self.derivative_filter_hz)
+            c = self.controller
+            ran = (PID(P=c.P, I=c.I, D=c.D, T_f=T_f, discretization="tustin") if isinstance(c, PID)
+                   else PD(P=c.P, D=c.D, T_f=T_f, discretization="tustin"))
         return Design(testbed=self.testbed, environment=self.environment, controller=ran)
 
     @property

@@ -337,6 +337,8 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
         limit = case.torque_limit
         e_prev = None
         de = 0.0
+        gain_i = float(getattr(ctrl, "I", 0.0)) * T / 2.0       # a PID's integrator, trapezoidal
+        ui = 0.0
     else:
         ref_cmd = round_significant(ref, digits)
 
@@ -375,8 +377,9 @@ def simulate_independent(case: IndependentCase) -> tuple[Experiment, Independent
         if case.closed_loop:
             e = ref[k] - tau_meas
             de = 0.0 if e_prev is None else c1 * de + c2 * (e - e_prev)
+            ui += gain_i * (e + (0.0 if e_prev is None else e_prev))
             e_prev = e
-            u = min(max(ctrl.P * e + ctrl.D * de, -limit), limit)
+            u = min(max(ctrl.P * e + ui + ctrl.D * de, -limit), limit)
             cmd[k] = float(format(u, fmt))
         else:
             cmd[k] = ref_cmd[k]
