@@ -324,6 +324,35 @@ def test_replicas_draw_where_the_count_edges_lie_so_a_log_without_noise_has_repl
     assert check.encoder_jitter_counts == 0.0 and len(set(check.replicas_N_m)) == 4
 
 
+@pytest.mark.slow
+def test_a_closed_loop_whose_controller_has_no_equations_is_checked_on_its_replayed_command():
+    # a lab's code controller is logged as kind "other": the simulator cannot run it, every replica failed, and the
+    # weak verdict went out unchecked and unsaid (a 2.7 ms delay in a 16-bit loop named a weak stiction); its replicas
+    # now replay the logged command open loop and say so
+    from forecast_design.controllers import OtherController
+
+    log = ind.make_independent_log("delay", 8, 132)
+    exp = log.experiment
+    other = dataclasses.replace(exp, design=dataclasses.replace(exp.design, controller=OtherController(name="lab")))
+    d = diagnose(other, joint=False)
+    assert d.effect is Effect.NONE
+    said = [c for c in d.caveats if c.startswith("Not distinct from the sensors: 'stiction'")]
+    assert len(said) == 1 and "replayed open loop: its controller has no equations" in said[0]
+    replicas = d.to_mapping()["verdict"]["replicas"]
+    assert replicas["replayed"] is True and replicas["closed_loop"] is False
+
+
+def test_a_weak_verdict_whose_replicas_could_not_run_says_it_was_not_checked():
+    from types import SimpleNamespace
+
+    from forecast_design.gap.replicas import weak_caveat
+
+    winner = SimpleNamespace(effect=Effect.DELAY, reduction_own=0.24, p_value=1.7e-3)
+    said = weak_caveat(winner, None, 0.4)
+    assert "removes 24 %" in said and "not checked against effect-free replicas" in said
+    assert "the sensors alone may produce it" in said
+
+
 def test_the_report_says_the_grade_and_the_controller_the_log_declares(tmp_path):
     # a weak or probable verdict is said where the verdict is, and the loop by the controller the log declares
     # (the report called every closed loop "PD")

@@ -53,8 +53,8 @@ from .heldout import richer_law_justified, verdict_ties
 from .identifiability import calibration_on_bound
 from .residuals import GapData, prepare_gap_data
 
-__all__ = ["ReplicaCheck", "PROBABLE_P", "closed_loop", "loop_jitter_counts", "probable_caveat", "probable_verdict",
-           "read_encoders", "replica_check", "sensor_noise_std", "toggle_share", "weak_caveat"]
+__all__ = ["ReplicaCheck", "PROBABLE_P", "closed_loop", "command_replayed", "loop_jitter_counts", "probable_caveat",
+           "probable_verdict", "read_encoders", "replica_check", "sensor_noise_std", "toggle_share", "weak_caveat"]
 
 #: Replicas simulated per check [-].
 N_REPLICAS = 19
@@ -95,6 +95,9 @@ class ReplicaCheck:
         The encoders' jitter the replicas read their angles with (median over the replicas) [counts]: the one
         that makes them toggle as often as the log's (:func:`read_encoders`); inside the loop where it feeds the
         angles back (a closed loop on a derived ``tau_s``, :func:`loop_jitter_counts`).
+    replayed : bool
+        A closed loop whose controller has no equations (:func:`command_replayed`): the replicas replayed its
+        logged command open loop, without the noise the loop feeds back.
     """
 
     effect: Effect
@@ -104,6 +107,7 @@ class ReplicaCheck:
     sensor_noise_std_N_m: float | None
     closed_loop: bool
     encoder_jitter_counts: float = 0.0
+    replayed: bool = False
 
     @property
     def ratio(self) -> float:
@@ -122,7 +126,9 @@ class ReplicaCheck:
                  + (f" jittering {self.encoder_jitter_counts:.2g} counts" if self.encoder_jitter_counts > 0 else "")
                  + ("" if self.sensor_noise_std_N_m is None else
                  f", the torque sensor's {1e3 * self.sensor_noise_std_N_m:.2g} mN m noise, scale and zero"))
-        loop = "its controller and force reference" if self.closed_loop else "its motor command, open loop"
+        loop = ("its controller and force reference" if self.closed_loop else
+                "its logged motor command replayed open loop: its controller has no equations" if self.replayed else
+                "its motor command, open loop")
         return (f"Not distinct from the sensors: '{self.effect}' explains {1e3 * self.observed_N_m:.2g} mN m, but on "
                 f"effect-free replicas of this log ({loop}; {chain}) it explains up to "
                 f"{1e3 * max(self.replicas_N_m):.2g} mN m (a ratio of {self.ratio:.2f}, where a verdict needs "
@@ -135,6 +141,7 @@ class ReplicaCheck:
                 "ratio": None if math.isinf(self.ratio) else self.ratio, "margin": REPLICA_MARGIN,
                 "distinct": self.distinct, "encoder_counts": self.encoder_counts,
                 "sensor_noise_std_N_m": self.sensor_noise_std_N_m, "closed_loop": self.closed_loop,
+                "replayed": self.replayed,
                 "encoder_jitter_counts": self.encoder_jitter_counts,
                 "assumed": "the log's design with its re-calibrated J_m (the declared one where the re-calibration "
                            "sits on its datasheet bound) and d_m (and, with a torque sensor, k and the sensor's scale "
@@ -146,10 +153,18 @@ class ReplicaCheck:
 
 
 def closed_loop(data: GapData) -> bool:
-    """True when the log is a closed loop the simulator can replay (a force reference and a declared controller);
-    otherwise its replicas replay the logged motor command open loop."""
+    """True when the log is a closed loop the simulator can replay (a force reference and a declared controller with
+    equations); otherwise its replicas replay the logged motor command open loop."""
     exp = data.experiment
-    return exp.signals.tau_r is not None and exp.design.controller is not None
+    return exp.signals.tau_r is not None and exp.design.controller is not None \
+        and exp.design.controller.has_equations
+
+
+def command_replayed(data: GapData) -> bool:
+    """True for a closed loop whose controller has no equations (``other``: a lab's code, known by name): its replicas
+    replay the logged command open loop, without the noise the loop feeds back."""
+    exp = data.experiment
+    return exp.signals.tau_r is not None and exp.design.controller is not None and not closed_loop(data)
 
 
 def sensor_noise_std(data: GapData) -> float | None:
@@ -362,7 +377,7 @@ def replica_check(data: GapData, base: CandidateFit, fit: CandidateFit, *, n: in
         return None
     return ReplicaCheck(effect=fit.effect, observed_N_m=float(observed.explained_rms),
                         replicas_N_m=tuple(float(r) for r, _ in reps), encoder_counts=counts,
-                        sensor_noise_std_N_m=sensor, closed_loop=closed_loop(data),
+                        sensor_noise_std_N_m=sensor, closed_loop=closed_loop(data), replayed=command_replayed(data),
                         encoder_jitter_counts=float(np.median([j for _, j in reps])))
 
 
@@ -412,7 +427,8 @@ def probable_verdict(data: GapData, ranked: list, base: CandidateFit, fits: dict
 
 def weak_caveat(winner: Any, check: ReplicaCheck | None, min_reduction: float) -> str:
     """What a ``weak`` verdict rests on: the held-out test, and the replicas where they ran."""
-    said = ("." if check is None else ", explaining torque no effect-free replica of the log explains."
+    said = ("; it was not checked against effect-free replicas of the log (they could not be simulated): the sensors "
+            "alone may produce it." if check is None else ", explaining torque no effect-free replica of the log explains."
             if math.isinf(check.ratio) else f", explaining {check.ratio:.3g} times the torque it explains on "
             "effect-free replicas of the log.")
     return (f"Weak effect: '{winner.effect}' removes {100 * winner.reduction_own:.0f} % of the gap above the encoders' "
