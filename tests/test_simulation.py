@@ -563,6 +563,24 @@ def test_a_torque_sensor_in_the_loop_feeds_its_noise_back():
         simulate(design, torque_sensor=1e-3, **kw)
 
 
+def test_a_scenarios_encoder_jitter_runs_like_simulate_and_round_trips(tmp_path):
+    doc = _scenario_doc()
+    doc["simulation"].update(encoder_counts=65536, encoder_jitter_counts=0.7)
+    path = tmp_path / "sc.toml"
+    path.write_text(tomli_w.dumps(doc))
+    sc = load_scenario(path)
+    assert sc.options["encoder_jitter_counts"] == 0.7
+    assert scenario_from_mapping(sc.to_mapping()).options == sc.options
+    paths = run_scenario(path, tmp_path / "run.toml")
+    direct = simulate(sc.design, reference=Step(amplitude=0.2), duration_s=0.2, seed=5, torque_limit=5.0,
+                      effects=[Stiction(), Cogging(a=(0.02,), b=(0.0,))], initial_angle=0.3, encoder_counts=65536,
+                      encoder_jitter_counts=0.7)
+    from forecast_design.experiment import load_experiment
+
+    np.testing.assert_array_equal(load_experiment(paths["experiment"]).signals.theta, direct.theta)
+    assert json.loads(paths["truth"].read_text())["options"]["encoder_jitter_counts"] == 0.7
+
+
 def test_a_scenarios_torque_sensor_runs_like_simulate_and_round_trips(tmp_path):
     doc = _scenario_doc()
     doc["truth"] = {"torque_sensor": {"noise_std_N_m": 0.002, "gain": 0.95}}
