@@ -53,7 +53,9 @@ def metric_text(data: GapData) -> str:
             f"{REPLICA_MARGIN:g} times the torque it explains on any of {N_REPLICAS} "
             f"effect-free replicas of the log (its re-calibrated nominal model, J_m declared where on its bound, "
             f"controller and reference or motor "
-            f"command, encoders' step and torque sensor simulated; the candidate refitted on each). Where no candidate "
+            f"command, encoders' step, jitter and torque sensor simulated; a closed loop also against its logged "
+            f"command replayed open loop; the candidate refitted on each); a weak one needs a parameter whose 95 % "
+            f"interval is narrower than its plausible range. Where no candidate "
             f"counts and none is weak, one that passes every test of a clear verdict but whose held-out p lies between "
             f"its level and {PROBABLE_P:g} is the verdict graded probable when it explains {REPLICA_MARGIN:g} "
             f"times the torque of every replica.")
