@@ -610,9 +610,10 @@ def make_logs(requests: Sequence[tuple]) -> list:
 def _independent_case(job: tuple) -> BenchCase:
     """One log of the independent generator (:mod:`forecast_design.independent`), diagnosed blind.
 
-    Half its closed loops run a PID instead of the PD (``controllers``). A word for which no identifiable log is drawn within the generator's attempts (e.g. a
-    torque gain within the datasheet tolerance at a quarter of the typical magnitude) is
-    diagnosed on its first draw and scored in the ``hard`` suite (an honest caveat counts).
+    Half its closed loops run a PID instead of the PD (``controllers``). A word for which no
+    identifiable log is drawn within the generator's attempts (e.g. a torque gain within the
+    datasheet tolerance at a quarter of the typical magnitude) is diagnosed on its first draw and
+    scored in the ``hard`` suite (an honest caveat counts).
     """
     from ..errors import IdentifiabilityError
     from .. import independent as ind

@@ -249,14 +249,24 @@ def read_encoders(theta: np.ndarray, q: np.ndarray, step: float, share: float,
     >>> abs(jitter - 0.5) <= 0.1
     True
     """
-    noise = np.random.default_rng([int(seed), 0x71773]).standard_normal((2, theta.size)) * step
-    sigma, reading = 0.0, np.round(theta / step) * step
+    noise = _jitter_noise(seed, theta.size, step)
+    sigma, reading = 0.0, _quantise(theta, step)
     for level in JITTER_GRID_COUNTS[1:]:
         if toggle_share(reading) >= share:
             break
         sigma = float(level)
-        reading = np.round((theta + sigma * noise[0]) / step) * step
-    return reading, np.round((q + sigma * noise[1]) / step) * step, sigma
+        reading = _quantise(theta + sigma * noise[0], step)
+    return reading, _quantise(q + sigma * noise[1], step), sigma
+
+
+def _jitter_noise(seed: int, n: int, step: float) -> np.ndarray:
+    """The replicas' unit jitter on theta and q [rad per count of jitter], shape (2, n): one draw per seed."""
+    return np.random.default_rng([int(seed), 0x71773]).standard_normal((2, n)) * step
+
+
+def _quantise(angle: np.ndarray, step: float) -> np.ndarray:
+    """An encoder's reading of ``angle``: the nearest count [rad]."""
+    return np.round(angle / step) * step
 
 
 def _replica_design(data: GapData, cal: dict[str, float], sensor_std: float | None) -> tuple[Any, Any]:
@@ -275,12 +285,11 @@ def _replica_design(data: GapData, cal: dict[str, float], sensor_std: float | No
 
 
 def _replica_run(data: GapData, design: Any, sensor: Any, seed: int, encoder_counts: int | None,
-                 jitter_counts: float = 0.0, replay: bool = False) -> Any:
-    """One effect-free simulated run of the log's loop (or command) with its measurement chain."""
+                 jitter_counts: float = 0.0, *, closed: bool) -> Any:
+    """One effect-free simulated run of the log's loop (``closed``) or of its logged command, with its chain."""
     from ..simulation import simulate
 
     exp = data.experiment
-    closed = closed_loop(data) and not replay
     reference = exp.signals.tau_r if closed else exp.signals.tau_m
     return simulate(design, reference=np.asarray(reference, dtype=float), duration_s=exp.n_samples / exp.rate_hz,
                     rate_hz=exp.rate_hz, seed=seed, closed_loop=closed, encoder_counts=encoder_counts,
@@ -297,7 +306,7 @@ def loop_jitter_counts(data: GapData, cal: dict[str, float], encoder_counts: int
     if not closed_loop(data) or data.tau_s_measured or share <= 0.0:
         return 0.0
     design, sensor = _replica_design(data, cal, None)
-    theta = np.asarray(_replica_run(data, design, sensor, seed, None).theta, dtype=float)
+    theta = np.asarray(_replica_run(data, design, sensor, seed, None, closed=True).theta, dtype=float)
     step = 2.0 * math.pi / encoder_counts
     high = read_encoders(theta, theta, step, share, seed)[2]
     if high <= 0.0:
@@ -305,8 +314,8 @@ def loop_jitter_counts(data: GapData, cal: dict[str, float], encoder_counts: int
     # read_encoders takes the first grid level reaching the share; between it and the one below, the share is
     # interpolated (a grid step too high lets every replica explain more: 0.85 counts for a log's 0.79)
     low = high - float(JITTER_GRID_COUNTS[1] - JITTER_GRID_COUNTS[0])
-    noise = np.random.default_rng([int(seed), 0x71773]).standard_normal(theta.size) * step
-    s_low, s_high = (toggle_share(np.round((theta + lvl * noise) / step) * step) for lvl in (low, high))
+    noise = _jitter_noise(seed, theta.size, step)[0]
+    s_low, s_high = (toggle_share(_quantise(theta + lvl * noise, step)) for lvl in (low, high))
     return float(np.interp(share, [s_low, s_high], [low, high])) if s_high > s_low else high
 
 
@@ -324,7 +333,7 @@ def _replica_statistic(data: GapData, cal: dict[str, float], effect: Effect, see
     # a derived tau_s reads them inside the loop, with the jitter loop_jitter_counts matched
     after = not closed or sensor is not None
     run = _replica_run(data, design, sensor, seed, None if after else encoder_counts, 0.0 if after else loop_jitter,
-                       replay)
+                       closed=closed)
     theta, q, tau_s, jitter = run.theta, run.q, run.tau_s, (0.0 if after else loop_jitter)
     if after:
         step = 2.0 * math.pi / encoder_counts

@@ -183,6 +183,10 @@ def _draw_excitation(rng: np.random.Generator, word: Effect, closed: bool, tb: T
     return replace(ex, amplitude=ex.amplitude + holding)
 
 
+#: Integral gains of the PID force loops a draw with ``controllers`` runs [1/s] (I/P of 1-10 rad/s with P 3-6).
+PID_I_PER_S = (5.0, 30.0)
+
+
 def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitude_scale: float = 1.0,
                           attempt: int = 0, setups: bool = True, controllers: bool = False) -> IndependentCase:
     """Draw one case for an effect word, deterministically in the arguments.
@@ -270,10 +274,6 @@ def draw_independent_case(word: Effect | str, index: int, seed: int, *, magnitud
             c = case.controller
             case = replace(case, controller=PID(P=c.P, I=float(crng.uniform(*PID_I_PER_S)), D=c.D))
     return case
-
-
-#: Integral gains of the PID force loops a draw with ``controllers`` runs [1/s] (I/P of 1-10 rad/s with P 3-6).
-PID_I_PER_S = (5.0, 30.0)
 
 
 #: The other SEA of the set-ups (a stiffer spring, a lighter motor) [N m/rad], [kg m^2].
@@ -475,8 +475,8 @@ def _structural_reason(case: IndependentCase, truth: IndependentTruth, word: Eff
     return None
 
 
-def make_independent_log(word: Effect | str, index: int, seed: int, *,
-                         magnitude_scale: float = 1.0, setups: bool = True, controllers: bool = False) -> IndependentLog:
+def make_independent_log(word: Effect | str, index: int, seed: int, *, magnitude_scale: float = 1.0,
+                         setups: bool = True, controllers: bool = False) -> IndependentLog:
     """Draw, simulate and redraw (attempt 0, 1, ...) until the log is identifiable.
 
     Parameters

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
@@ -296,10 +297,8 @@ class IndependentCase:
         the first-order derivative filter and the Tustin discretisation of :func:`~.plant` 's loop)."""
         ran = None
         if self.closed_loop and self.controller is not None:
-            T_f = 1.0 / (2.0 * math.pi * self.derivative_filter_hz)
-            c = self.controller
-            ran = (PID(P=c.P, I=c.I, D=c.D, T_f=T_f, discretization="tustin") if isinstance(c, PID)
-                   else PD(P=c.P, D=c.D, T_f=T_f, discretization="tustin"))
+            ran = dataclasses.replace(self.controller, T_f=1.0 / (2.0 * math.pi * self.derivative_filter_hz),
+                                      discretization="tustin")
         return Design(testbed=self.testbed, environment=self.environment, controller=ran)
 
     @property
