@@ -1,7 +1,7 @@
 """Caveats a diagnosis computes from its log: what the verdict cannot tell apart, and what it did not count.
 
 Each caveat is one sentence of the diagnosis JSON's ``caveats``, starting with its kind (``Caution``,
-``Assumed``, ``Not identified``, ``Not proven``, ``Below accuracy``, ``Parsimony``, ``Note``).
+``Assumed``, ``Not identified``, ``Not proven``, ``Below accuracy``, ``Parsimony``, ``Close``, ``Note``).
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ VISCOUS_SHIFT_FACTOR = 2.0
 
 
 def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso: Isolability,
-                      base: CandidateFit, opts: GapOptions, chosen: CandidateFit | None = None) -> list[str]:
+                      base: CandidateFit, opts: GapOptions, chosen: CandidateFit | None = None,
+                      secondary: Effect | None = None) -> list[str]:
     """Caveats computed from this log: isolability, unidentified candidates, a bounded re-calibration.
 
     Parameters
@@ -51,13 +52,16 @@ def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso:
         The diagnosis' options.
     chosen : CandidateFit, optional
         The verdict's fit.
+    secondary : Effect, optional
+        The second effect named with the verdict (no rival of it).
 
     Returns
     -------
     list of str
         One sentence per caveat.
     """
-    out = []
+    out: list[str] = []
+    words: list[str] = []
     if verdict is not Effect.NONE:
         confused = iso.confusable_with(str(verdict))
         words = [w for w in confused if w != CALIBRATION]
@@ -76,6 +80,7 @@ def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso:
                    "tenth of it, the output encoder's quantisation in q'' (errors in variables), so only d and k_e "
                    "are fitted.")
     named = next((r for r in ranked if r.effect is verdict), None)
+    out += _close_rivals(named, ranked, words, opts, secondary)
     for r in ranked:
         if verdict is Effect.COULOMB and named is not None and r.effect in (Effect.STICTION, Effect.POSITION_FRICTION) \
                 and r.significant and r.reduction > named.reduction:
@@ -142,4 +147,32 @@ def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso:
         out.append(f"Caution: the nominal re-calibration of {', '.join(at_bound)} sits on its datasheet bound "
                    f"(+-{100 * opts.calibration_tolerance:g} %): the nominal model is off by more than the tolerance, "
                    "or an effect acting in the same direction (e.g. torque_gain) is being absorbed.")
+    return out
+
+
+def _close_rivals(named: Any, ranked: Sequence[Any], confused: Sequence[str], opts: GapOptions,
+                  secondary: Effect | None) -> list[str]:
+    """A clear verdict's rivals that pass every test too and leave hardly more of the gap than it does.
+
+    The ranking names the lowest BIC, and the nested friction laws (Parsimony) and ``simplest_tied``
+    (a richer verdict that adds nothing to a simpler one) settle some near ties; what they leave is a
+    simpler verdict beside a rival that explains almost as much. Where the rival leaves less than
+    ``1 / (1 - min_reduction)`` times the verdict's remaining gap, the two differ by less than a second
+    effect must remove to be named, and the log tells them apart by that margin only: a constant-amplitude
+    square in open loop, where a Coulomb level acts as a torque gain while the motor slides (coulomb
+    98.4 % of the gap against a gain's 98.7 %, the truth Coulomb; the other way round on another log).
+    """
+    if named is None or not named.significant:
+        return []
+    friction = (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION)
+    out = []
+    for r in ranked:
+        if r is named or not r.significant or r.effect is secondary or str(r.effect) in confused \
+                or (r.effect in friction and named.effect in friction):
+            continue
+        if r.gap_after * (1.0 - opts.min_reduction) <= named.gap_after:
+            out.append(f"Close: '{r.effect}' passes every test too and removes {100 * r.reduction:.1f} % of the gap "
+                       f"against {100 * named.reduction:.1f} % for '{named.effect}': the two leave gaps that differ "
+                       f"by less than the {100 * opts.min_reduction:g} % a second effect must remove, so this log "
+                       f"tells them apart by that margin only; read both as readings of it.")
     return out
