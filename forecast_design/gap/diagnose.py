@@ -60,7 +60,7 @@ probability or scales with the information in the log; none is tuned to one gene
    the next candidate that counts, or the weak grade.
 6. No candidate counts: the verdict is the best candidate that passes every test but the
    reduction, graded ``weak`` (:mod:`.grading`; it must be told from the re-calibration and have a parameter on
-   a direction the log resolves, :func:`.grading.weak_is_distinct`); else one of a clear verdict's size whose
+   a direction the log resolves, :func:`.grading.weak_set_aside`); else one of a clear verdict's size whose
    held-out test stops short of its level (below :data:`.replicas.PROBABLE_P`) and that no effect-free replica of
    the log produces, graded ``probable`` (:func:`.replicas.probable_verdict`); or ``none`` when there is none.
 7. A second effect (forward selection, one step): every other candidate is fitted
@@ -116,7 +116,7 @@ from .replicas import PROBABLE_P, ReplicaCheck, probable_caveat, probable_verdic
 from .reversals import ReversalTest, reversal_test
 from .rules import metric_text
 from ..plausibility import ParameterStatus
-from .grading import explained_rms, noise_floor, own_reduction, weak_is_distinct
+from .grading import explained_rms, noise_floor, own_reduction, weak_set_aside
 from .structures import _FRICTION
 from .heldout import (breakaway_proven_at_rest, candidate_levels, correlation_length, effect_held_out_test,
                       held_out_test, verdict_ties, richer_law_justified, richer_law_resolved, simplest_tied,
@@ -668,8 +668,8 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     if winner is None:
         # an effect the log resolves (held-out test, identified, the torque accuracy, the total gap lowered)
         # but that explains less than min_reduction: the verdict, graded weak
-        weak = sorted((r for r in ranked if r.weak and weak_is_distinct(data, r, by_effect[str(r.effect)], base, iso)
-                       and not verdict_ties(ranked, r, **span)),
+        aside = {r.effect: weak_set_aside(data, r, by_effect[str(r.effect)], base, iso) for r in ranked if r.weak}
+        weak = sorted((r for r in ranked if r.weak and not aside[r.effect] and not verdict_ties(ranked, r, **span)),
                       key=lambda r: r.bic)
         if weak and weak[0].effect in (Effect.STICTION, Effect.POSITION_FRICTION):
             coul = next((r for r in weak if r.effect is Effect.COULOMB), None)
@@ -694,6 +694,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
             (winner, replicas), grade = probable, "probable"
             ranked.insert(0, ranked.pop(ranked.index(winner)))
             caveats.append(probable_caveat(winner, replicas))
+        caveats += [why for why in aside.values() if why and winner is None]
     # a Coulomb verdict on encoders too coarse for the equation errors to see a Stribeck bump: the trajectory around
     # the reversals decides between the laws (.reversals; 9 of 72 stiction logs named coulomb there, no Coulomb log)
     reversals = reversal_test(data, by_effect[str(Effect.COULOMB)]) if winner is not None and secondary is None \

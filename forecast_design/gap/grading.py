@@ -15,7 +15,7 @@ total gap lowered) but stays below ``min_reduction`` is a *weak* effect: the log
 since the held-out test's power grows with the log's length and excitation, but it explains
 less than a clear verdict. It becomes the verdict with grade ``weak`` when no candidate is
 clear (JSON ``verdict.grade``: ``clear``, ``weak`` or ``none``), and only where nothing the nominal model already
-has looks the same and one of its parameters lies on a direction the log resolves (:func:`weak_is_distinct`).
+has looks the same and one of its parameters lies on a direction the log resolves (:func:`weak_set_aside`).
 
 The same floor bounds what a friction law explains where the motor is at rest
 (:func:`held_at_rest`): its breakaway level holds the residual there, but not below the floor.
@@ -36,7 +36,7 @@ from .isolability import CALIBRATION, Isolability
 from .residuals import GapData
 
 __all__ = ["noise_floor", "floor_rms", "held_at_rest", "explainable_reduction", "explained_rms", "GRADES", "QUALIFIED_GRADES",
-           "weak_is_distinct",
+           "weak_set_aside",
            "CONSTANT_TORQUE_SHARE", "OwnReduction", "own_reduction"]
 
 #: Grades of a verdict: an effect that removes ``min_reduction`` of the explainable gap, one the log
@@ -224,9 +224,8 @@ def explained_rms(reference: CandidateFit, candidate: CandidateFit, rows: np.nda
     return math.sqrt(max(a2 - b2, 0.0))
 
 
-def weak_is_distinct(data: GapData, weak: Any, fit: CandidateFit, base: CandidateFit,
-                     iso: Isolability) -> bool:
-    """A weak effect is named only when nothing the nominal model already has looks the same.
+def weak_set_aside(data: GapData, weak: Any, fit: CandidateFit, base: CandidateFit, iso: Isolability) -> str:
+    """Why a weak effect is not named although it passes its tests, or ``""`` when nothing else looks the same.
 
     It must be isolable from the re-calibration of J_m, d_m and k (:func:`.isolability.isolability`;
     a torque gain, which never is, only when the re-calibration sits on its datasheet bound), and a
@@ -234,23 +233,38 @@ def weak_is_distinct(data: GapData, weak: Any, fit: CandidateFit, base: Candidat
     harmonics make a constant: a driver's offset, a sensor's zero left over). And at least one of its
     parameters must lie on a direction the log resolves: harmonics that are all unresolved (collinear over the
     angles the log turns through, amplitudes up to 110 N m) only name a slow torque the weak grade cannot place.
+    The reason is a caveat of its own: an effect that passes every test and is set aside is said, not dropped
+    unsaid (a closed-loop 16-bit log with a torque gain of 0.943: the gain removing 20 % of the gap, none).
+
+    Returns
+    -------
+    str
+        The caveat (``Not distinct: ...``), or ``""`` when the weak effect may be named.
     """
     status = weak.assessment.status if weak.assessment is not None else {}
+    why = ""
     if status and all(_unresolved(st) for st in status.values()):
-        return False
-    if weak.effect is Effect.TORQUE_GAIN:
+        why = ("none of its parameters is placed by the log (each not identifiable, or with an interval wider than "
+               "its whole plausible range)")
+    elif weak.effect is Effect.TORQUE_GAIN:
         # a gain lies in the span of the re-calibration by construction; only the calibration's datasheet
         # bound tells them apart, so a weak gain counts when the re-calibration sits on that bound
-        return any(st.status == "at_bound" for st in calibration_status(data, base).values())
-    if CALIBRATION in iso.confusable_with(str(weak.effect)):
-        return False
-    if weak.effect is Effect.COGGING and base.gap_held_out > 0:
+        if not any(st.status == "at_bound" for st in calibration_status(data, base).values()):
+            why = ("a gain lies in the span of the re-calibration of J_m, d_m and k, and the log tells it from that "
+                   "re-calibration only where the latter sits on its datasheet bound "
+                   f"(+-{100 * data.options.calibration_tolerance:g} %), which it does not here")
+    elif CALIBRATION in iso.confusable_with(str(weak.effect)):
+        why = (f"a re-calibration of J_m, d_m and k reads the same (feature separation below {iso.threshold:g} on "
+               "held-out data)")
+    elif weak.effect is Effect.COGGING and base.gap_held_out > 0:
         const = fit_constant_torque(data)
         r_cog = 1.0 - fit.gap_held_out / base.gap_held_out
         r_const = 1.0 - const.gap_held_out / base.gap_held_out
         if r_const >= CONSTANT_TORQUE_SHARE * r_cog:
-            return False
-    return True
+            why = (f"a constant motor torque removes {100 * r_const:.0f} % against its {100 * r_cog:.0f} % (a "
+                   "current driver's offset would look the same)")
+    return (f"Not distinct: '{weak.effect}' passes its held-out test and removes {100 * weak.reduction:.0f} % of the "
+            f"gap, but {why}: not named.") if why else ""
 
 
 def _unresolved(st: Any) -> bool:
