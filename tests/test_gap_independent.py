@@ -1585,7 +1585,7 @@ def test_a_weak_effect_that_passes_its_tests_is_named_or_said_why_not():
 def test_a_stiction_law_that_predicts_the_held_out_data_worse_is_not_proven_by_the_units_log_ratios():
     # an open-loop sweep with Coulomb friction and a torque sensor: the stiction law's held-out units improved in most
     # units by a little (nested p = 0.019) while it predicted the held-out data worse in all (95.3 % of the gap against
-    # coulomb's 97.7 %), and stiction was named, clear
+    # coulomb's 97.7 %: it leaves twice coulomb's gap, more than a second effect must remove), and stiction was named
     from forecast_design.gap.heldout import NESTED_ALPHA, nested_law_test, richer_law_justified
 
     log = ind.make_independent_log("coulomb", 0, 302, controllers=True)
@@ -1593,6 +1593,6 @@ def test_a_stiction_law_that_predicts_the_held_out_data_worse_is_not_proven_by_t
     d = diagnose(log.experiment, joint=False)
     st, coul = d.fits["stiction"], d.fits["coulomb"]
     assert nested_law_test(d.data, coul, st)[0] < NESTED_ALPHA
-    assert st.gap_held_out > coul.gap_held_out
+    assert st.gap_held_out * (1.0 - d.data.options.min_reduction) > coul.gap_held_out
     assert not richer_law_justified(d.data, st, coul)
     assert d.effect is Effect.COULOMB and d.grade == "clear"
