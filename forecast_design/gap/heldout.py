@@ -498,8 +498,8 @@ def richer_law_justified(data: GapData, richer: CandidateFit, simpler: Candidate
     Coulomb law with a tiny bump or one-count presliding. And (b) it must beat the simpler law by
     :func:`nested_law_test` at :data:`NESTED_ALPHA` (one planned comparison), on the units where their
     predictions differ by more than the encoders' quantisation floor and on all units, without predicting the
-    held-out data worse in all by more than a second effect must remove (``GapOptions.min_reduction``); or, for stiction,
-    show its breakaway at rest (:func:`breakaway_proven_at_rest` at the raw rate, or
+    held-out data worse in all by more than a second effect must remove (``GapOptions.min_reduction``); or, for
+    stiction, show its breakaway at rest (:func:`breakaway_proven_at_rest` at the raw rate, or
     :func:`breakaway_resolved_at_rest` on the decimated rows: a breakaway lasts milliseconds of a stay
     at rest, and on a log that rarely stops no test over held-out units finds it). The tests gain power with the
     log's length and excitation; no fixed share of the gap is asked for (half of ``min_reduction``
