@@ -1,7 +1,8 @@
 """Caveats a diagnosis computes from its log: what the verdict cannot tell apart, and what it did not count.
 
 Each caveat is one sentence of the diagnosis JSON's ``caveats``, starting with its kind (``Caution``,
-``Assumed``, ``Not identified``, ``Not proven``, ``Below accuracy``, ``Parsimony``, ``Close``, ``Note``).
+``Assumed``, ``Not identified``, ``Not proven``, ``Not proven at rest``, ``Below accuracy``, ``Parsimony``, ``Close``,
+``Note``).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import numpy as np
 from ..effects import Effect
 from .candidates import CandidateFit, fit_constant_torque, levels_shared
 from .grading import CONSTANT_TORQUE_SHARE
-from .heldout import BREAKAWAY_MARGIN
+from .heldout import BREAKAWAY_MARGIN, breakaway_proven_at_rest, breakaway_resolved_at_rest
 from .identifiability import calibration_status
 from .isolability import CALIBRATION, Isolability
 from .residuals import GapData, GapOptions, gap_log_scales
@@ -33,7 +34,7 @@ VISCOUS_SHIFT_FACTOR = 2.0
 
 def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso: Isolability,
                       base: CandidateFit, opts: GapOptions, chosen: CandidateFit | None = None,
-                      secondary: Effect | None = None) -> list[str]:
+                      secondary: Effect | None = None, coulomb: CandidateFit | None = None) -> list[str]:
     """Caveats computed from this log: isolability, unidentified candidates, a bounded re-calibration.
 
     Parameters
@@ -54,6 +55,9 @@ def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso:
         The verdict's fit.
     secondary : Effect, optional
         The second effect named with the verdict (no rival of it).
+    coulomb : CandidateFit, optional
+        The coulomb fit, beside a stiction verdict read from the equation errors (not from the reversals'
+        trajectories, which say how they decide): whether any stay at rest shows its breakaway.
 
     Returns
     -------
@@ -81,6 +85,14 @@ def computed_caveats(data: GapData, verdict: Effect, ranked: Sequence[Any], iso:
                    "are fitted.")
     named = next((r for r in ranked if r.effect is verdict), None)
     out += _close_rivals(named, ranked, words, opts, secondary)
+    if verdict is Effect.STICTION and chosen is not None and coulomb is not None \
+            and not (breakaway_proven_at_rest(data, coulomb) or breakaway_resolved_at_rest(data, chosen, coulomb)):
+        # Coulomb friction has been named stiction this way (9 of 320 fresh Coulomb logs): the sticking phases of a
+        # closed-loop square read by presliding bristles or a small bump, reversals a 14-bit encoder does not resolve
+        out.append("Not proven at rest: 'stiction' is named for what its Stribeck bump or presliding bristles explain "
+                   "while the motor moves; no stay at rest shows a breakaway above the Coulomb level, and Coulomb "
+                   "friction read through a closed loop's sticking phases or a coarse encoder's reversals can look "
+                   "the same: read F_s - F_c with its interval.")
     for r in ranked:
         if verdict is Effect.COULOMB and named is not None and r.effect in (Effect.STICTION, Effect.POSITION_FRICTION) \
                 and r.significant and r.reduction > named.reduction:

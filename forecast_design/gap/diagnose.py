@@ -732,7 +732,7 @@ def _diagnose(experiment: Experiment, options: GapOptions | None, joint: bool, *
     else:
         eff, gap_after, params = winner.effect, winner.gap_after, winner.params
     caveats += computed_caveats(data, eff, ranked, iso, base, opts, by_effect.get(str(eff), base),
-                                secondary and secondary.effect)
+                                secondary and secondary.effect, None if by_trajectory else by_effect.get("coulomb"))
     if location.single_tone:
         caveats.append(f"Caution: the command is essentially one sine at {location.tone_hz:.2g} Hz; there a delay "
                        "looks like extra motor damping and a torque_gain like a J_m/k rescaling, so delay, "
