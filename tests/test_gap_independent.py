@@ -50,6 +50,13 @@ def _diagnosed(word, index, seed, effect, **draw):
     return d, next(r for r in d.ranking if r.effect is effect)
 
 
+def _laws(word, index, seed):
+    """A draw with controllers (half the closed loops under a PID): log, diagnosis, stiction and coulomb fits."""
+    log = ind.make_independent_log(word, index, seed, controllers=True)
+    d = diagnose(log.experiment, joint=False)
+    return log, d, d.fits["stiction"], d.fits["coulomb"]
+
+
 def _first_identifiable(word, seed, scale=1.0, **want):
     """The first identifiable independent log (index 0, 1, ...) whose case has the wanted fields."""
     for index in range(40):
@@ -1553,10 +1560,8 @@ def test_rows_held_at_rest_are_no_breakaway_where_the_stiction_fit_puts_its_brea
     # (0.275): stiction was named, clear, removing 77 % of the gap against coulomb's 98 %
     from forecast_design.gap.heldout import breakaway_resolved_at_rest
 
-    log = ind.make_independent_log("coulomb", 2, 298, controllers=True)
+    log, d, st, coul = _laws("coulomb", 2, 298)
     assert log.case.closed_loop and log.case.controller.kind == "pid"
-    d = diagnose(log.experiment, joint=False)
-    st, coul = d.fits["stiction"], d.fits["coulomb"]
     assert st.params["F_s"] <= max(coul.params["F_c"], coul.params["F_c_neg"])
     assert not breakaway_resolved_at_rest(d.data, st, coul)
     assert d.effect is Effect.COULOMB and d.grade == "clear"
@@ -1589,10 +1594,8 @@ def test_a_stiction_law_that_predicts_the_held_out_data_worse_is_not_proven_by_t
     # coulomb's 97.7 %: it leaves twice coulomb's gap, more than a second effect must remove), and stiction was named
     from forecast_design.gap.heldout import NESTED_ALPHA, nested_law_test, richer_law_justified
 
-    log = ind.make_independent_log("coulomb", 0, 302, controllers=True)
+    log, d, st, coul = _laws("coulomb", 0, 302)
     assert log.case.excitation.kind == "sweep" and not log.case.closed_loop
-    d = diagnose(log.experiment, joint=False)
-    st, coul = d.fits["stiction"], d.fits["coulomb"]
     assert nested_law_test(d.data, coul, st)[0] < NESTED_ALPHA
     assert st.gap_held_out * (1.0 - d.data.options.min_reduction) > coul.gap_held_out
     assert not richer_law_justified(d.data, st, coul)
@@ -1606,10 +1609,8 @@ def test_a_stiction_no_stay_at_rest_shows_says_so():
     # stay at rest shows (the truth: Coulomb, F_s = F_c)
     from forecast_design.gap.heldout import breakaway_proven_at_rest, breakaway_resolved_at_rest
 
-    log = ind.make_independent_log("coulomb", 8, 321, controllers=True)
+    log, d, st, coul = _laws("coulomb", 8, 321)
     assert log.case.closed_loop and log.case.excitation.kind == "square"
-    d = diagnose(log.experiment, joint=False)
-    st, coul = d.fits["stiction"], d.fits["coulomb"]
     assert not (breakaway_proven_at_rest(d.data, coul) or breakaway_resolved_at_rest(d.data, st, coul))
     # still a miss (the bristle reading, RESULTS): the verdict says what it rests on
     assert d.effect is Effect.STICTION
