@@ -18,7 +18,7 @@ from .heldout import BREAKAWAY_MARGIN, breakaway_proven_at_rest, breakaway_resol
 from .identifiability import calibration_status
 from .isolability import CALIBRATION, Isolability
 from .residuals import GapData, GapOptions, gap_log_scales
-from .structures import j_held
+from .structures import _FRICTION, j_held
 
 __all__ = ["computed_caveats", "COARSE_ENCODER_FRACTION", "VISCOUS_SHIFT_FACTOR"]
 
@@ -176,11 +176,10 @@ def _close_rivals(named: Any, ranked: Sequence[Any], confused: Sequence[str], op
     """
     if named is None or not named.significant:
         return []
-    friction = (Effect.COULOMB, Effect.STICTION, Effect.POSITION_FRICTION)
     out = []
     for r in ranked:
         if r is named or not r.significant or r.effect is secondary or str(r.effect) in confused \
-                or (r.effect in friction and named.effect in friction):
+                or (r.effect in _FRICTION and named.effect in _FRICTION):
             continue
         if r.gap_after * (1.0 - opts.min_reduction) <= named.gap_after:
             out.append(f"Close: '{r.effect}' passes every test too and removes {100 * r.reduction:.1f} % of the gap "

@@ -311,16 +311,16 @@ def breakaway_resolved_at_rest(data: GapData, richer: CandidateFit, simpler: Can
         return False
     floor = np.sqrt(noise_floor(data)[:m][rest])
     z = math.sqrt(2.0 * math.log(n))
+    allowance = z * float(np.sqrt(np.mean(floor ** 2)))
     d_f = float(richer.coef[richer.n_cal + names.index("dF")])
-    if not d_f > z * float(np.sqrt(np.mean(floor ** 2))):
+    if not d_f > allowance:
         return False
     level = c.level(simpler.coef[simpler.n_cal:])
     # the stiction fit's own breakaway must stand above the Coulomb law's level by the same allowance: rows that hold
     # more while the fit puts F_s at that level are the filters' reading of the stays, not a breakaway (a closed-loop
     # PID square with Coulomb friction: F_s 0.272 over its own F_c 0.231, coulomb's level 0.275; stiction named
     # with 77 % of the gap against coulomb's 98 %)
-    if s.level is not None and not float(s.level(richer.coef[richer.n_cal:])) > float(np.max(level)) + z * float(
-            np.sqrt(np.mean(floor ** 2))):
+    if s.level is not None and not float(s.level(richer.coef[richer.n_cal:])) > float(np.max(level)) + allowance:
         return False
     # the Coulomb level carries the analysis' own error (the filters smear every reversal: 0.2-5 %), which a
     # torque held at the true level exceeds as often as not: a breakaway must stand beyond it too (a coulomb fit

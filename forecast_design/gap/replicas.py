@@ -123,10 +123,14 @@ class ReplicaCheck:
     replays_N_m: tuple[float, ...] = ()
 
     @property
+    def most_N_m(self) -> float:
+        """The most torque the candidate explains on any replica or replay [N m] (0 when there is none)."""
+        return max(self.replicas_N_m + self.replays_N_m, default=0.0)
+
+    @property
     def ratio(self) -> float:
         """The log's torque over the largest replica's or replay's [-] (inf when none explains any)."""
-        top = max(self.replicas_N_m + self.replays_N_m, default=0.0)
-        return self.observed_N_m / top if top > 0.0 else math.inf
+        return self.observed_N_m / self.most_N_m if self.most_N_m > 0.0 else math.inf
 
     @property
     def distinct(self) -> bool:
@@ -144,7 +148,7 @@ class ReplicaCheck:
                 "its motor command, open loop")
         return (f"Not distinct from the sensors: '{self.effect}' explains {1e3 * self.observed_N_m:.2g} mN m, but on "
                 f"effect-free replicas of this log ({loop}; {chain}) it explains up to "
-                f"{1e3 * max(self.replicas_N_m + self.replays_N_m):.2g} mN m (a ratio of {self.ratio:.2f}, where a "
+                f"{1e3 * self.most_N_m:.2g} mN m (a ratio of {self.ratio:.2f}, where a "
                 f"verdict needs {REPLICA_MARGIN:g}): {named}.")
 
     def to_mapping(self) -> dict[str, Any]:
@@ -468,10 +472,10 @@ def weak_caveat(winner: Any, check: ReplicaCheck | None, min_reduction: float) -
 
 def probable_caveat(winner: Any, check: ReplicaCheck) -> str:
     """What a ``probable`` verdict rests on (:func:`probable_verdict`)."""
-    top = max(check.replicas_N_m, default=0.0)
     times = "more than any" if math.isinf(check.ratio) else f"{check.ratio:.3g} times the most of"
+    replays = f" and {len(check.replays_N_m)} replays of its command" if check.replays_N_m else ""
     return (f"Probable: '{winner.effect}' is identified and removes {100 * winner.reduction:.0f} % of the gap, but its "
             f"held-out test over {winner.n_units} units gives p = {winner.p_value:.2g}, above its level "
             f"{winner.level:.2g} (below {PROBABLE_P:g}); it explains {1e3 * check.observed_N_m:.3g} mN m, {times} "
-            f"{len(check.replicas_N_m)} effect-free replicas of this log ({1e3 * top:.3g} mN m; a verdict needs "
-            f"{REPLICA_MARGIN:g} times): named, graded probable (a longer log would prove or refute it).")
+            f"{len(check.replicas_N_m)} effect-free replicas{replays} of this log ({1e3 * check.most_N_m:.3g} mN m; a "
+            f"verdict needs {REPLICA_MARGIN:g} times): named, graded probable (a longer log would prove or refute it).")
